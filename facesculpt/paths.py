@@ -1,0 +1,73 @@
+"""Where things live on disk: the model directory, the per-run socket directory,
+the shared test data, and files shipped inside the package."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+PACKAGE_ROOT = Path(__file__).resolve().parent
+
+
+class MissingModelsError(FileNotFoundError):
+    """Raised when the model files made by `facesculpt setup` are not there."""
+
+
+def model_home() -> Path:
+    """Directory that `facesculpt setup` fills: ``$FACESCULPT_HOME``, else the user's cache dir."""
+    env = os.environ.get("FACESCULPT_HOME")
+    if env:
+        return Path(env).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg).expanduser() if xdg else Path.home() / ".cache"
+    return base / "facesculpt"
+
+
+def model_file(name: str) -> Path:
+    """Path of one file made by `facesculpt setup`; raises :class:`MissingModelsError`
+    naming the file and the command that makes it when it is absent."""
+    path = model_home() / name
+    if not path.is_file():
+        raise MissingModelsError(
+            f"{path} is missing: run `facesculpt setup` to fetch and convert the face networks "
+            f"(or set FACESCULPT_HOME to the directory where it put them)"
+        )
+    return path
+
+
+def run_dir() -> Path:
+    """Directory for this user's ipc:// sockets (short, so socket paths stay under 107 bytes)."""
+    env = os.environ.get("FACESCULPT_RUN_DIR")
+    path = Path(env) if env else Path(tempfile.gettempdir()) / f"facesculpt-{os.getuid()}"
+    path.mkdir(parents=True, exist_ok=True, mode=0o700)
+    return path
+
+
+def shared_data_dir() -> Path | None:
+    """The shared test/benchmark data (``$FACESCULPT_DATA``, else ``../shared/data`` beside
+    the repository), or None when it is absent, as on a user's fresh machine."""
+    env = os.environ.get("FACESCULPT_DATA")
+    candidates = [Path(env)] if env else []
+    repo_root = PACKAGE_ROOT.parent
+    candidates.append(repo_root.parent / "shared" / "data")
+    candidates.append(Path.cwd().parent / "shared" / "data")
+    for path in candidates:
+        if path.is_dir():
+            return path.resolve()
+    return None
+
+
+def launch_file(name_or_path: str) -> Path:
+    """Resolve a launch file given as a path, or as the name of one shipped in launch/."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    from facesculpt import launch as launch_pkg
+
+    shipped = Path(launch_pkg.__file__).parent
+    for candidate in (shipped / name_or_path, shipped / f"{name_or_path}.yaml"):
+        if candidate.is_file():
+            return candidate
+    known = ", ".join(sorted(p.stem for p in shipped.glob("*.yaml"))) or "none"
+    raise FileNotFoundError(f"launch file {name_or_path!r} not found (shipped launch files: {known})")
