@@ -1,0 +1,57 @@
+"""The one command-line entry point, `facesculpt`.
+
+Each subcommand lives beside the code it drives: a module in COMMAND_MODULES
+exposes ``register(subparsers)``, which adds its parser(s) and sets
+``func(args) -> int`` as the default. Adding a command is one line here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+COMMAND_MODULES = [
+    "facesculpt.commands",  # master, run, launch, node, topic, bag
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from facesculpt import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="facesculpt",
+        description="Real-time 3D freeform manipulation of a face in live video.",
+    )
+    parser.add_argument("--version", action="version", version=f"facesculpt {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname).1s [%(name)s] %(message)s",
+        datefmt="%H:%M:%S",
+    )
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except (FileNotFoundError, ValueError, RuntimeError) as exc:
+        # Expected user-facing failures: one clear sentence, no traceback.
+        print(f"facesculpt: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
