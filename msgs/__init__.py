@@ -1,0 +1,20 @@
+"""Message types: the contract between nodes (DESIGN.md "Messages")."""
+
+from .codec import REGISTRY, DecodeError, Message, decode, encode, summarize
+from .types import (
+    INPUT_COMMANDS,
+    INPUT_KINDS,
+    Deformation,
+    Diagnostics,
+    FaceLandmarks,
+    FaceModel,
+    FaceState,
+    Image,
+    InputEvent,
+)
+
+__all__ = [
+    "REGISTRY", "DecodeError", "Message", "decode", "encode", "summarize",
+    "Image", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics",
+    "INPUT_KINDS", "INPUT_COMMANDS",
+]

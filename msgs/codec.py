@@ -1,0 +1,260 @@
+"""Wire format of every message: the contract between nodes.
+
+A message travels as one zmq multipart message::
+
+    [topic (utf-8)] [header (msgpack)] [array 0 bytes] [array 1 bytes] ...
+
+The header is a msgpack map ``{"type": str, "v": 1, "f": {scalar fields},
+"a": [[name, dtype, shape], ...]}``; each array is its own frame, sent
+without a copy and received with ``np.frombuffer`` (read-only views onto the
+zmq frame). :func:`decode` validates everything against the message type and
+raises :class:`DecodeError` for anything malformed; the node base drops and
+counts such messages.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Sequence
+
+import msgpack
+import numpy as np
+
+WIRE_VERSION = 1
+# A header is a few hundred bytes; anything far larger is garbage or an attack.
+MAX_HEADER_BYTES = 1 << 20
+MAX_ARRAYS = 64
+
+
+class DecodeError(ValueError):
+    """A message that does not match its declared type (dropped and counted by subscribers)."""
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """Declared dtype and shape of an array field.
+
+    ``shape`` items are ints (fixed), strings (a dimension named the same in
+    several fields must agree) or None (any size). ``optional`` fields may be None.
+    """
+
+    dtype: str
+    shape: tuple
+    optional: bool = False
+
+
+def array(dtype: str, *shape, optional: bool = False):
+    """Declare an array field of a message dataclass."""
+    spec = ArraySpec(np.dtype(dtype).str, tuple(shape), optional)
+    default = None if optional else _empty_default(spec)
+    return field(default_factory=lambda: default if default is None else default.copy(),
+                 metadata={"array": spec})
+
+
+def _empty_default(spec: ArraySpec) -> np.ndarray:
+    shape = tuple(d if isinstance(d, int) else 0 for d in spec.shape)
+    if all(isinstance(d, int) for d in spec.shape) and len(spec.shape) == 2 and spec.shape[0] == spec.shape[1]:
+        return np.eye(spec.shape[0], dtype=spec.dtype)  # square matrices (R, K) default to identity
+    return np.zeros(shape, dtype=spec.dtype)
+
+
+_SCALAR_TYPES = {int: (int,), float: (int, float), str: (str,), bool: (bool,), list: (list, tuple), dict: (dict,)}
+
+
+@dataclass
+class Message:
+    """Base of every message type: source stamp, sequence number and frame id.
+
+    ``stamp`` is in nanoseconds: the capture time of the camera frame the
+    message derives from (``time.time_ns()`` clock), kept by every stage so
+    latency can be measured end to end.
+    """
+
+    TYPE: ClassVar[str] = "Message"
+    stamp: int = 0
+    seq: int = 0
+    frame_id: str = ""
+
+    # -- schema -----------------------------------------------------------
+    @classmethod
+    def _schema(cls):
+        cached = cls.__dict__.get("_schema_cache")
+        if cached is None:
+            arrays, scalars = [], []
+            for f in dataclasses.fields(cls):
+                if "array" in f.metadata:
+                    arrays.append((f.name, f.metadata["array"]))
+                else:
+                    scalars.append((f.name, _scalar_type(f.type)))
+            cached = (tuple(arrays), tuple(scalars))
+            setattr(cls, "_schema_cache", cached)
+        return cached
+
+    def validate(self) -> None:
+        """Raise DecodeError if a field does not match the declared type."""
+        arrays, scalars = self._schema()
+        for name, kinds in scalars:
+            value = getattr(self, name)
+            if kinds is not None and not isinstance(value, kinds) or isinstance(value, bool) and kinds == (int,):
+                raise DecodeError(f"{self.TYPE}.{name}: expected {kinds[0].__name__}, got {type(value).__name__}")
+        dims: dict[str, int] = {}
+        for name, spec in arrays:
+            _check_array(self.TYPE, name, getattr(self, name), spec, dims)
+
+    # -- wire ---------------------------------------------------------------
+    def to_frames(self) -> list:
+        """Header + one buffer per array (contiguous; not copied)."""
+        arrays, scalars = self._schema()
+        meta, buffers = [], []
+        for name, spec in arrays:
+            value = getattr(self, name)
+            if value is None:
+                continue
+            value = np.ascontiguousarray(value, dtype=spec.dtype)
+            meta.append([name, value.dtype.str, list(value.shape)])
+            buffers.append(memoryview(value).cast("B") if value.size else b"")
+        header = {"type": self.TYPE, "v": WIRE_VERSION,
+                  "f": {name: getattr(self, name) for name, _ in scalars}, "a": meta}
+        return [msgpack.packb(header, use_bin_type=True)] + buffers
+
+
+def _scalar_type(annotation) -> tuple | None:
+    # Annotations are strings under `from __future__ import annotations`.
+    text = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+    base = text.split("[")[0]
+    for typ, kinds in _SCALAR_TYPES.items():
+        if base == typ.__name__:
+            return kinds
+    return None
+
+
+def _check_array(type_name: str, name: str, value, spec: ArraySpec, dims: dict) -> None:
+    if value is None:
+        if spec.optional:
+            return
+        raise DecodeError(f"{type_name}.{name}: missing array")
+    if not isinstance(value, np.ndarray):
+        raise DecodeError(f"{type_name}.{name}: expected ndarray, got {type(value).__name__}")
+    if value.dtype.str != spec.dtype:
+        raise DecodeError(f"{type_name}.{name}: dtype {value.dtype} != {np.dtype(spec.dtype)}")
+    if value.ndim != len(spec.shape):
+        raise DecodeError(f"{type_name}.{name}: {value.ndim} dims, expected {len(spec.shape)}")
+    for size, want in zip(value.shape, spec.shape):
+        if isinstance(want, int) and size != want:
+            raise DecodeError(f"{type_name}.{name}: shape {value.shape} does not match {spec.shape}")
+        if isinstance(want, str):
+            if dims.setdefault(want, size) != size:
+                raise DecodeError(f"{type_name}.{name}: dimension {want}={size} disagrees with {dims[want]}")
+
+
+REGISTRY: dict[str, type[Message]] = {}
+
+
+def register(cls: type[Message]) -> type[Message]:
+    """Class decorator adding a message type to the registry used by :func:`decode`."""
+    REGISTRY[cls.TYPE] = cls
+    return cls
+
+
+def encode(msg: Message, topic: str) -> list:
+    """Frames to send for ``msg`` on ``topic`` (validated first)."""
+    msg.validate()
+    return [topic.encode()] + msg.to_frames()
+
+
+def decode_header(frame) -> dict:
+    raw = bytes(frame.buffer if hasattr(frame, "buffer") else frame)
+    if len(raw) > MAX_HEADER_BYTES:
+        raise DecodeError(f"header of {len(raw)} bytes exceeds {MAX_HEADER_BYTES}")
+    try:
+        header = msgpack.unpackb(raw, raw=False, strict_map_key=True,
+                                 max_bin_len=MAX_HEADER_BYTES, max_str_len=MAX_HEADER_BYTES)
+    except Exception as exc:  # msgpack raises many types for garbage
+        raise DecodeError(f"header is not msgpack: {exc.__class__.__name__}") from None
+    if not isinstance(header, dict) or not isinstance(header.get("type"), str):
+        raise DecodeError("header is not a message header")
+    return header
+
+
+def decode(frames: Sequence, expected: type[Message] | None = None) -> tuple[str, Message]:
+    """Parse ``[topic, header, *arrays]`` (bytes or zmq.Frame) into ``(topic, message)``.
+
+    Raises DecodeError for any mismatch: wrong frame count, unknown or
+    unexpected type, wrong dtype/shape, truncated array bytes.
+    """
+    if len(frames) < 2 or len(frames) > MAX_ARRAYS + 2:
+        raise DecodeError(f"{len(frames)} frames")
+    try:
+        topic = bytes(_buffer(frames[0])).decode()
+    except UnicodeDecodeError:
+        raise DecodeError("topic is not utf-8") from None
+    header = decode_header(frames[1])
+    cls = REGISTRY.get(header["type"])
+    if cls is None:
+        raise DecodeError(f"unknown message type {header['type']!r}")
+    if expected is not None and cls is not expected:
+        raise DecodeError(f"got {cls.TYPE} where {expected.TYPE} was expected")
+    if header.get("v") != WIRE_VERSION:
+        raise DecodeError(f"wire version {header.get('v')!r}")
+    scalars_in, meta = header.get("f"), header.get("a")
+    if not isinstance(scalars_in, dict) or not isinstance(meta, list):
+        raise DecodeError("header lacks fields")
+    if len(meta) != len(frames) - 2:
+        raise DecodeError(f"header declares {len(meta)} arrays, {len(frames) - 2} frames came")
+    arrays, scalars = cls._schema()
+    specs = dict(arrays)
+    kwargs: dict[str, Any] = {}
+    for name, _ in scalars:
+        if name in scalars_in:
+            kwargs[name] = scalars_in[name]
+    for (entry, frame) in zip(meta, frames[2:]):
+        if not (isinstance(entry, list) and len(entry) == 3 and isinstance(entry[0], str)
+                and isinstance(entry[1], str) and isinstance(entry[2], list)):
+            raise DecodeError("malformed array descriptor")
+        name, dtype, shape = entry
+        spec = specs.get(name)
+        if spec is None:
+            raise DecodeError(f"{cls.TYPE} has no array {name!r}")
+        if dtype != spec.dtype or len(shape) != len(spec.shape) or not all(
+                isinstance(d, int) and 0 <= d < 1 << 31 for d in shape):
+            raise DecodeError(f"{cls.TYPE}.{name}: bad descriptor {dtype} {shape}")
+        buf = _buffer(frame)
+        nbytes = np.dtype(dtype).itemsize * int(np.prod(shape, dtype=np.int64))
+        if len(buf) != nbytes:
+            raise DecodeError(f"{cls.TYPE}.{name}: {len(buf)} bytes for {nbytes} declared")
+        kwargs[name] = np.frombuffer(buf, dtype=dtype).reshape(shape) if nbytes else np.zeros(shape, dtype)
+    for name, spec in arrays:
+        if name not in kwargs and not spec.optional:
+            raise DecodeError(f"{cls.TYPE}.{name}: missing array")
+        kwargs.setdefault(name, None)
+    try:
+        msg = cls(**kwargs)
+    except TypeError as exc:
+        raise DecodeError(str(exc)) from None
+    msg.validate()
+    return topic, msg
+
+
+def _buffer(frame) -> memoryview:
+    if hasattr(frame, "buffer"):
+        return frame.buffer
+    return memoryview(frame)
+
+
+def summarize(msg: Message) -> dict:
+    """JSON-friendly view of a message: scalars as they are, arrays as shape/dtype/min/max."""
+    arrays, scalars = msg._schema()
+    out: dict[str, Any] = {"type": msg.TYPE}
+    for name, _ in scalars:
+        out[name] = getattr(msg, name)
+    for name, _ in arrays:
+        value = getattr(msg, name)
+        if value is None:
+            out[name] = None
+        elif value.size == 0:
+            out[name] = {"shape": list(value.shape), "dtype": str(value.dtype)}
+        else:
+            out[name] = {"shape": list(value.shape), "dtype": str(value.dtype),
+                         "min": float(np.nanmin(value)), "max": float(np.nanmax(value))}
+    return out

@@ -1,0 +1,166 @@
+"""The message types of the graph (DESIGN.md "Messages").
+
+Units: pixels for image coordinates, millimetres in model space, nanoseconds
+for stamps. Array fields are validated on decode against the dtypes and
+shapes declared here; dimension names shared by several fields must agree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .codec import Message, array, register
+
+
+@register
+@dataclass
+class Image(Message):
+    """A camera frame or a composited output frame.
+
+    image: (H, W, 3) uint8, BGR.  K: (3, 3) float64 pinhole intrinsics, pixels.
+    """
+
+    TYPE = "Image"
+    image: np.ndarray = array("u1", "H", "W", 3)
+    K: np.ndarray = array("f8", 3, 3)
+
+
+@register
+@dataclass
+class FaceLandmarks(Message):
+    """Dense landmarks of the faces in one frame (F = 0 when there is no face).
+
+    points: (F, N, 3) float32: x, y in image pixels, z relative depth in the same scale.
+    scores: (F,) float32 face presence in 0..1.
+    rois:   (F, 5) float32 crop of each face: cx, cy, w, h (pixels), angle (radians).
+    image_size: [W, H] of the source frame.  K: (3, 3) float64 its intrinsics.
+    """
+
+    TYPE = "FaceLandmarks"
+    points: np.ndarray = array("f4", "F", "N", 3)
+    scores: np.ndarray = array("f4", "F")
+    rois: np.ndarray = array("f4", "F", 5)
+    image_size: list = field(default_factory=lambda: [0, 0])
+    K: np.ndarray = array("f8", 3, 3)
+
+
+@register
+@dataclass
+class FaceModel(Message):
+    """The neutral mesh of the active model (latched on `face/model`).
+
+    vertices: (V, 3) float32, model space (``units``).  triangles: (T, 3) int32.
+    landmark_names[i] is the name of vertex landmark_vertices[i] ((L,) int32).
+    ``version`` grows when the model or its learned neutral reference changes.
+    """
+
+    TYPE = "FaceModel"
+    model_id: str = ""
+    vertices: np.ndarray = array("f4", "V", 3)
+    triangles: np.ndarray = array("i4", "T", 3)
+    landmark_names: list = field(default_factory=list)
+    landmark_vertices: np.ndarray = array("i4", "L")
+    units: str = "mm"
+    version: int = 0
+
+
+@register
+@dataclass
+class FaceState(Message):
+    """The fitted face of one frame.
+
+    R (3, 3) float64, t (3,) float64, scale: model space -> camera space
+    (x_cam = scale * R @ x_model + t).  K (3, 3) float64 intrinsics.
+    alpha (S,) / beta (E,) float32 shape and expression coefficients.
+    vertices: (V, 3) float32 fitted mesh in camera space; projected: (V, 2) float32 pixels.
+    """
+
+    TYPE = "FaceState"
+    model_id: str = ""
+    R: np.ndarray = array("f8", 3, 3)
+    t: np.ndarray = array("f8", 3)
+    scale: float = 1.0
+    K: np.ndarray = array("f8", 3, 3)
+    alpha: np.ndarray = array("f4", "S")
+    beta: np.ndarray = array("f4", "E")
+    vertices: np.ndarray = array("f4", "V", 3)
+    projected: np.ndarray = array("f4", "V", 2)
+    residual_px: float = 0.0
+    image_size: list = field(default_factory=lambda: [0, 0])
+    projection: str = "perspective"
+
+
+INPUT_KINDS = ("press", "drag", "release", "depth", "move", "axes", "buttons", "command")
+INPUT_COMMANDS = ("reset", "undo", "save_preset", "load_preset", "select_edit", "toggle_static")
+
+
+@register
+@dataclass
+class InputEvent(Message):
+    """One user input (see README "Input events" for an example of each kind).
+
+    kind: one of INPUT_KINDS.  x, y: frame pixels (press/drag/release/toggle_static).
+    landmark: a model landmark name to press at instead of a pixel.
+    handle: which pointer/handle (several fingers or devices), default 0.
+    depth: mm along the view ray, + toward the camera (kind "depth").
+    vector: (3,) float32 model-space displacement in mm (kind "move").
+    axes: (A,) float32 joystick axes in -1..1; buttons: bit mask.
+    command / argument: kind "command" (INPUT_COMMANDS; argument e.g. a preset path).
+    """
+
+    TYPE = "InputEvent"
+    kind: str = "press"
+    x: float = float("nan")
+    y: float = float("nan")
+    landmark: str = ""
+    handle: int = 0
+    depth: float = 0.0
+    vector: np.ndarray = array("f4", 3, optional=True)
+    axes: np.ndarray = array("f4", "A", optional=True)
+    buttons: int = 0
+    command: str = ""
+    argument: str = ""
+    source: str = ""
+
+    def validate(self) -> None:
+        super().validate()
+        from .codec import DecodeError
+
+        if self.kind not in INPUT_KINDS:
+            raise DecodeError(f"InputEvent.kind {self.kind!r} is not one of {', '.join(INPUT_KINDS)}")
+
+
+@register
+@dataclass
+class Deformation(Message):
+    """The user's edit as a displacement of the neutral model (DESIGN.md step 3).
+
+    displacement: (V, 3) float32, model space, mm (M_m - M_bar).
+    static / handles / roi: anchor vertex indices, int32.  version grows with every solve.
+    """
+
+    TYPE = "Deformation"
+    model_id: str = ""
+    displacement: np.ndarray = array("f4", "V", 3)
+    static: np.ndarray = array("i4", "S")
+    handles: np.ndarray = array("i4", "H")
+    roi: np.ndarray = array("i4", "R")
+    version: int = 0
+
+
+@register
+@dataclass
+class Diagnostics(Message):
+    """Per-node figures, published about once a second on `diagnostics`.
+
+    values: {"rate_hz": {topic: Hz}, "age_ms": {topic: ms}, "received", "dropped",
+    "malformed", "published": {topic: n}, "errors": n, "last_error": str,
+    "stages_ms": {stage: mean ms}, "counters": {name: n}}.
+    """
+
+    TYPE = "Diagnostics"
+    node: str = ""
+    pid: int = 0
+    values: dict = field(default_factory=dict)
