@@ -1,1 +1,15 @@
-"""Built-in nodes: one folder per room of the graph (DESIGN.md "Layout")."""
+"""Built-in nodes: one folder per room of the graph (DESIGN.md "Layout").
+
+BUILTIN_NODES maps the short names used by `facesculpt run NAME` and by launch
+files (``node: camera``) to ``module:Class``.
+"""
+
+BUILTIN_NODES = {
+    "camera": "facesculpt.nodes.camera.node:CameraNode",
+    "landmarks": "facesculpt.nodes.landmarks.node:LandmarksNode",
+    "fitter": "facesculpt.nodes.fitter.node:FitterNode",
+    "deformer": "facesculpt.nodes.deformer.node:DeformerNode",
+    "renderer": "facesculpt.nodes.renderer.node:RendererNode",
+    "joystick": "facesculpt.nodes.input.joystick:JoystickNode",
+    "script": "facesculpt.nodes.input.script:ScriptNode",
+}

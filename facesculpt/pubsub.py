@@ -1,0 +1,281 @@
+"""Publish/subscribe over ZeroMQ with latest-only or queued delivery.
+
+A :class:`Publisher` binds an XPUB socket (it behaves like PUB, and also tells
+us how many subscribers are connected). Every subscription of a process is
+served by one :class:`Receiver` thread that owns the SUB sockets, drains them
+as fast as messages come, validates each message and keeps either the newest
+one (latest-only, the default: a slow callback always gets the freshest
+message and nothing piles up) or all of them in a bounded queue (``queued``:
+for input events). Malformed messages are dropped and counted there; the
+node's callbacks never see them.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import zmq
+
+from facesculpt.msgs import DecodeError, Message, decode
+from facesculpt.paths import run_dir
+
+log = logging.getLogger("facesculpt.pubsub")
+
+# Small types (events, diagnostics) may queue deeply; big ones (images) must not
+# pile up behind a stalled peer: memory stays bounded by hwm * message size.
+SMALL_TYPES = {"InputEvent", "Diagnostics", "Deformation", "FaceModel"}
+DEFAULT_HWM_SMALL = 10000
+DEFAULT_HWM_LARGE = 4
+QUEUE_LIMIT = 10000
+
+_endpoint_counter = 0
+_endpoint_lock = threading.Lock()
+
+
+def new_endpoint(transport: str = "ipc", host: str = "127.0.0.1") -> str:
+    """A fresh endpoint for this process: ``ipc://`` in the run dir, or ``tcp://host:*``."""
+    global _endpoint_counter
+    if transport == "tcp":
+        return f"tcp://{host}:*"
+    with _endpoint_lock:
+        _endpoint_counter += 1
+        n = _endpoint_counter
+    return f"ipc://{run_dir()}/{os.getpid()}-{n}"
+
+
+class Publisher:
+    """Sends messages of one type on one topic; bound to its own endpoint.
+
+    ``reliable=True`` blocks (up to ``timeout_s``) instead of dropping when a
+    subscriber's queue is full; bag playback uses it so that nothing is lost.
+    """
+
+    def __init__(self, ctx: zmq.Context, topic: str, msg_type: type[Message] | None, *,
+                 endpoint: str | None = None, hwm: int | None = None, reliable: bool = False,
+                 latch: bool = False):
+        self.topic = topic
+        self.msg_type = msg_type
+        self.type_name = msg_type.TYPE if msg_type else "*"
+        self.latch = latch
+        self.reliable = reliable
+        self.count = 0
+        self.subscribers = 0
+        self.last_frames: list | None = None
+        self._topic_bytes = topic.encode()
+        if hwm is None:
+            hwm = DEFAULT_HWM_SMALL if self.type_name in SMALL_TYPES or reliable else DEFAULT_HWM_LARGE
+        self.sock = ctx.socket(zmq.XPUB)
+        self.sock.setsockopt(zmq.SNDHWM, hwm)
+        self.sock.setsockopt(zmq.LINGER, 500)
+        self.sock.setsockopt(zmq.XPUB_VERBOSER, 1)
+        if reliable:
+            self.sock.setsockopt(zmq.XPUB_NODROP, 1)
+        self.sock.bind(endpoint or new_endpoint())
+        self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        self._lock = threading.Lock()
+
+    def _read_subscriptions(self) -> None:
+        while True:
+            try:
+                note = self.sock.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if note[:1] == b"\x01":
+                self.subscribers += 1
+            elif note[:1] == b"\x00":
+                self.subscribers = max(0, self.subscribers - 1)
+
+    def wait_for_subscribers(self, n: int = 1, timeout_s: float = 5.0) -> bool:
+        """Block until ``n`` subscribers are connected (or the timeout passes)."""
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            while True:
+                self._read_subscriptions()
+                if self.subscribers >= n:
+                    return True
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self.sock.poll(min(50, int(remaining * 1000) + 1), zmq.POLLIN)
+
+    def publish(self, msg: Message, timeout_s: float = 5.0) -> bool:
+        """Validate and send ``msg`` (its arrays are sent without a copy: do not
+        modify them afterwards). Returns False when a reliable send timed out."""
+        if self.msg_type is not None and not isinstance(msg, self.msg_type):
+            raise TypeError(f"{self.topic} carries {self.type_name}, not {type(msg).__name__}")
+        msg.validate()
+        if not msg.seq:
+            msg.seq = self.count + 1
+        return self.publish_frames(msg.to_frames(), timeout_s)
+
+    def publish_frames(self, frames: list, timeout_s: float = 5.0) -> bool:
+        """Send already-encoded ``[header, *arrays]`` frames verbatim (bag playback)."""
+        parts = [self._topic_bytes] + list(frames)
+        with self._lock:
+            self._read_subscriptions()
+            if self.reliable:
+                deadline = time.monotonic() + timeout_s
+                while True:
+                    try:
+                        self.sock.send_multipart(parts, zmq.NOBLOCK, copy=False)
+                        break
+                    except zmq.Again:
+                        if time.monotonic() > deadline:
+                            return False
+                        self.sock.poll(10, zmq.POLLOUT)
+            else:
+                self.sock.send_multipart(parts, copy=False)
+            self.count += 1
+        if self.latch:
+            self.last_frames = [bytes(f) for f in frames]
+        return True
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@dataclass
+class Subscription:
+    """One topic a node listens to, and what the receiver thread has gathered for it."""
+
+    topic: str
+    msg_type: type[Message] | None
+    callback: Callable
+    queued: bool = False
+    raw: bool = False
+    endpoints: set = field(default_factory=set)
+    # gathered by the receiver thread, taken by the node's thread (under Receiver.lock)
+    latest: tuple | None = None
+    pending: collections.deque = field(default_factory=lambda: collections.deque())
+    received: int = 0
+    dropped: int = 0
+    malformed: int = 0
+    last_error: str = ""
+    delivered: int = 0
+    last_stamp: int = 0
+    last_take_age_ms: float = float("nan")
+    last_key: tuple | None = None
+    last_was_latched: bool = False
+    publisher_lost_at: float | None = None
+
+
+class Receiver(threading.Thread):
+    """The one thread that owns every SUB socket of a node."""
+
+    def __init__(self, ctx: zmq.Context, wakeup: threading.Condition):
+        super().__init__(name="facesculpt-receiver", daemon=True)
+        self.ctx = ctx
+        self.wakeup = wakeup          # notified whenever something is ready to deliver
+        self.lock = wakeup            # guards Subscription.latest/pending
+        self.commands: queue.Queue = queue.Queue()
+        self.subs: list[Subscription] = []
+        self.sockets: dict[int, zmq.Socket] = {}   # id(sub) -> socket
+        self.running = True
+
+    # -- called from other threads --------------------------------------------------
+    def add(self, sub: Subscription) -> None:
+        self.commands.put(("add", sub, None))
+
+    def set_endpoints(self, sub: Subscription, endpoints: set) -> None:
+        self.commands.put(("endpoints", sub, set(endpoints)))
+
+    def inject(self, sub: Subscription, frames: list) -> None:
+        """Deliver frames that did not come through the socket (latched messages from the master)."""
+        self.commands.put(("inject", sub, frames))
+
+    def stop(self) -> None:
+        self.running = False
+
+    # -- the thread -----------------------------------------------------------------------
+    def _apply(self, poller: zmq.Poller) -> None:
+        while True:
+            try:
+                op, sub, arg = self.commands.get_nowait()
+            except queue.Empty:
+                return
+            if op == "add":
+                sock = self.ctx.socket(zmq.SUB)
+                sock.setsockopt(zmq.LINGER, 0)
+                sock.setsockopt(zmq.RCVHWM, QUEUE_LIMIT if sub.queued else DEFAULT_HWM_LARGE)
+                # Exact-topic filter: zmq matches prefixes, so we also check the topic frame.
+                sock.setsockopt(zmq.SUBSCRIBE, sub.topic.encode())
+                self.subs.append(sub)
+                self.sockets[id(sub)] = sock
+                poller.register(sock, zmq.POLLIN)
+            elif op == "endpoints":
+                sock = self.sockets[id(sub)]
+                for ep in sub.endpoints - arg:
+                    try:
+                        sock.disconnect(ep)
+                    except zmq.ZMQError:
+                        pass
+                for ep in arg - sub.endpoints:
+                    sock.connect(ep)
+                if sub.endpoints and not arg:
+                    sub.publisher_lost_at = time.monotonic()
+                elif arg:
+                    sub.publisher_lost_at = None
+                sub.endpoints = arg
+            elif op == "inject":
+                self._deliver(sub, arg, latched=True)
+
+    def _deliver(self, sub: Subscription, frames: list, latched: bool = False) -> bool:
+        try:
+            topic, msg = decode(frames, sub.msg_type)
+            if topic != sub.topic:
+                return False  # a longer topic sharing our prefix
+        except DecodeError as exc:
+            with self.lock:
+                sub.malformed += 1
+                sub.last_error = str(exc)
+            return False
+        key = (msg.stamp, msg.seq, msg.TYPE)
+        with self.lock:
+            if key == sub.last_key and (latched or sub.last_was_latched):
+                return False  # the same latched message by both routes (master and publisher)
+            sub.last_key, sub.last_was_latched = key, latched
+            sub.received += 1
+            item = (msg, frames[1:]) if sub.raw else (msg, None)
+            if sub.queued:
+                if len(sub.pending) >= QUEUE_LIMIT:
+                    sub.pending.popleft()
+                    sub.dropped += 1
+                sub.pending.append(item)
+            else:
+                if sub.latest is not None:
+                    sub.dropped += 1
+                sub.latest = item
+        return True
+
+    def run(self) -> None:
+        poller = zmq.Poller()
+        while self.running:
+            self._apply(poller)
+            try:
+                ready = dict(poller.poll(50))
+            except zmq.ZMQError:
+                break
+            delivered = False
+            for sub in list(self.subs):
+                sock = self.sockets[id(sub)]
+                if sock not in ready:
+                    continue
+                # Drain everything pending so a latest-only subscription ends on the newest.
+                for _ in range(100000):
+                    try:
+                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                    except zmq.Again:
+                        break
+                    delivered |= self._deliver(sub, frames)
+            if delivered:
+                with self.wakeup:
+                    self.wakeup.notify_all()
+        for sock in self.sockets.values():
+            sock.close(0)
