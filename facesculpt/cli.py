@@ -15,6 +15,7 @@ import sys
 COMMAND_MODULES = [
     "facesculpt.commands",  # master, run, launch, node, topic, bag
     "facesculpt.nodes.fitter.cli",  # model import-eos, model info
+    "facesculpt.setup_models",  # setup
 ]
 
 

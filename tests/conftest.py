@@ -25,3 +25,91 @@ def models_dir() -> Path:
     if not (path / "manifest.json").is_file():
         pytest.skip(f"no converted networks in {path}: run `facesculpt setup` first")
     return path
+
+
+# -- a running graph for tests: a master on a free port, processes cleaned up -----------------------
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Graph:
+    """Processes of one test's graph; every one is stopped at teardown."""
+
+    def __init__(self, env: dict):
+        self.env = env
+        self.procs: list[subprocess.Popen] = []
+        self.nodes = []
+
+    def spawn(self, *args: str, stdout=None, stderr=None) -> subprocess.Popen:
+        """Start `facesculpt ARGS...` as a process of this graph."""
+        proc = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", *args], env=self.env, cwd=REPO_ROOT,
+                                stdout=stdout, stderr=stderr)
+        self.procs.append(proc)
+        return proc
+
+    def run(self, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+        """Run `facesculpt ARGS...` to completion, capturing output."""
+        return subprocess.run([sys.executable, "-m", "facesculpt.cli", *args], env=self.env, cwd=REPO_ROOT,
+                              capture_output=True, text=True, timeout=timeout)
+
+    def node(self, node):
+        """Start an in-process node (its threads) and close it at teardown."""
+        node.start()
+        self.nodes.append(node)
+        return node
+
+    def spin_until(self, node, predicate, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            node.spin_once(0.02)
+            if predicate():
+                return True
+        return False
+
+    def close(self) -> None:
+        for node in self.nodes:
+            node.close()
+        for proc in self.procs:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in self.procs:
+            try:
+                proc.wait(3)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@pytest.fixture
+def graph(monkeypatch):
+    """A master on a free loopback port and a private socket directory for one test."""
+    run_dir = tempfile.mkdtemp(prefix="fs-")
+    address = f"tcp://127.0.0.1:{free_port()}"
+    monkeypatch.setenv("FACESCULPT_MASTER", address)
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", run_dir)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    g = Graph(env)
+    g.address = address
+    g.master = g.spawn("master")
+    from facesculpt.master import master_alive
+
+    deadline = time.monotonic() + 10
+    while not master_alive(address, 0.2):
+        assert time.monotonic() < deadline, "master did not start"
+    yield g
+    g.close()
+    shutil.rmtree(run_dir, ignore_errors=True)

@@ -1,0 +1,287 @@
+"""The graph's commands: master, run, launch, node, topic, bag."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+from facesculpt.msgs import REGISTRY, summarize
+from facesculpt.node import Node
+
+
+def register(sub) -> None:
+    p = sub.add_parser("master", help="run the registry of nodes, topics and latched messages")
+    p.add_argument("--address", help="endpoint to bind (default $FACESCULPT_MASTER or tcp://127.0.0.1:11411)")
+    p.set_defaults(func=cmd_master)
+
+    p = sub.add_parser("run", help="run one node: facesculpt run NODE [param=value ...]", add_help=False)
+    p.add_argument("node", help="built-in name (camera, landmarks, fitter, ...) or module:Class")
+    p.add_argument("args", nargs="...", help="[--name N] [--remap from=to] [param=value ...]; NODE --help lists params")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("launch", help="start a graph from a launch file")
+    p.add_argument("file", help="a launch file path, or the name of a shipped one (webcam, video, demo, ...)")
+    p.add_argument("overrides", nargs="*", metavar="node.param=value")
+    p.set_defaults(func=cmd_launch)
+
+    p = sub.add_parser("node", help="nodes of the running graph")
+    nsub = p.add_subparsers(dest="node_command", metavar="list", required=True)
+    q = nsub.add_parser("list", help="list running nodes")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_node_list)
+
+    p = sub.add_parser("topic", help="topics of the running graph")
+    tsub = p.add_subparsers(dest="topic_command", metavar="list|echo|hz", required=True)
+    q = tsub.add_parser("list", help="list topics with types, publishers and subscribers")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_topic_list)
+    q = tsub.add_parser("echo", help="print messages (arrays summarised by shape/dtype/min/max)")
+    q.add_argument("topic")
+    q.add_argument("--count", type=int, default=0, help="stop after N messages")
+    q.add_argument("--json", action="store_true", help="one JSON object per line")
+    q.add_argument("--timeout", type=float, default=0, help="give up after S seconds (0: wait forever)")
+    q.set_defaults(func=cmd_topic_echo)
+    q = tsub.add_parser("hz", help="measure a topic's rate")
+    q.add_argument("topic")
+    q.add_argument("--duration", type=float, default=5.0, help="seconds to measure")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_topic_hz)
+
+    p = sub.add_parser("bag", help="record, play and inspect bag files")
+    bsub = p.add_subparsers(dest="bag_command", metavar="record|play|info", required=True)
+    q = bsub.add_parser("record", help="record topics into a bag")
+    q.add_argument("topics", nargs="+")
+    q.add_argument("-o", "--output", required=True, help="bag file to write")
+    q.add_argument("--duration", type=float, default=0, help="stop after S seconds")
+    q.add_argument("--count", type=int, default=0, help="stop after N messages")
+    q.add_argument("--compression", choices=["none", "png", "jpeg"], default="none",
+                   help="store images losslessly (png) or as jpeg; default raw")
+    q.set_defaults(func=cmd_bag_record)
+    q = bsub.add_parser("play", help="publish a bag's messages again")
+    q.add_argument("file")
+    rate = q.add_mutually_exclusive_group()
+    rate.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: as recorded)")
+    rate.add_argument("--fast", action="store_true", help="as fast as subscribers take them, losing none")
+    q.add_argument("--loop", action="store_true")
+    q.add_argument("--wait", type=float, default=2.0, help="seconds to wait for subscribers before playing")
+    q.set_defaults(func=cmd_bag_play)
+    q = bsub.add_parser("info", help="topics, counts, duration, types")
+    q.add_argument("file")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_bag_info)
+
+
+# -- master / run / launch -------------------------------------------------------------------
+def cmd_master(args) -> int:
+    from facesculpt.master import serve
+
+    serve(args.address)
+    return 0
+
+
+def cmd_run(args) -> int:
+    from facesculpt.node import load_node_class, run_node
+
+    return run_node(load_node_class(args.node), args.args)
+
+
+def cmd_launch(args) -> int:
+    from facesculpt.launcher import Launcher, load_launch
+    from facesculpt.paths import launch_file
+
+    specs = load_launch(launch_file(args.file), args.overrides)
+    return Launcher(specs, status=lambda line: print(line, flush=True)).run()
+
+
+# -- introspection ------------------------------------------------------------------------------
+def _master_call(op: str) -> dict:
+    from facesculpt.master import MasterClient
+
+    client = MasterClient(timeout_s=2.0)
+    try:
+        return client.call(op)
+    finally:
+        client.close()
+
+
+def cmd_node_list(args) -> int:
+    nodes = _master_call("nodes")["nodes"]
+    if args.json:
+        print(json.dumps(nodes, indent=1))
+        return 0
+    for n in nodes:
+        print(f"{n['node']:<24} pid {n['pid']:<8} up {n['uptime_s']:>7.1f} s   "
+              f"pub: {', '.join(n['publishes']) or '-'}   sub: {', '.join(n['subscribes']) or '-'}")
+    return 0
+
+
+def cmd_topic_list(args) -> int:
+    topics = _master_call("topics")["topics"]
+    if args.json:
+        print(json.dumps(topics, indent=1))
+        return 0
+    for t in topics:
+        print(f"{t['topic']:<24} {'/'.join(t['types']) or '?':<14} pub: {', '.join(t['publishers']) or '-'}   "
+              f"sub: {', '.join(t['subscribers']) or '-'}" + ("   (latched)" if t["latched"] else ""))
+    return 0
+
+
+class _ToolNode(Node):
+    """A short-lived node for command-line tools (named after the tool and its pid)."""
+
+    def __init__(self, tool: str, **kw):
+        super().__init__(name=f"_{tool}_{os.getpid()}", **kw)
+
+
+def _run_tool(node: Node, until) -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, lambda *a: node.shutdown())
+    signal.signal(signal.SIGTERM, lambda *a: node.shutdown())
+    node.start()
+    try:
+        while node.running and not until():
+            node.spin_once(0.05)
+    finally:
+        node.close()
+
+
+def cmd_topic_echo(args) -> int:
+    node = _ToolNode("echo")
+    seen = [0]
+
+    def on_msg(msg):
+        seen[0] += 1
+        summary = summarize(msg)
+        print(json.dumps(summary, default=str) if args.json else _pretty(summary), flush=True)
+
+    node.subscribe(args.topic, None, on_msg, queued=True)
+    start = time.monotonic()
+    _run_tool(node, lambda: (args.count and seen[0] >= args.count)
+              or (args.timeout and time.monotonic() - start > args.timeout))
+    return 0 if seen[0] or not args.timeout else 1
+
+
+def _pretty(summary: dict) -> str:
+    lines = ["---"]
+    for key, value in summary.items():
+        lines.append(f"{key}: {value}")
+    return "\n".join(lines)
+
+
+def cmd_topic_hz(args) -> int:
+    node = _ToolNode("hz")
+    arrivals: list[float] = []
+    node.subscribe(args.topic, None, lambda msg: arrivals.append(time.monotonic()), queued=True)
+    start = time.monotonic()
+    _run_tool(node, lambda: time.monotonic() - start > args.duration)
+    result = {"topic": args.topic, "messages": len(arrivals), "duration_s": args.duration}
+    if len(arrivals) >= 2:
+        import numpy as np
+
+        gaps = np.diff(arrivals)
+        result.update(rate_hz=round((len(arrivals) - 1) / (arrivals[-1] - arrivals[0]), 2),
+                      min_gap_ms=round(gaps.min() * 1e3, 2), max_gap_ms=round(gaps.max() * 1e3, 2),
+                      std_gap_ms=round(gaps.std() * 1e3, 2))
+    if args.json:
+        print(json.dumps(result))
+    elif "rate_hz" in result:
+        print(f"{args.topic}: {result['rate_hz']} Hz over {len(arrivals)} messages "
+              f"(gap min {result['min_gap_ms']} ms, max {result['max_gap_ms']} ms, std {result['std_gap_ms']} ms)")
+    else:
+        print(f"{args.topic}: {len(arrivals)} messages in {args.duration} s")
+    return 0
+
+
+# -- bags ----------------------------------------------------------------------------------------
+def cmd_bag_record(args) -> int:
+    from facesculpt.bag import BagError, BagWriter
+
+    writer = BagWriter(args.output, compression=args.compression)
+    node = _ToolNode("bag_record")
+    failure: list[str] = []
+
+    def on_msg(msg, frames, topic):
+        if failure:
+            return
+        try:
+            writer.write(time.time_ns(), topic, frames)
+        except BagError as exc:
+            failure.append(str(exc))
+
+    for topic in args.topics:
+        node.subscribe(topic, None, lambda m, f, t=topic: on_msg(m, f, t), queued=True, raw=True)
+    start = time.monotonic()
+    try:
+        _run_tool(node, lambda: bool(failure) or (args.count and writer.count >= args.count)
+                  or (args.duration and time.monotonic() - start > args.duration))
+    finally:
+        writer.close()
+    print(f"recorded {writer.count} messages ({writer.bytes / 1e6:.1f} MB) into {args.output}", file=sys.stderr)
+    if failure:
+        print(f"facesculpt: {failure[0]}; the {writer.count} records before it are readable", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_bag_play(args) -> int:
+    from facesculpt.bag import BagReader
+
+    reader = BagReader(args.file)
+    node = _ToolNode("bag_play")
+    publishers = {}
+    for rec in reader:
+        if rec.topic not in publishers:
+            msg_type = REGISTRY.get(rec.header.get("type"))
+            publishers[rec.topic] = node.advertise(rec.topic, msg_type, reliable=args.fast)
+    if not publishers:
+        print(f"{args.file}: no complete records", file=sys.stderr)
+        return 1
+    import signal
+
+    signal.signal(signal.SIGINT, lambda *a: node.shutdown())
+    signal.signal(signal.SIGTERM, lambda *a: node.shutdown())
+    node.start()
+    sent = 0
+    try:
+        for pub in publishers.values():
+            pub.wait_for_subscribers(1, args.wait)
+        while node.running:
+            t0_rec = t0_wall = None
+            for rec in reader:
+                if not node.running:
+                    break
+                if not args.fast:
+                    if t0_rec is None:
+                        t0_rec, t0_wall = rec.time_ns, time.monotonic()
+                    due = t0_wall + (rec.time_ns - t0_rec) / 1e9 / args.rate
+                    while node.running and time.monotonic() < due:
+                        node.spin_once(min(0.05, max(0.0, due - time.monotonic())))
+                publishers[rec.topic].publish_frames(rec.frames)
+                sent += 1
+            if not args.loop:
+                break
+        node.spin_once(0.0)
+    finally:
+        node.close()
+    print(f"played {sent} messages from {args.file}"
+          + (f" ({reader.ignored_bytes} trailing bytes ignored)" if reader.ignored_bytes else ""), file=sys.stderr)
+    return 0
+
+
+def cmd_bag_info(args) -> int:
+    from facesculpt.bag import bag_info
+
+    info = bag_info(args.file)
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    print(f"path:      {info['path']}")
+    print(f"size:      {info['bytes']} bytes, {info['records']} complete records"
+          + (f", {info['ignored_bytes']} bytes ignored (incomplete last record)" if info["ignored_bytes"] else ""))
+    print(f"duration:  {info['duration_s']} s")
+    for topic, t in info["topics"].items():
+        print(f"  {topic:<24} {t['count']:>7} msgs   {', '.join(t['types'])}")
+    return 0

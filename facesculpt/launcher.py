@@ -1,0 +1,216 @@
+"""Launch files: start a master and one process per node, respawn, stop cleanly.
+
+A launch file is YAML::
+
+    nodes:
+      - name: camera                 # unique node name
+        node: camera                 # built-in name, or module:Class, or path/file.py:Class
+        params: {source: face.mp4, fps: 30}
+        remap: {camera/image: cam0/image}
+        respawn: true                # restart when it dies (with backoff)
+        required: false              # when it exits, stop the whole graph
+
+``facesculpt launch FILE name.param=value ...`` overrides params. Children are
+killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
+SIGINT/SIGTERM every child gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from facesculpt.master import master_address, master_alive
+from facesculpt.node import parse_assignments
+
+STOP_GRACE_S = 2.5
+log = logging.getLogger("facesculpt.launch")
+
+
+@dataclass
+class NodeSpec:
+    name: str
+    node: str
+    params: dict = field(default_factory=dict)
+    remap: dict = field(default_factory=dict)
+    respawn: bool = False
+    required: bool = False
+    respawn_delay_s: float = 0.2
+
+
+def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> list[NodeSpec]:
+    """Parse and validate a launch file; ``overrides`` are ``name.param=value`` strings."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"launch file {path} not found") from None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"launch file {path} is not valid YAML: {exc}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("nodes"), list):
+        raise ValueError(f"launch file {path}: expected a mapping with a 'nodes' list")
+    specs: list[NodeSpec] = []
+    allowed = {"name", "node", "params", "remap", "respawn", "required", "respawn_delay_s"}
+    for i, entry in enumerate(doc["nodes"]):
+        if not isinstance(entry, dict) or "node" not in entry:
+            raise ValueError(f"launch file {path}: node #{i + 1} needs at least 'node'")
+        extra = set(entry) - allowed
+        if extra:
+            raise ValueError(f"launch file {path}: node #{i + 1} has unknown keys {sorted(extra)}")
+        spec = NodeSpec(name=str(entry.get("name", entry["node"])), node=str(entry["node"]),
+                        params=dict(entry.get("params") or {}), remap=dict(entry.get("remap") or {}),
+                        respawn=bool(entry.get("respawn", False)), required=bool(entry.get("required", False)),
+                        respawn_delay_s=float(entry.get("respawn_delay_s", 0.2)))
+        if any(s.name == spec.name for s in specs):
+            raise ValueError(f"launch file {path}: two nodes are named {spec.name!r}")
+        specs.append(spec)
+    by_name = {s.name: s for s in specs}
+    for key, value in parse_assignments(overrides or []).items():
+        node_name, dot, param = key.partition(".")
+        if not dot or node_name not in by_name:
+            raise ValueError(f"override {key}={value}: expected NODE.param=value with NODE one of "
+                             f"{', '.join(by_name)}")
+        by_name[node_name].params[param] = value
+    return specs
+
+
+def _die_with_parent() -> None:
+    # Linux: the child gets SIGTERM when the launcher dies, even by SIGKILL: no orphans.
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def _spawn(argv: list[str], env: dict) -> subprocess.Popen:
+    return subprocess.Popen(argv, env=env, preexec_fn=_die_with_parent)
+
+
+def node_argv(spec: NodeSpec) -> list[str]:
+    config = {"name": spec.name, "params": spec.params, "remap": spec.remap}
+    return [sys.executable, "-m", "facesculpt.cli", "run", spec.node, "--config-json", json.dumps(config)]
+
+
+@dataclass
+class Child:
+    spec: NodeSpec
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    state: str = "starting"
+    next_start: float = 0.0
+    exit_code: int | None = None
+
+
+class Launcher:
+    """Supervises the processes of one launch file."""
+
+    def __init__(self, specs: list[NodeSpec], master: str | None = None, status=print):
+        self.specs = specs
+        self.master = master or master_address()
+        self.status = status
+        self.children = [Child(s) for s in specs]
+        self.master_proc: subprocess.Popen | None = None
+        self.stopping = False
+        self.env = dict(os.environ, FACESCULPT_MASTER=self.master, PYTHONUNBUFFERED="1")
+
+    def start_master(self) -> None:
+        if master_alive(self.master):
+            self.status(f"using the master already running at {self.master}")
+            return
+        self.master_proc = _spawn([sys.executable, "-m", "facesculpt.cli", "master"], self.env)
+        deadline = time.monotonic() + 10
+        while not master_alive(self.master, 0.2):
+            if self.master_proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the master did not start at {self.master}")
+            time.sleep(0.05)
+
+    def _start(self, child: Child) -> None:
+        child.proc = _spawn(node_argv(child.spec), self.env)
+        child.state = "running"
+        self.status(f"[{child.spec.name}] running (pid {child.proc.pid}"
+                    + (f", restart {child.restarts}" if child.restarts else "") + ")")
+
+    def poll(self) -> bool:
+        """Check children once; returns False when the graph should stop."""
+        now = time.monotonic()
+        alive = False
+        for child in self.children:
+            if child.state == "waiting" and now >= child.next_start:
+                child.restarts += 1
+                self._start(child)
+            if child.proc is not None and child.state == "running":
+                code = child.proc.poll()
+                if code is None:
+                    alive = True
+                    continue
+                child.exit_code = code
+                how = f"exit code {code}" if code >= 0 else f"killed by {signal.Signals(-code).name}"
+                if child.spec.required:
+                    self.status(f"[{child.spec.name}] ended ({how}); it is required, so the graph stops")
+                    child.state = "done"
+                    return False
+                if child.spec.respawn and not self.stopping:
+                    delay = min(5.0, child.spec.respawn_delay_s * (2 ** min(child.restarts, 5)))
+                    child.state, child.next_start = "waiting", now + delay
+                    self.status(f"[{child.spec.name}] died ({how}); respawning in {delay:.1f} s")
+                    alive = True
+                else:
+                    child.state = "done"
+                    self.status(f"[{child.spec.name}] ended ({how})")
+            elif child.state == "waiting":
+                alive = True
+        if self.master_proc is not None and self.master_proc.poll() is not None and not self.stopping:
+            self.status("[master] died; restarting it")
+            self.start_master()
+        return alive
+
+    def run(self) -> int:
+        """Start everything and supervise until SIGINT/SIGTERM or until every node ended."""
+        def _on_signal(signum, frame):
+            self.stopping = True
+        old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self.start_master()
+            for child in self.children:
+                self._start(child)
+            while not self.stopping and self.poll():
+                time.sleep(0.05)
+        finally:
+            self.stop()
+            for s, handler in old.items():
+                signal.signal(s, handler)
+        failed = [c for c in self.children if c.exit_code not in (None, 0) and not c.spec.respawn]
+        return 1 if failed else 0
+
+    def stop(self) -> None:
+        """SIGTERM every child, wait up to STOP_GRACE_S, SIGKILL what is left."""
+        self.stopping = True
+        procs = [c.proc for c in self.children if c.proc is not None and c.proc.poll() is None]
+        for proc in procs:
+            proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + STOP_GRACE_S
+        for proc in procs:
+            try:
+                proc.wait(max(0.01, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if self.master_proc is not None and self.master_proc.poll() is None:
+            self.master_proc.terminate()
+            try:
+                self.master_proc.wait(1.0)
+            except subprocess.TimeoutExpired:
+                self.master_proc.kill()
+                self.master_proc.wait()
+        self.status("all nodes stopped")

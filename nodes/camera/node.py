@@ -1,0 +1,80 @@
+"""The camera node: frames from a webcam, a video file, a still image or a bag
+on `camera/image`, stamped with their capture time, with intrinsics K."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from facesculpt.msgs import Image
+from facesculpt.node import Node
+
+from .intrinsics import intrinsics_from_fov
+from .sources import SourceError, open_source, resize_frame
+
+
+class CameraNode(Node):
+    """Publishes camera/image from a webcam, video, image or bag."""
+
+    NAME = "camera"
+    PARAMS = {
+        "source": "0",        # webcam index, video file, image file, or bag:FILE
+        "width": 0,           # resize to this width (0: keep; aspect kept if height is 0)
+        "height": 0,
+        "fps": 0.0,           # pacing; 0: the source's own rate; -1: as fast as possible
+        "loop": False,        # restart a video or bag at its end
+        "motion": False,      # still image: move a virtual camera over it
+        "fov_deg": 60.0,      # horizontal field of view for K, unless K is given
+        "K": [],              # 9 numbers, row-major, for the output size
+        "max_frames": 0,      # stop after this many frames (0: no limit)
+    }
+
+    def setup(self):
+        p = self.params
+        self.pub = self.advertise("camera/image", Image)
+        self.source = open_source(p.source, loop=p.loop, motion=p.motion, fps=p.fps if p.fps > 0 else 30.0)
+        self.frames = self.source.frames()
+        rate = p.fps if p.fps > 0 else (self.source.native_fps if p.fps == 0 else 0.0)
+        self.period = 1.0 / rate if rate > 0 else 0.0
+        self.sent = 0
+        self.K_fixed = None
+        if p.K:
+            if len(p.K) != 9:
+                raise ValueError(f"camera.K needs 9 numbers, got {len(p.K)}")
+            self.K_fixed = np.asarray(p.K, dtype=np.float64).reshape(3, 3)
+        self._K_cache: dict[tuple, np.ndarray] = {}
+        self.log.info("%s at %s", self.source.description, f"{rate:.1f} fps" if rate else "full speed")
+        self.timer(self.period, self.on_tick)
+
+    def intrinsics(self, width: int, height: int) -> np.ndarray:
+        if self.K_fixed is not None:
+            return self.K_fixed
+        key = (width, height)
+        if key not in self._K_cache:
+            self._K_cache[key] = intrinsics_from_fov(width, height, self.params.fov_deg)
+        return self._K_cache[key]
+
+    def on_tick(self):
+        try:
+            frame, stamp = next(self.frames)
+        except StopIteration:
+            self.log.info("end of %s after %d frames", self.source.description, self.sent)
+            self.shutdown()
+            return
+        except SourceError as exc:
+            self.count("source_errors")
+            self.log.error("%s", exc)
+            self.shutdown()
+            return
+        frame = resize_frame(frame, self.params.width, self.params.height)
+        h, w = frame.shape[:2]
+        self.sent += 1
+        self.pub.publish(Image(stamp=stamp, seq=self.sent, frame_id="camera",
+                               image=np.ascontiguousarray(frame), K=self.intrinsics(w, h)))
+        if self.params.max_frames and self.sent >= self.params.max_frames:
+            self.shutdown()
+
+    def teardown(self):
+        if hasattr(self, "source"):
+            self.source.close()

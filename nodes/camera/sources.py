@@ -1,0 +1,162 @@
+"""Frame sources for the camera node: webcam, video file, still image (with a
+virtual camera moving over it), and bags. Each yields ``(frame_bgr, stamp_ns)``;
+none of them knows about sockets."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"}
+
+
+class SourceError(RuntimeError):
+    """A source that cannot be opened or read; the message names it."""
+
+
+def resize_frame(frame: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Resize to width x height; a zero keeps the aspect ratio; both zero keep the frame."""
+    h, w = frame.shape[:2]
+    if width <= 0 and height <= 0:
+        return frame
+    if width <= 0:
+        width = max(1, round(w * height / h))
+    if height <= 0:
+        height = max(1, round(h * width / w))
+    if (width, height) == (w, h):
+        return frame
+    interp = cv2.INTER_AREA if width < w else cv2.INTER_LINEAR
+    return cv2.resize(frame, (width, height), interpolation=interp)
+
+
+def virtual_camera_view(image: np.ndarray, t: float, *, max_rotation_deg: float = 6.0,
+                        zoom: float = 0.08, pan: float = 0.04) -> np.ndarray:
+    """The still ``image`` seen by a slowly moving virtual camera at time ``t`` (seconds):
+    a smooth in-plane rotation, zoom and pan (same size out, border replicated)."""
+    h, w = image.shape[:2]
+    angle = max_rotation_deg * math.sin(2 * math.pi * t / 7.0)
+    scale = 1.0 + zoom * math.sin(2 * math.pi * t / 11.0)
+    M = cv2.getRotationMatrix2D((w / 2, h / 2), angle, scale)
+    M[0, 2] += pan * w * math.sin(2 * math.pi * t / 5.0)
+    M[1, 2] += pan * h * math.sin(2 * math.pi * t / 9.0 + 1.0)
+    return cv2.warpAffine(image, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+class FrameSource:
+    """Base: iterate frames; ``native_fps`` is the source's own rate (0 when unknown)."""
+
+    native_fps = 0.0
+    description = ""
+
+    def frames(self) -> Iterator[tuple[np.ndarray, int]]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class VideoSource(FrameSource):
+    """A video file or a webcam index, read with OpenCV."""
+
+    def __init__(self, spec: str | int, loop: bool = False):
+        self.spec = spec
+        self.loop = loop
+        self.is_webcam = isinstance(spec, int)
+        if not self.is_webcam and not Path(spec).is_file():
+            raise SourceError(f"video file {spec} not found")
+        self.cap = self._open()
+        fps = self.cap.get(cv2.CAP_PROP_FPS)
+        self.native_fps = fps if fps and math.isfinite(fps) and 0 < fps < 1000 else 30.0
+        self.frame_count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) if not self.is_webcam else 0
+        self.description = f"webcam {spec}" if self.is_webcam else f"video {spec}"
+
+    def _open(self) -> cv2.VideoCapture:
+        cap = cv2.VideoCapture(self.spec)
+        if not cap.isOpened():
+            kind = "webcam" if self.is_webcam else "video file"
+            raise SourceError(f"cannot open {kind} {self.spec}")
+        return cap
+
+    def frames(self):
+        while True:
+            ok, frame = self.cap.read()
+            stamp = time.time_ns()
+            if ok and frame is not None and frame.ndim == 3:
+                yield frame, stamp
+                continue
+            if self.is_webcam:
+                raise SourceError(f"webcam {self.spec} stopped delivering frames")
+            if not self.loop:
+                return
+            self.cap.release()
+            self.cap = self._open()
+
+    def close(self):
+        self.cap.release()
+
+
+class ImageSource(FrameSource):
+    """A still image, optionally seen by a moving virtual camera (``motion``)."""
+
+    def __init__(self, path: str, motion: bool = False, fps: float = 30.0):
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if img is None:
+            raise SourceError(f"image {path} not found or not readable")
+        self.image = img
+        self.motion = motion
+        self.native_fps = fps
+        self.description = f"image {path}" + (" (virtual camera)" if motion else "")
+
+    def frames(self):
+        i = 0
+        while True:
+            t = i / self.native_fps
+            yield (virtual_camera_view(self.image, t) if self.motion else self.image.copy()), time.time_ns()
+            i += 1
+
+
+class BagImageSource(FrameSource):
+    """The `camera/image` records of a bag (or another topic), in order."""
+
+    def __init__(self, path: str, topic: str = "camera/image", loop: bool = False, restamp: bool = True):
+        from facesculpt.bag import BagReader
+
+        self.reader = BagReader(path)
+        self.topic = topic
+        self.loop = loop
+        self.restamp = restamp
+        self.description = f"bag {path}"
+        times = [r.time_ns for r in self.reader if r.topic == topic]
+        if not times:
+            raise SourceError(f"bag {path} has no {topic} messages")
+        self.native_fps = (len(times) - 1) / max(1e-9, (times[-1] - times[0]) / 1e9) if len(times) > 1 else 30.0
+
+    def frames(self):
+        from facesculpt.msgs import Image, decode
+
+        while True:
+            for rec in self.reader:
+                if rec.topic != self.topic:
+                    continue
+                _, msg = decode([rec.topic.encode()] + rec.frames, Image)
+                yield np.array(msg.image), (time.time_ns() if self.restamp else msg.stamp)
+            if not self.loop:
+                return
+
+
+def open_source(spec: str, *, loop: bool = False, motion: bool = False, fps: float = 30.0) -> FrameSource:
+    """``"0"`` (webcam index), a video file, an image file, or ``bag:FILE``."""
+    spec = str(spec).strip()
+    if spec.startswith("bag:"):
+        return BagImageSource(spec[4:], loop=loop)
+    if spec.lstrip("-").isdigit():
+        return VideoSource(int(spec))
+    path = Path(spec)
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        return ImageSource(spec, motion=motion, fps=fps if fps > 0 else 30.0)
+    return VideoSource(spec, loop=loop)
