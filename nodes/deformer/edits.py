@@ -1,0 +1,336 @@
+"""Edit layers on top of ARAP: several edits accumulate (nose stretched, then chin pointed,
+then both cheeks — the paper's Fig. 6e), undo, reset, and JSON presets.
+
+An *edit* is one gesture: one or more handle vertices with their model-space offsets (mm,
+from the handle's rest position) and the ROI around them (a radius on the neutral mesh, or
+explicit vertices). All edits are solved together: every edit's handles stay where that
+edit put them (a later edit of the same vertex wins), the ROIs are united, and whatever no
+ROI covers stays fixed. The result is the displacement ``M_m - M_bar`` (V, 3) in mm.
+
+Presets name handles by the model's landmark names where a handle is a landmark vertex
+(and by vertex index otherwise, valid only on the same topology), and store offsets and ROI
+radii, so a preset made on one person applies to another person and to any model that has
+the same landmark names.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .anchors import METRICS, edge_length_graph, roi_within_radius
+from .arap import ArapDeformer, DeformerError
+
+PRESET_FORMAT = "facesculpt-deformer-preset"
+PRESET_VERSION = 1
+
+
+@dataclass
+class Edit:
+    """One gesture. ``offsets`` maps handle vertex -> (3,) float64 mm from its rest position;
+    ``roi_radius``/``roi_metric`` give the ROI around the handles unless ``roi`` lists it."""
+
+    offsets: dict[int, np.ndarray] = field(default_factory=dict)
+    roi_radius: float = 40.0
+    roi_metric: str = "geodesic"
+    roi: np.ndarray | None = None
+
+
+def topology_signature(n_vertices: int, triangles: np.ndarray) -> dict:
+    """Identifies a mesh topology: vertex and triangle counts and a CRC32 of the triangles."""
+    T = np.ascontiguousarray(np.asarray(triangles, dtype=np.int32))
+    return {"vertices": int(n_vertices), "triangles": int(T.shape[0]), "crc32": int(zlib.crc32(T.tobytes()))}
+
+
+class EditStack:
+    """The edits on one neutral mesh and the ARAP solve that realises them.
+
+    vertices: (V, 3) neutral mesh, model space, mm; triangles: (T, 3).
+    landmark_names / landmark_vertices: the model's named vertices (FaceModel) for presets and
+    for pressing at a landmark. roi_radius (mm) and roi_metric ("geodesic" | "euclidean"): the
+    default ROI of a new edit. ``deformer_options`` go to :class:`ArapDeformer`.
+    Methods raise :class:`DeformerError` on bad input and leave the stack as it was.
+    """
+
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        triangles: np.ndarray,
+        landmark_names=(),
+        landmark_vertices=(),
+        roi_radius: float = 40.0,
+        roi_metric: str = "geodesic",
+        **deformer_options,
+    ):
+        self.deformer = ArapDeformer(vertices, triangles, **deformer_options)
+        self.rest = self.deformer.rest
+        self.triangles = self.deformer.triangles
+        self.n = self.deformer.n
+        names = list(landmark_names)
+        idx = np.asarray(landmark_vertices, dtype=np.int64).ravel()
+        if len(names) != idx.size:
+            raise DeformerError(f"{len(names)} landmark names but {idx.size} landmark vertices")
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n):
+            raise DeformerError("landmark vertices out of range")
+        self.landmarks: dict[str, int] = {str(k): int(v) for k, v in zip(names, idx)}
+        self._names_of: dict[int, str] = {}
+        for k, v in self.landmarks.items():
+            self._names_of.setdefault(v, k)
+        self._check_roi(roi_radius, roi_metric)
+        self.roi_radius = float(roi_radius)
+        self.roi_metric = roi_metric
+        self._graph = edge_length_graph(self.rest, self.triangles)
+        self.edits: list[Edit] = []
+        self.static: set[int] = set()
+        self.displacement = np.zeros_like(self.rest)  # last good solve, (V, 3) mm
+        self.version = 0
+
+    # -- building edits ----------------------------------------------------------------
+
+    @staticmethod
+    def _check_roi(radius, metric):
+        if metric not in METRICS:
+            raise DeformerError(f"unknown ROI metric {metric!r} (use one of {METRICS})")
+        if not np.isfinite(radius) or radius <= 0:
+            raise DeformerError(f"ROI radius must be a positive number of mm, got {radius!r}")
+
+    def _vertex(self, v) -> int:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+            raise DeformerError(f"vertex index must be an integer, got {v!r}")
+        if not 0 <= int(v) < self.n:
+            raise DeformerError(f"vertex {v} out of range 0..{self.n - 1}")
+        return int(v)
+
+    def landmark_vertex(self, name: str) -> int:
+        """Vertex of a landmark name; DeformerError naming a few known names when unknown."""
+        if name not in self.landmarks:
+            known = ", ".join(sorted(self.landmarks)[:12])
+            raise DeformerError(f"no landmark named {name!r} in this model (known: {known}, ...)")
+        return self.landmarks[name]
+
+    def begin(self, vertices, roi_radius: float | None = None, roi_metric: str | None = None, roi=None) -> int:
+        """Start a new edit with these handle vertices at their current positions (offset as
+        the solved mesh has them, so pressing does not move anything). Returns its index."""
+        vs = [self._vertex(v) for v in np.atleast_1d(np.asarray(vertices)).tolist()] if np.size(vertices) else []
+        if not vs:
+            raise DeformerError("an edit needs at least one handle vertex")
+        if len(set(vs)) != len(vs):
+            raise DeformerError("an edit lists a handle vertex twice")
+        radius = self.roi_radius if roi_radius is None else float(roi_radius)
+        metric = self.roi_metric if roi_metric is None else roi_metric
+        self._check_roi(radius, metric)
+        edit = Edit({v: self.displacement[v].copy() for v in vs}, radius, metric, None)
+        if roi is not None:
+            edit.roi = np.unique(np.asarray([self._vertex(int(r)) for r in np.asarray(roi).ravel()], dtype=np.int64))
+        self.edits.append(edit)
+        return len(self.edits) - 1
+
+    def add_handle(self, vertex: int, edit: int = -1) -> None:
+        """Add a handle vertex to an edit (e.g. a second finger in a two-handle squeeze)."""
+        v = self._vertex(vertex)
+        e = self._edit(edit)
+        if v not in e.offsets:
+            e.offsets[v] = self.displacement[v].copy()
+
+    def _edit(self, edit: int) -> Edit:
+        if not self.edits:
+            raise DeformerError("there is no edit to change: press a handle first")
+        try:
+            return self.edits[edit]
+        except (IndexError, TypeError):
+            raise DeformerError(f"no edit {edit!r} (there are {len(self.edits)})") from None
+
+    def move_handle(self, vertex: int, delta, edit: int = -1) -> None:
+        """Add a model-space displacement (3,) mm to one handle of an edit."""
+        d = np.asarray(delta, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)):
+            raise DeformerError(f"a handle displacement must be 3 finite numbers, got {delta!r}")
+        e = self._edit(edit)
+        v = self._vertex(vertex)
+        if v not in e.offsets:
+            raise DeformerError(f"vertex {v} is not a handle of that edit")
+        e.offsets[v] = e.offsets[v] + d
+
+    def set_offset(self, vertex: int, offset, edit: int = -1) -> None:
+        """Place one handle of an edit at rest + ``offset`` (3,) mm."""
+        d = np.asarray(offset, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)):
+            raise DeformerError(f"a handle offset must be 3 finite numbers, got {offset!r}")
+        e = self._edit(edit)
+        v = self._vertex(vertex)
+        if v not in e.offsets:
+            raise DeformerError(f"vertex {v} is not a handle of that edit")
+        e.offsets[v] = d
+
+    def edit_of(self, vertex: int) -> int | None:
+        """Index of the latest edit that holds ``vertex`` as a handle, or None."""
+        for k in range(len(self.edits) - 1, -1, -1):
+            if int(vertex) in self.edits[k].offsets:
+                return k
+        return None
+
+    def handle_position(self, vertex: int) -> np.ndarray:
+        """Current model-space target (3,) of a handle (latest edit that holds it), or its
+        solved position when it is not a handle."""
+        v = self._vertex(vertex)
+        for e in reversed(self.edits):
+            if v in e.offsets:
+                return self.rest[v] + e.offsets[v]
+        return self.rest[v] + self.displacement[v]
+
+    def toggle_static(self, vertex: int) -> bool:
+        """Pin (or unpin) a vertex at its rest position. Returns True when now pinned."""
+        v = self._vertex(vertex)
+        if v in self.static:
+            self.static.remove(v)
+            return False
+        self.static.add(v)
+        return True
+
+    def undo(self) -> bool:
+        """Drop the last edit. False when there was none."""
+        if not self.edits:
+            return False
+        self.edits.pop()
+        return True
+
+    def clear(self) -> None:
+        """Drop every edit and pin (reset)."""
+        self.edits.clear()
+        self.static.clear()
+
+    # -- solving -----------------------------------------------------------------------
+
+    def anchors(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(static, handles, roi, handle targets (H, 3) mm) for the current edits."""
+        targets: dict[int, np.ndarray] = {}
+        for e in self.edits:
+            targets.update(e.offsets)  # a later edit of the same vertex wins
+        static = np.array(sorted(self.static - set(targets)), dtype=np.int64)
+        handles = np.array(sorted(targets), dtype=np.int64)
+        roi_mask = np.zeros(self.n, bool)
+        for e in self.edits:
+            if e.roi is not None:
+                roi_mask[e.roi] = True
+            else:
+                seeds = np.array(sorted(e.offsets), dtype=np.int64)
+                roi_mask[roi_within_radius(self.rest, seeds, e.roi_radius, e.roi_metric, graph=self._graph)] = True
+        roi_mask[handles] = False
+        roi_mask[static] = False
+        offsets = np.array([targets[v] for v in handles]).reshape(-1, 3)
+        return static, handles, np.flatnonzero(roi_mask), self.rest[handles] + offsets
+
+    def solve(self, iterations: int | None = None) -> np.ndarray:
+        """Solve all edits; returns and keeps the displacement (V, 3) float64 mm.
+
+        With no edit the displacement is zero. On DeformerError (e.g. an edit whose ROI holds
+        no free vertex) the last good displacement stays and the error propagates.
+        """
+        if not self.edits:
+            self.displacement = np.zeros_like(self.rest)
+            self.deformer.reset()
+            self.version += 1
+            return self.displacement
+        static, handles, roi, targets = self.anchors()
+        self.deformer.set_anchors(static=static, handles=handles, roi=roi)
+        solved = self.deformer.solve(targets, iterations=iterations)
+        self.displacement = solved - self.rest
+        self.version += 1
+        return self.displacement
+
+    # -- presets -----------------------------------------------------------------------
+
+    def to_preset(self) -> dict:
+        """JSON-ready dict of the edits and pins; handles named by landmark where possible."""
+
+        def ref(v: int) -> dict:
+            name = self._names_of.get(v)
+            return {"landmark": name, "vertex": v} if name is not None else {"vertex": v}
+
+        edits = []
+        for e in self.edits:
+            item = {
+                "handles": [dict(ref(v), offset=[float(x) for x in off]) for v, off in e.offsets.items()],
+                "roi": {"radius": e.roi_radius, "metric": e.roi_metric},
+            }
+            if e.roi is not None:
+                item["roi"]["vertices"] = [int(r) for r in e.roi]
+            edits.append(item)
+        return {
+            "format": PRESET_FORMAT,
+            "version": PRESET_VERSION,
+            "units": "mm",
+            "topology": topology_signature(self.n, self.triangles),
+            "static": [ref(v) for v in sorted(self.static)],
+            "edits": edits,
+        }
+
+    def save_preset(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_preset(), indent=1))
+
+    def _resolve(self, ref: dict, same_topology: bool) -> int:
+        if not isinstance(ref, dict):
+            raise DeformerError(f"preset handle must be an object, got {ref!r}")
+        name = ref.get("landmark")
+        if name is not None:
+            return self.landmark_vertex(str(name))
+        if "vertex" not in ref:
+            raise DeformerError(f"preset handle {ref!r} names neither a landmark nor a vertex")
+        if not same_topology:
+            raise DeformerError(
+                f"preset handle at vertex {ref['vertex']} is not a named landmark and the preset was made on a "
+                "different mesh topology"
+            )
+        v = ref["vertex"]
+        if not isinstance(v, int):
+            raise DeformerError(f"preset vertex must be an integer, got {v!r}")
+        return self._vertex(v)
+
+    def apply_preset(self, preset: dict) -> None:
+        """Replace the edits by those of a preset dict (see :meth:`to_preset`). Nothing changes
+        when the preset is malformed or names a landmark this model lacks (DeformerError)."""
+        if not isinstance(preset, dict) or preset.get("format") != PRESET_FORMAT:
+            raise DeformerError(f"not a {PRESET_FORMAT} document")
+        if preset.get("version") != PRESET_VERSION:
+            raise DeformerError(f"preset version {preset.get('version')!r} is not {PRESET_VERSION}")
+        same = preset.get("topology") == topology_signature(self.n, self.triangles)
+        try:
+            static = {self._resolve(r, same) for r in preset.get("static", [])}
+            edits = []
+            for item in preset["edits"]:
+                offsets = {}
+                for h in item["handles"]:
+                    off = np.asarray(h["offset"], dtype=np.float64)
+                    if off.shape != (3,) or not np.all(np.isfinite(off)):
+                        raise DeformerError(f"preset offset {h['offset']!r} is not 3 finite numbers")
+                    offsets[self._resolve(h, same)] = off
+                if not offsets:
+                    raise DeformerError("a preset edit has no handles")
+                roi = item.get("roi", {})
+                radius, metric = float(roi.get("radius", self.roi_radius)), roi.get("metric", self.roi_metric)
+                self._check_roi(radius, metric)
+                explicit = None
+                if "vertices" in roi:
+                    if not same:
+                        explicit = None  # explicit ROI vertices only mean something on the same topology
+                    else:
+                        explicit = np.unique(np.array([self._vertex(int(r)) for r in roi["vertices"]], dtype=np.int64))
+                edits.append(Edit(offsets, radius, metric, explicit))
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, DeformerError):
+                raise
+            raise DeformerError(f"malformed preset: {exc!r}") from exc
+        self.edits = edits
+        self.static = static
+
+    def load_preset(self, path: str | Path) -> None:
+        """Read a preset file and apply it (DeformerError when unreadable or malformed)."""
+        try:
+            preset = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as exc:
+            raise DeformerError(f"cannot read preset {path}: {exc}") from exc
+        self.apply_preset(preset)

@@ -1,0 +1,119 @@
+"""Picking: a pixel becomes a ray through the camera, the ray hits the current (deformed)
+fitted mesh, and the nearest vertex of the hit triangle becomes the handle.
+
+Camera conventions (those of FaceState): camera space is OpenCV's (x right, y down, z away
+from the camera), pixels ``u = K @ x``.  ``perspective``: ``u = fx X / Z + cx``, the ray starts
+at the camera centre.  ``orthographic``: ``u = fx X + cx`` (the pose's scale is already in the
+camera-space vertices), every ray is parallel to +z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+PROJECTIONS = ("perspective", "orthographic")
+
+
+@dataclass
+class Pick:
+    """A hit: ``vertex`` (the handle), ``triangle`` index, ``point`` (3,) camera space,
+    ``distance`` along the unit ray (camera units), ``barycentric`` (3,) of the point."""
+
+    vertex: int
+    triangle: int
+    point: np.ndarray
+    distance: float
+    barycentric: np.ndarray
+
+
+def pixel_ray(x: float, y: float, K: np.ndarray, projection: str = "perspective") -> tuple[np.ndarray, np.ndarray]:
+    """Ray (origin (3,), unit direction (3,)) in camera space through pixel (x, y)."""
+    K = np.asarray(K, dtype=np.float64)
+    fx, fy, cx, cy, skew = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
+    if projection == "perspective":
+        d = np.linalg.solve(K, np.array([x, y, 1.0]))
+        return np.zeros(3), d / np.linalg.norm(d)
+    if projection == "orthographic":
+        Y = (y - cy) / fy
+        X = (x - cx - skew * Y) / fx
+        return np.array([X, Y, 0.0]), np.array([0.0, 0.0, 1.0])
+    raise ValueError(f"unknown projection {projection!r} (use one of {PROJECTIONS})")
+
+
+def project(points: np.ndarray, K: np.ndarray, projection: str = "perspective") -> np.ndarray:
+    """Pixels (N, 2) of camera-space points (N, 3) under the conventions above."""
+    P = np.asarray(points, dtype=np.float64)
+    K = np.asarray(K, dtype=np.float64)
+    if projection == "perspective":
+        h = P @ K.T
+        return h[:, :2] / h[:, 2:3]
+    if projection == "orthographic":
+        h = np.column_stack([P[:, :2], np.ones(len(P))]) @ K.T
+        return h[:, :2]
+    raise ValueError(f"unknown projection {projection!r} (use one of {PROJECTIONS})")
+
+
+def ray_mesh_hit(
+    origin: np.ndarray,
+    direction: np.ndarray,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    two_sided_line: bool = False,
+) -> tuple[int, float, np.ndarray] | None:
+    """First triangle hit by a ray (Moller-Trumbore over all triangles, vectorised).
+
+    origin, direction (3,); vertices (V, 3); triangles (T, 3). Both faces of a triangle count.
+    ``two_sided_line`` also accepts hits behind the origin (an orthographic ray is a line: the
+    nearest hit along +direction from the most negative one is the visible one).
+    Returns (triangle, distance t, barycentric (3,)) or None on a miss.
+    """
+    Vx = np.asarray(vertices, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    o = np.asarray(origin, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    p0, p1, p2 = Vx[T[:, 0]], Vx[T[:, 1]], Vx[T[:, 2]]
+    e1, e2 = p1 - p0, p2 - p0
+    pvec = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, pvec)
+    ok = np.abs(det) > 1e-12 * (np.einsum("ij,ij->i", e1, e1) + np.einsum("ij,ij->i", e2, e2))
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    tvec = o - p0
+    u = np.einsum("ij,ij->i", tvec, pvec) * inv
+    qvec = np.cross(tvec, e1)
+    v = (qvec @ d) * inv
+    t = np.einsum("ij,ij->i", e2, qvec) * inv
+    eps = 1e-9
+    hit = ok & (u >= -eps) & (v >= -eps) & (u + v <= 1.0 + eps)
+    if not two_sided_line:
+        hit &= t > 0
+    if not np.any(hit):
+        return None
+    idx = np.flatnonzero(hit)
+    k = idx[np.argmin(t[idx])]
+    return int(k), float(t[k]), np.array([1.0 - u[k] - v[k], u[k], v[k]])
+
+
+def pick_vertex(
+    x: float,
+    y: float,
+    K: np.ndarray,
+    vertices_cam: np.ndarray,
+    triangles: np.ndarray,
+    projection: str = "perspective",
+) -> Pick | None:
+    """The handle under pixel (x, y): cast the pixel's ray at the camera-space mesh
+    ``vertices_cam`` (V, 3) (the current deformed fitted mesh), take the first triangle hit
+    and, of its three corners, the vertex nearest the hit point. None on a miss."""
+    if not (np.isfinite(x) and np.isfinite(y)):
+        return None
+    origin, direction = pixel_ray(x, y, K, projection)
+    hit = ray_mesh_hit(origin, direction, vertices_cam, triangles, two_sided_line=projection == "orthographic")
+    if hit is None:
+        return None
+    tri, t, bary = hit
+    point = origin + t * direction
+    corners = np.asarray(triangles)[tri]
+    dist = np.linalg.norm(np.asarray(vertices_cam, dtype=np.float64)[corners] - point, axis=1)
+    return Pick(int(corners[np.argmin(dist)]), tri, point, t, bary)
