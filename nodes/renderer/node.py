@@ -1,0 +1,216 @@
+"""The renderer node: pairs frames with face states, merges the edit, composites, shows.
+
+Subscribes: camera/image (Image), face/state (FaceState), face/model (FaceModel,
+latched: the triangles), face/deformation (Deformation). Publishes: render/image
+(Image, when ``publish``), input/events (InputEvent, from the window), diagnostics
+(stage times: pair, merge, camera, texture, draw, readback, inpaint, composite,
+output). Writes ``output`` (a video file) when set.
+
+Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames kept
+for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea"),
+feather_px, dilate_px, output (video path), fps (of the video file), publish, overlay
+(fps, stage times, handles and ROI in the window), title.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
+from facesculpt.node import Node
+
+from .compositor import Compositor
+from .pairing import FramePairer
+
+
+class RendererNode(Node):
+    """Renders the deformed face into the video: window, video file and/or render/image."""
+
+    NAME = "renderer"
+    PARAMS = {
+        "window": False,
+        "pairing": "latest",
+        "buffer": 30,
+        "sync_timeout_s": 0.5,
+        "max_state_age_s": 0.5,
+        "inpaint": "pushpull",
+        "feather_px": 3.0,
+        "dilate_px": 2,
+        "output": "",
+        "fps": 30.0,
+        "publish": True,
+        "overlay": True,
+        "title": "facesculpt",
+    }
+
+    def setup(self):
+        p = self.params
+        queued = p.pairing == "sync"  # sync must see every frame and state to pair them
+        self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
+                                  max_age_ns=int(p.max_state_age_s * 1e9))
+        if p.inpaint not in ("pushpull", "telea"):
+            raise ValueError(f"renderer: unknown inpaint {p.inpaint!r} (pushpull | telea)")
+        self.image_pub = self.advertise("render/image", Image) if p.publish else None
+        self.events_pub = self.advertise("input/events", InputEvent) if p.window else None
+        self.subscribe("camera/image", Image, self.on_image, queued=queued)
+        self.subscribe("face/state", FaceState, self.on_state, queued=queued)
+        self.subscribe("face/model", FaceModel, self.on_model)
+        self.subscribe("face/deformation", Deformation, self.on_deformation)
+        self.model: FaceModel | None = None
+        self.deformation: Deformation | None = None
+        self.compositor: Compositor | None = None
+        self.window = None
+        self.video = None
+        self._merge = None
+        self._merge_missing_logged = False
+        self._shown_at: list[float] = []
+        if p.window:
+            self.timer(1.0 / 120.0, self.on_tick)
+
+    # -- inputs ----------------------------------------------------------------------------------
+    def on_model(self, msg: FaceModel) -> None:
+        self.model = msg
+
+    def on_deformation(self, msg: Deformation) -> None:
+        self.deformation = msg
+
+    def on_image(self, msg: Image) -> None:
+        with self.stage("pair"):
+            pairs = self.pairer.push_frame(msg.stamp, msg)
+        self._render_all(pairs)
+
+    def on_state(self, msg: FaceState) -> None:
+        has_face = msg.vertices.shape[0] > 0
+        if not has_face:
+            self.count("state_without_face")
+        with self.stage("pair"):
+            pairs = self.pairer.push_state(msg.stamp, msg if has_face else None)
+        self._render_all(pairs)
+
+    # -- the frame -------------------------------------------------------------------------------
+    def _render_all(self, pairs) -> None:
+        for name, n in self.pairer.counters.items():
+            self.counters[f"pairing_{name}"] = n
+        for pair in pairs:
+            self._render(pair.frame, pair.state)
+
+    def _deformed_vertices(self, state: FaceState) -> np.ndarray:
+        """Eq. 5 through the deformer's merge; the fitted vertices when there is no usable edit."""
+        d = self.deformation
+        if d is None or d.displacement.shape[0] == 0:
+            return state.vertices
+        if d.model_id != state.model_id or d.displacement.shape != state.vertices.shape:
+            self.count("deformation_model_mismatch")
+            return state.vertices
+        if self._merge is None:
+            try:
+                from facesculpt.nodes.deformer import merge_deformation
+            except ImportError:
+                if not self._merge_missing_logged:
+                    self.log.error("facesculpt.nodes.deformer.merge_deformation is not available: "
+                                   "rendering without the edit")
+                    self._merge_missing_logged = True
+                self.count("merge_unavailable")
+                return state.vertices
+            self._merge = merge_deformation
+        with self.stage("merge"):
+            return np.asarray(self._merge(state.vertices, state.R, state.scale, d.displacement))
+
+    def _ensure_output(self, width: int, height: int) -> bool:
+        """(Re)create window and compositor for this frame size; False when the size is unusable."""
+        if self.compositor is not None and (self.compositor.width, self.compositor.height) == (width, height):
+            return True
+        if self.compositor is not None:
+            self.log.warning("frame size changed to %dx%d: recreating the renderer", width, height)
+            self.compositor.release()
+            self.compositor = None
+            if self.window is not None:
+                self.window.close()
+                self.window = None
+        ctx = None
+        if self.params.window:
+            from .window import Window
+
+            try:
+                self.window = Window(width, height, self.params.title)
+            except RuntimeError as exc:
+                self.log.error("%s", exc)
+                self.shutdown()
+                return False
+            ctx = self.window.ctx
+        self.compositor = Compositor(width, height, ctx=ctx, inpaint=self.params.inpaint,
+                                     feather_px=self.params.feather_px, dilate_px=self.params.dilate_px)
+        return True
+
+    def _render(self, frame_msg: Image, state: FaceState | None) -> None:
+        frame = frame_msg.image
+        h, w = frame.shape[:2]
+        if not self._ensure_output(w, h):
+            return
+        out = frame
+        handles_px = roi_px = None
+        if state is None:
+            self.count("no_face")
+        elif self.model is None or self.model.model_id != state.model_id:
+            self.count("no_model")
+        elif state.image_size and list(state.image_size) not in ([w, h], [0, 0]):
+            self.count("state_size_mismatch")
+        else:
+            try:
+                deformed = self._deformed_vertices(state)
+                out = self.compositor.render(frame, state.vertices, state.projected, self.model.triangles, deformed)
+                for name, ms in self.compositor.timings.items():
+                    if name != "total":
+                        self.stage_times.setdefault(name, []).append(ms)
+                if self.deformation is not None and self.compositor.deformed_px is not None:
+                    px = self.compositor.deformed_px
+                    handles_px = px[self.deformation.handles[self.deformation.handles < len(px)]]
+                    roi_px = px[self.deformation.roi[self.deformation.roi < len(px)]]
+            except ValueError as exc:
+                self.count("bad_input")
+                self.log.warning("frame %d not rendered: %s", frame_msg.stamp, exc)
+                out = frame
+        with self.stage("output"):
+            if self.image_pub is not None:
+                self.image_pub.publish(Image(stamp=frame_msg.stamp, seq=frame_msg.seq, frame_id=frame_msg.frame_id,
+                                             image=out, K=frame_msg.K))
+            if self.params.output:
+                if self.video is None:
+                    from .video_out import VideoOutput
+
+                    self.video = VideoOutput(self.params.output, self.params.fps)
+                self.video.write(out)
+            if self.window is not None:
+                self._show(out, handles_px, roi_px)
+        self.count("rendered")
+
+    def _show(self, out: np.ndarray, handles_px, roi_px) -> None:
+        from .window import draw_overlay
+
+        now = time.monotonic()
+        self._shown_at = [t for t in self._shown_at if now - t < 1.0] + [now]
+        if self.params.overlay:
+            t = self.compositor.timings
+            lines = [f"{len(self._shown_at)} fps  render {t.get('total', 0.0):.1f} ms",
+                     "  ".join(f"{k} {v:.1f}" for k, v in t.items() if k != "total")]
+            out = draw_overlay(out, lines, handles_px, roi_px)
+        self.window.show(out)
+
+    def on_tick(self) -> None:
+        if self.window is None:
+            return
+        for event in self.window.poll():
+            self.events_pub.publish(InputEvent(stamp=time.time_ns(), source="window", **event))
+        if self.window.closed:
+            self.log.info("window closed")
+            self.shutdown()
+
+    def teardown(self) -> None:
+        if self.video is not None:
+            self.video.close()
+        if self.compositor is not None:
+            self.compositor.release()
+        if self.window is not None:
+            self.window.close()

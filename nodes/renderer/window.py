@@ -1,0 +1,174 @@
+"""An on-screen window (glfw) that shows the rendered frames and reports the user's input.
+
+The window is the frame's size (it may be resized; the picture is stretched to
+fit) and owns the OpenGL context the compositor then draws with. Mouse and key
+events come back from :meth:`Window.poll` as plain dicts holding the fields of an
+``InputEvent`` (facesculpt.msgs), with x, y in *frame* pixels:
+
+* left button: ``press`` / ``drag`` (motion while held) / ``release``, handle 0;
+* right button: ``command`` ``toggle_static`` at the pointer;
+* wheel: ``depth``, +1 mm per notch toward the camera (handle 0);
+* keys: R ``reset``, U or Ctrl+Z ``undo``; Escape and Q close the window.
+
+glfw wants its calls on the main thread: create, show and poll from the thread
+that runs the node.
+"""
+
+from __future__ import annotations
+
+import cv2
+import glfw
+import moderngl
+import numpy as np
+
+WHEEL_MM_PER_NOTCH = 1.0
+
+_QUAD_VS = """
+#version 330
+in vec2 in_pos;
+out vec2 v_uv;
+void main() {
+    gl_Position = vec4(in_pos, 0.0, 1.0);
+    v_uv = vec2((in_pos.x + 1.0) * 0.5, (1.0 - in_pos.y) * 0.5);  // texture row 0 = top row
+}
+"""
+
+_QUAD_FS = """
+#version 330
+uniform sampler2D u_image;
+in vec2 v_uv;
+out vec4 f_color;
+void main() {
+    f_color = vec4(texture(u_image, v_uv).bgr, 1.0);  // frames are BGR
+}
+"""
+
+
+def draw_overlay(image: np.ndarray, lines=(), points=None, roi=None) -> np.ndarray:
+    """A copy of ``image`` (H, W, 3) uint8 BGR with text lines top-left, handle ``points``
+    ((N, 2) pixels, circles) and ``roi`` points ((M, 2) pixels, dots)."""
+    out = image.copy()
+    if roi is not None and len(roi):
+        for x, y in np.asarray(roi, np.float64):
+            cv2.circle(out, (int(round(x)), int(round(y))), 1, (255, 200, 0), -1, cv2.LINE_AA)
+    if points is not None and len(points):
+        for x, y in np.asarray(points, np.float64):
+            cv2.circle(out, (int(round(x)), int(round(y))), 5, (0, 0, 255), 2, cv2.LINE_AA)
+    for i, text in enumerate(lines):
+        org = (8, 20 + 18 * i)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+class Window:
+    """A glfw window of ``width`` x ``height`` frame pixels with its own moderngl context.
+
+    Raises RuntimeError when no window can be opened (no display, no GL 3.3).
+    """
+
+    def __init__(self, width: int, height: int, title: str = "facesculpt", visible: bool = True):
+        self.width, self.height = int(width), int(height)
+        if not glfw.init():
+            desc = glfw.get_error()[1] if hasattr(glfw, "get_error") else None
+            raise RuntimeError(f"cannot open a window: glfw could not initialise ({desc or 'no display?'}); "
+                               f"use window=false for headless rendering")
+        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+        glfw.window_hint(glfw.VISIBLE, bool(visible))
+        self.handle = glfw.create_window(self.width, self.height, title, None, None)
+        if not self.handle:
+            glfw.terminate()
+            raise RuntimeError("cannot open a window: glfw could not create an OpenGL 3.3 window")
+        glfw.make_context_current(self.handle)
+        glfw.swap_interval(0)
+        self.ctx = moderngl.create_context()
+        self._texture = self.ctx.texture((self.width, self.height), 3, dtype="f1")
+        self._prog = self.ctx.program(vertex_shader=_QUAD_VS, fragment_shader=_QUAD_FS)
+        quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
+        self._vbo = self.ctx.buffer(quad.tobytes())
+        self._vao = self.ctx.vertex_array(self._prog, [(self._vbo, "2f", "in_pos")])
+        self._events: list[dict] = []
+        self._dragging = False
+        self.closed = False
+        glfw.set_mouse_button_callback(self.handle, self._on_button)
+        glfw.set_cursor_pos_callback(self.handle, self._on_cursor)
+        glfw.set_scroll_callback(self.handle, self._on_scroll)
+        glfw.set_key_callback(self.handle, self._on_key)
+
+    # -- coordinates and events ---------------------------------------------------------------
+    def to_frame(self, wx: float, wy: float) -> tuple[float, float]:
+        """Window coordinates (the cursor's pixel) -> frame pixels (pixel centres at integers):
+        the centre of the window pixel, scaled by frame size / window size."""
+        ww, wh = glfw.get_window_size(self.handle)
+        return ((wx + 0.5) * self.width / max(ww, 1) - 0.5, (wy + 0.5) * self.height / max(wh, 1) - 0.5)
+
+    def _cursor(self) -> tuple[float, float]:
+        return self.to_frame(*glfw.get_cursor_pos(self.handle))
+
+    def _on_button(self, _win, button, action, mods) -> None:
+        x, y = self._cursor()
+        if button == glfw.MOUSE_BUTTON_LEFT:
+            if action == glfw.PRESS:
+                self._dragging = True
+                self._events.append({"kind": "press", "x": x, "y": y, "handle": 0})
+            elif action == glfw.RELEASE and self._dragging:
+                self._dragging = False
+                self._events.append({"kind": "release", "x": x, "y": y, "handle": 0})
+        elif button == glfw.MOUSE_BUTTON_RIGHT and action == glfw.PRESS:
+            self._events.append({"kind": "command", "command": "toggle_static", "x": x, "y": y})
+
+    def _on_cursor(self, _win, wx, wy) -> None:
+        if self._dragging:
+            x, y = self.to_frame(wx, wy)
+            self._events.append({"kind": "drag", "x": x, "y": y, "handle": 0})
+
+    def _on_scroll(self, _win, _dx, dy) -> None:
+        x, y = self._cursor()
+        self._events.append({"kind": "depth", "depth": float(dy) * WHEEL_MM_PER_NOTCH, "x": x, "y": y, "handle": 0})
+
+    def _on_key(self, _win, key, _scancode, action, mods) -> None:
+        if action != glfw.PRESS:
+            return
+        if key in (glfw.KEY_ESCAPE, glfw.KEY_Q):
+            self.closed = True
+        elif key == glfw.KEY_R:
+            self._events.append({"kind": "command", "command": "reset"})
+        elif key == glfw.KEY_U or (key == glfw.KEY_Z and mods & glfw.MOD_CONTROL):
+            self._events.append({"kind": "command", "command": "undo"})
+
+    def poll(self) -> list[dict]:
+        """Process pending window-system events; return the input events since the last poll."""
+        glfw.poll_events()
+        if glfw.window_should_close(self.handle):
+            self.closed = True
+        events, self._events = self._events, []
+        return events
+
+    # -- drawing ------------------------------------------------------------------------------
+    def show(self, frame_bgr: np.ndarray) -> None:
+        """Display a (height, width, 3) uint8 BGR frame (draw any overlay into it first)."""
+        if frame_bgr.shape != (self.height, self.width, 3) or frame_bgr.dtype != np.uint8:
+            raise ValueError(f"window shows ({self.height}, {self.width}, 3) uint8 frames, got "
+                             f"{frame_bgr.shape} {frame_bgr.dtype}")
+        glfw.make_context_current(self.handle)
+        self._texture.write(np.ascontiguousarray(frame_bgr))
+        fw, fh = glfw.get_framebuffer_size(self.handle)
+        self.ctx.screen.use()
+        self.ctx.viewport = (0, 0, fw, fh)
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        self._texture.use(0)
+        self._vao.render(moderngl.TRIANGLE_STRIP)
+        glfw.swap_buffers(self.handle)
+
+    def close(self) -> None:
+        """Destroy the window and its GL objects (the context goes with the window)."""
+        if self.handle is None:
+            return
+        for obj in (self._vao, self._vbo, self._prog, self._texture):
+            obj.release()
+        glfw.destroy_window(self.handle)
+        self.handle = None
+        glfw.terminate()
