@@ -77,9 +77,13 @@ class EditStack:
         if idx.size and (idx.min() < 0 or idx.max() >= self.n):
             raise DeformerError("landmark vertices out of range")
         self.landmarks: dict[str, int] = {str(k): int(v) for k, v in zip(names, idx)}
-        self._names_of: dict[int, str] = {}
+        # every name of a vertex, descriptive names ("nose_tip") before numbers ("31"): a preset
+        # stores them all and a model with any one of them can place the handle
+        self._names_of: dict[int, list[str]] = {}
         for k, v in self.landmarks.items():
-            self._names_of.setdefault(v, k)
+            self._names_of.setdefault(v, []).append(k)
+        for names in self._names_of.values():
+            names.sort(key=lambda k: k.isdigit())
         self._check_roi(roi_radius, roi_metric)
         self.roi_radius = float(roi_radius)
         self.roi_metric = roi_metric
@@ -248,8 +252,13 @@ class EditStack:
         """JSON-ready dict of the edits and pins; handles named by landmark where possible."""
 
         def ref(v: int) -> dict:
-            name = self._names_of.get(v)
-            return {"landmark": name, "vertex": v} if name is not None else {"vertex": v}
+            names = self._names_of.get(v)
+            if not names:
+                return {"vertex": v}
+            out = {"landmark": names[0], "vertex": v}
+            if len(names) > 1:
+                out["aliases"] = names[1:]
+            return out
 
         edits = []
         for e in self.edits:
@@ -277,7 +286,10 @@ class EditStack:
             raise DeformerError(f"preset handle must be an object, got {ref!r}")
         name = ref.get("landmark")
         if name is not None:
-            return self.landmark_vertex(str(name))
+            for alias in [name, *ref.get("aliases", [])]:
+                if str(alias) in self.landmarks:
+                    return self.landmarks[str(alias)]
+            return self.landmark_vertex(str(name))  # raises, naming the landmark
         if "vertex" not in ref:
             raise DeformerError(f"preset handle {ref!r} names neither a landmark nor a vertex")
         if not same_topology:

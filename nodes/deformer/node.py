@@ -1,0 +1,313 @@
+"""The deformer node: ``input/events`` (queued) + ``face/state`` / ``face/model`` (latest) ->
+``face/deformation``.
+
+Events are queued on arrival and applied in rounds (every ``round_s``): the paper empties the
+event queue each round, so any number of drags of a handle become one ARAP solve. Rounds run
+on the node's own thread, independent of the frame rate. Bad input (a miss, an unknown
+landmark, NaN, a preset that does not fit) is counted in diagnostics and the last good
+deformation stays.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from pathlib import Path
+
+import numpy as np
+
+from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
+from facesculpt.node import Node
+
+from .arap import DeformerError
+from .dragging import axes_velocity, depth_delta, drag_delta
+from .edits import EditStack
+from .merge import merge_deformation
+from .picking import pick_vertex
+
+
+class DeformerNode(Node):
+    NAME = "deformer"
+    PARAMS = {
+        "roi_radius": 40.0,  # mm on the neutral mesh, default ROI of a new handle
+        "roi_metric": "geodesic",  # or "euclidean"
+        "iterations": 10,  # ARAP local/global iterations per solve (libigl's default)
+        "tolerance": 1e-4,  # stop early below this per-iteration motion, x bounding-box diagonal
+        "clamp_weights": True,  # clamp obtuse-angle cotangents at 0
+        "round_s": 0.005,  # how often queued events are applied and solved
+        "joystick_speed": 40.0,  # mm/s at full axis deflection
+        "joystick_deadzone": 0.1,
+        "preset_dir": "",  # where relative preset paths live (default: current directory)
+    }
+
+    def setup(self):
+        self.pub = self.advertise("face/deformation", Deformation)
+        self.subscribe("face/model", FaceModel, self.on_model)
+        self.subscribe("face/state", FaceState, self.on_state)
+        self.subscribe("input/events", InputEvent, self.on_event, queued=True)
+        self.timer(self.params.round_s, self.on_round)
+        self.model: FaceModel | None = None
+        self.state: FaceState | None = None
+        self.stack: EditStack | None = None
+        self.pending: list[InputEvent] = []
+        self.pointers: dict[int, tuple[int, float, float]] = {}  # pointer -> (vertex, last x, last y)
+        self.selected: int | None = None  # handle that depth/move/axes act on without a pointer
+        self.velocity = np.zeros(3)  # model-space mm/s from joystick axes
+        self.last_axes_at = time.monotonic()
+        self.dirty = False
+        self.stamp = 0
+        self.last: Deformation | None = None  # last published (the last good deformation)
+        self.last_diagnostic = ""
+
+    # -- inputs --------------------------------------------------------------------------
+
+    def on_model(self, msg: FaceModel):
+        if self.model is not None and msg.model_id == self.model.model_id and msg.version == self.model.version:
+            return
+        try:
+            stack = EditStack(
+                msg.vertices,
+                msg.triangles,
+                msg.landmark_names,
+                msg.landmark_vertices,
+                roi_radius=self.params.roi_radius,
+                roi_metric=self.params.roi_metric,
+                iterations=self.params.iterations,
+                tolerance=self.params.tolerance,
+                clamp_weights=self.params.clamp_weights,
+            )
+        except DeformerError as exc:
+            self._bad("bad_model", exc)
+            return
+        if self.stack is not None and self.stack.edits:
+            # carry the edits over: by landmark name, or by vertex on the same topology
+            try:
+                stack.apply_preset(self.stack.to_preset())
+            except DeformerError as exc:
+                self._bad("edits_dropped_on_model_change", exc)
+        self.model, self.stack = msg, stack
+        self.pointers.clear()
+        self.selected = None
+        self.dirty = True
+
+    def on_state(self, msg: FaceState):
+        self.state = msg
+
+    def on_event(self, msg: InputEvent):
+        self.pending.append(msg)
+
+    # -- rounds --------------------------------------------------------------------------
+
+    def on_round(self):
+        events, self.pending = self.pending, []
+        if self.stack is None:
+            if events:
+                self.count("events_without_model", len(events))
+            return
+        snapshot = (copy.deepcopy(self.stack.edits), set(self.stack.static))
+        for ev in events:
+            self.stamp = ev.stamp or self.stamp
+            try:
+                self.apply(ev)
+            except DeformerError as exc:
+                self._bad("bad_input", exc)
+        self._integrate_axes()
+        if not self.dirty:
+            return
+        self.dirty = False
+        try:
+            with self.stage("solve"):
+                displacement = self.stack.solve()
+        except DeformerError as exc:
+            # e.g. an edit whose ROI holds no free vertex: roll the round back
+            self.stack.edits, self.stack.static = snapshot
+            self._bad("solve_rejected", exc)
+            return
+        self.publish(displacement)
+
+    def publish(self, displacement: np.ndarray):
+        static, handles, roi, _ = self.stack.anchors()
+        self.last = Deformation(
+            stamp=self.stamp or time.time_ns(),
+            model_id=self.model.model_id,
+            displacement=displacement.astype(np.float32),
+            static=static.astype(np.int32),
+            handles=handles.astype(np.int32),
+            roi=roi.astype(np.int32),
+            version=self.stack.version,
+        )
+        self.pub.publish(self.last)
+
+    def _bad(self, counter: str, exc: Exception):
+        self.count(counter)
+        self.last_diagnostic = f"{counter}: {exc}"
+        self.log.warning("%s", self.last_diagnostic)
+
+    def diagnostics(self) -> dict:
+        values = super().diagnostics()
+        values["last_diagnostic"] = self.last_diagnostic
+        return values
+
+    # -- one event -----------------------------------------------------------------------
+
+    def apply(self, ev: InputEvent):
+        """Apply one input event to the edit stack (raises DeformerError on bad input)."""
+        kind = ev.kind
+        if kind == "press":
+            self._press(ev)
+        elif kind == "drag":
+            self._drag(ev)
+        elif kind == "release":
+            self.pointers.pop(ev.handle, None)
+        elif kind == "depth":
+            v = self._target_vertex(ev)
+            if not np.isfinite(ev.depth):
+                raise DeformerError("depth event with a non-finite depth")
+            state = self._need_state()
+            self._move(v, depth_delta(self._handle_cam(v, state), ev.depth, state.R, state.projection))
+        elif kind == "move":
+            v = self._target_vertex(ev)
+            vec = None if ev.vector is None else np.asarray(ev.vector, dtype=np.float64)
+            if vec is None or vec.shape != (3,) or not np.all(np.isfinite(vec)):
+                raise DeformerError("move event needs a finite model-space vector (3,) in mm")
+            self._move(v, vec)
+        elif kind == "axes":
+            self._axes(ev)
+        elif kind == "command":
+            self._command(ev)
+        else:  # buttons: mapped to commands by the input nodes
+            self.count(f"ignored_{kind}")
+
+    def _need_state(self) -> FaceState:
+        st = self.state
+        if st is None:
+            raise DeformerError("no face/state yet: cannot turn pixels into the model")
+        if st.vertices.shape[0] != self.stack.n:
+            raise DeformerError(
+                f"face/state has {st.vertices.shape[0]} vertices, face/model {self.stack.n}: waiting for matching ones"
+            )
+        return st
+
+    def _current_mesh(self, st: FaceState) -> np.ndarray:
+        """The deformed fitted mesh (camera space) the user sees: Eq. 5 with the last solve."""
+        return merge_deformation(st.vertices.astype(np.float64), st.R, st.scale, self.stack.displacement)
+
+    def _handle_cam(self, v: int, st: FaceState) -> np.ndarray:
+        """Camera-space position of handle ``v`` at its current target."""
+        offset = self.stack.handle_position(v) - self.stack.rest[v]
+        return st.vertices[v].astype(np.float64) + st.scale * (st.R @ offset)
+
+    def _pick(self, ev: InputEvent) -> int:
+        if ev.landmark:
+            return self.stack.landmark_vertex(ev.landmark)
+        if not (np.isfinite(ev.x) and np.isfinite(ev.y)):
+            raise DeformerError("press without a landmark name needs finite pixel coordinates x, y")
+        st = self._need_state()
+        with self.stage("pick"):
+            hit = pick_vertex(ev.x, ev.y, st.K, self._current_mesh(st), self.stack.triangles, st.projection)
+        if hit is None:
+            self.count("pick_miss")
+            self.last_diagnostic = f"pick_miss: pixel ({ev.x:.1f}, {ev.y:.1f}) is not on the face"
+            return -1
+        return hit.vertex
+
+    def _press(self, ev: InputEvent):
+        v = self._pick(ev)
+        if v < 0:
+            return
+        if self.pointers and self.stack.edits:
+            self.stack.add_handle(v)  # another pointer is held: same edit (e.g. a two-handle squeeze)
+        else:
+            self.stack.begin([v])
+        self.pointers[ev.handle] = (v, ev.x, ev.y)
+        self.selected = v
+        self.dirty = True
+        self.count("press")
+
+    def _drag(self, ev: InputEvent):
+        if ev.handle not in self.pointers:
+            raise DeformerError(f"drag of pointer {ev.handle} without a press")
+        if not (np.isfinite(ev.x) and np.isfinite(ev.y)):
+            raise DeformerError("drag needs finite pixel coordinates x, y")
+        v, x0, y0 = self.pointers[ev.handle]
+        st = self._need_state()
+        if not (np.isfinite(x0) and np.isfinite(y0)):  # pressed at a landmark: start from its pixel
+            from .picking import project
+
+            x0, y0 = project(self._handle_cam(v, st)[None], st.K, st.projection)[0]
+        self._move(v, drag_delta(self._handle_cam(v, st), (x0, y0), (ev.x, ev.y), st.K, st.R, st.scale, st.projection))
+        self.pointers[ev.handle] = (v, ev.x, ev.y)
+        self.count("drag")
+
+    def _target_vertex(self, ev: InputEvent) -> int:
+        if ev.handle in self.pointers:
+            return self.pointers[ev.handle][0]
+        if ev.landmark:
+            v = self.stack.landmark_vertex(ev.landmark)
+            if self.stack.edit_of(v) is None:
+                self.stack.begin([v])
+            return v
+        if self.selected is None:
+            raise DeformerError(f"{ev.kind} event with no handle selected: press first")
+        return self.selected
+
+    def _move(self, v: int, delta: np.ndarray):
+        k = self.stack.edit_of(v)
+        if k is None:
+            raise DeformerError(f"vertex {v} is no longer a handle (undone or reset)")
+        self.stack.move_handle(v, delta, edit=k)
+        self.dirty = True
+
+    def _axes(self, ev: InputEvent):
+        self._integrate_axes()
+        axes = np.zeros(0) if ev.axes is None else ev.axes
+        self.velocity = axes_velocity(axes, self.params.joystick_speed, self.params.joystick_deadzone)
+        self.last_axes_at = time.monotonic()
+
+    def _integrate_axes(self):
+        now = time.monotonic()
+        dt, self.last_axes_at = now - self.last_axes_at, now
+        if not np.any(self.velocity) or self.selected is None or self.stack.edit_of(self.selected) is None:
+            return
+        self._move(self.selected, self.velocity * min(dt, 0.1))
+
+    def _preset_path(self, argument: str) -> Path:
+        if not argument:
+            raise DeformerError("preset command needs a path argument")
+        p = Path(argument).expanduser()
+        return p if p.is_absolute() or not self.params.preset_dir else Path(self.params.preset_dir) / p
+
+    def _command(self, ev: InputEvent):
+        cmd = ev.command
+        if cmd == "reset":
+            self.stack.clear()
+            self.pointers.clear()
+            self.selected = None
+            self.velocity[:] = 0
+        elif cmd == "undo":
+            if not self.stack.undo():
+                self.count("undo_empty")
+            self.pointers.clear()
+            self.selected = None
+        elif cmd == "save_preset":
+            path = self._preset_path(ev.argument)
+            try:
+                self.stack.save_preset(path)
+            except OSError as exc:
+                raise DeformerError(f"cannot write preset {path}: {exc}") from exc
+            self.count("preset_saved")
+            return
+        elif cmd == "load_preset":
+            self.stack.load_preset(self._preset_path(ev.argument))
+            self.pointers.clear()
+            self.selected = None
+            self.count("preset_loaded")
+        elif cmd == "toggle_static":
+            v = self._pick(ev)
+            if v < 0:
+                return
+            self.stack.toggle_static(v)
+        else:
+            self.count("ignored_command")
+            return
+        self.dirty = True

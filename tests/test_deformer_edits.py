@@ -1,0 +1,205 @@
+"""Edit layers (accumulate, undo, reset), JSON presets across identities and topologies, ROI
+selection, and the Eq. 5 merge."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from facesculpt.nodes.deformer import DeformerError, EditStack, merge_deformation
+from facesculpt.nodes.deformer.anchors import distances_from, roi_within_radius
+
+
+@pytest.fixture(scope="module")
+def model(data_dir):
+    from facesculpt.nodes.fitter import load_model
+
+    return load_model("sfm")
+
+
+def stack_for(model, vertices=None, triangles=None, **kw):
+    V = model.mean if vertices is None else vertices
+    F = model.triangles if triangles is None else triangles
+    return EditStack(V, F, model.landmark_names, model.landmark_vertices, **kw)
+
+
+# the paper's Fig. 6e sequence: nose stretched, chin pointed, both cheeks
+FIG6E = [
+    {"nose_tip": [0.0, -3.0, 12.0]},
+    {"chin": [0.0, -10.0, 6.0]},
+    {"left_cheek": [-6.0, 0.0, 0.0], "right_cheek": [6.0, 0.0, 0.0]},
+]
+
+
+def make_edits(stack, edits=FIG6E):
+    for edit in edits:
+        verts = [stack.landmark_vertex(k) for k in edit]
+        stack.begin(verts)
+        for v, off in zip(verts, edit.values()):
+            stack.set_offset(v, off)
+        stack.solve()
+
+
+def test_edits_accumulate_undo_and_reset(model):
+    s = stack_for(model)
+    make_edits(s)
+    d_all = s.displacement.copy()
+    for edit in FIG6E:  # every edit's handles are still where it put them
+        for name, off in edit.items():
+            assert np.allclose(d_all[s.landmark_vertex(name)], off, atol=1e-9)
+    static, handles, roi, _ = s.anchors()
+    assert len(handles) == 4 and len(roi) > 500
+    outside = np.setdiff1d(np.arange(s.n), np.concatenate([roi, handles]))
+    assert np.all(d_all[outside] == 0)  # nothing outside every ROI moves
+
+    # undo drops the cheeks: the result is that of nose + chin alone
+    assert s.undo()
+    d_undo = s.solve(iterations=60)
+    fresh = stack_for(model)
+    make_edits(fresh, FIG6E[:2])
+    assert np.allclose(d_undo[s.landmark_vertex("left_cheek")], fresh.solve(iterations=60)[s.landmark_vertex("left_cheek")], atol=0.05)
+    assert not np.allclose(d_undo, d_all)
+    s.clear()
+    assert np.all(s.solve() == 0)
+    assert not s.undo()
+
+
+def test_later_edit_of_same_handle_wins_and_undo_restores(model):
+    s = stack_for(model)
+    v = s.landmark_vertex("nose_tip")
+    s.begin([v])
+    s.set_offset(v, [0.0, 0.0, 5.0])
+    s.solve()
+    s.begin([v])  # press again on the same vertex: starts from where it is
+    assert np.allclose(s.handle_position(v), s.rest[v] + [0, 0, 5])
+    s.move_handle(v, [0.0, 2.0, 0.0])
+    assert np.allclose(s.solve()[v], [0, 2, 5])
+    s.undo()
+    assert np.allclose(s.solve()[v], [0, 0, 5])
+
+
+def test_preset_from_one_identity_moves_same_landmarks_on_another(model, tmp_path):
+    rng = np.random.default_rng(11)
+    person_a = model.instance(rng.normal(size=model.num_shape) * 0.8)
+    person_b = model.instance(rng.normal(size=model.num_shape) * 0.8)
+    assert np.abs(person_a - person_b).max() > 5.0  # really two different faces
+    a = stack_for(model, person_a)
+    make_edits(a)
+    path = tmp_path / "fig6e.json"
+    a.save_preset(path)
+    doc = json.loads(path.read_text())
+    named = [h["landmark"] for e in doc["edits"] for h in e["handles"]]
+    assert named == ["nose_tip", "chin", "left_cheek", "right_cheek"]
+
+    b = stack_for(model, person_b)
+    b.load_preset(path)
+    d_b = b.solve()
+    for edit in FIG6E:
+        for name, off in edit.items():
+            assert np.allclose(d_b[b.landmark_vertex(name)], off, atol=1e-6)
+    # the deformation spreads over each person's own surface: similar, not identical
+    d_a = a.displacement
+    moved = np.linalg.norm(d_a, axis=1) > 0.5
+    assert np.corrcoef(d_a[moved].ravel(), d_b[moved].ravel())[0, 1] > 0.9
+    assert np.abs(d_a - d_b).max() > 1e-3
+
+
+def test_preset_on_other_topology_uses_names_only(model, tmp_path):
+    s = stack_for(model)
+    make_edits(s, FIG6E[:1])
+    s.begin([5])  # vertex 5 is not a named landmark
+    s.set_offset(5, [1.0, 0.0, 0.0])
+    s.solve()
+    doc = s.to_preset()
+    assert doc["edits"][1]["handles"][0] == {"vertex": 5, "offset": [1.0, 0.0, 0.0]}
+    # same vertices, triangles listed in another order: a different topology signature
+    other = stack_for(model, triangles=model.triangles[::-1].copy())
+    with pytest.raises(DeformerError, match="different mesh topology"):
+        other.apply_preset(doc)
+    assert other.edits == []  # nothing half-applied
+    doc["edits"] = doc["edits"][:1]
+    other.apply_preset(doc)
+    assert np.allclose(other.solve()[other.landmark_vertex("nose_tip")], FIG6E[0]["nose_tip"])
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d["edits"][0]["handles"][0].update(landmark="third_ear", aliases=[]), "no landmark named"),
+        (lambda d: d["edits"][0]["handles"][0].update(offset=[0, float("nan"), 0]), "finite"),
+        (lambda d: d.update(format="something else"), "not a"),
+        (lambda d: d["edits"][0].pop("handles"), "malformed"),
+        (lambda d: d["edits"][0]["roi"].update(radius=-3), "radius"),
+    ],
+)
+def test_bad_presets_raise_and_change_nothing(model, mutate, message):
+    s = stack_for(model)
+    make_edits(s, FIG6E[:2])
+    before = s.to_preset()
+    doc = json.loads(json.dumps(before))
+    mutate(doc)
+    with pytest.raises(DeformerError, match=message):
+        s.apply_preset(doc)
+    assert s.to_preset() == before
+
+
+def test_unreadable_preset_file(model, tmp_path):
+    s = stack_for(model)
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(DeformerError, match="cannot read"):
+        s.load_preset(bad)
+    with pytest.raises(DeformerError, match="cannot read"):
+        s.load_preset(tmp_path / "missing.json")
+
+
+def test_empty_roi_and_bad_handles_raise(model):
+    s = stack_for(model, roi_radius=1e-3)  # a radius that reaches no neighbour
+    s.begin([s.landmark_vertex("nose_tip")])
+    with pytest.raises(DeformerError, match="empty"):
+        s.solve()
+    t = stack_for(model)
+    with pytest.raises(DeformerError, match="out of range"):
+        t.begin([t.n])
+    with pytest.raises(DeformerError, match="press a handle first"):
+        t.move_handle(0, [1, 0, 0])
+    t.begin([0])
+    with pytest.raises(DeformerError, match="finite"):
+        t.move_handle(0, [np.nan, 0, 0])
+    with pytest.raises(DeformerError, match="metric"):
+        stack_for(model, roi_metric="manhattan")
+
+
+def test_roi_radius_geodesic_and_euclidean(model):
+    V, F = model.mean.astype(np.float64), model.triangles
+    nose = model.landmark_index()["nose_tip"]
+    geo = roi_within_radius(V, [nose], 40.0, "geodesic", triangles=F)
+    euc = roi_within_radius(V, [nose], 40.0, "euclidean")
+    assert nose in geo and nose in euc
+    assert set(geo) <= set(euc)  # a path along the surface is never shorter than a straight line
+    d = distances_from(V, [nose], "euclidean")
+    assert np.all(d[euc] <= 40.0) and np.all(np.delete(d, euc) > 40.0)
+    # the path length is within a few percent of the straight line for nearby vertices on a smooth patch
+    g = distances_from(V, [nose], "geodesic", triangles=F)
+    close = (d > 3) & (d < 10)
+    assert np.median(g[close] / d[close]) < 1.15
+
+
+def test_merge_turns_displacement_into_pose():
+    rng = np.random.default_rng(0)
+    model_pts = rng.normal(size=(50, 3)) * 40
+    disp = rng.normal(size=(50, 3))
+    R = Rotation.from_euler("xyz", [10, 40, -5], degrees=True).as_matrix()
+    s, t = 1.3, np.array([1.0, 2.0, 500.0])
+    fitted = (s * model_pts @ R.T + t).astype(np.float32)
+    out = merge_deformation(fitted, R, s, disp)
+    assert out.dtype == np.float32
+    assert np.allclose(out, s * (model_pts + disp) @ R.T + t, atol=1e-3)
+    w = np.linspace(0, 1, 50)
+    half = merge_deformation(fitted, R, s, disp, weights=w)
+    assert np.allclose(half, s * (model_pts + w[:, None] * disp) @ R.T + t, atol=1e-3)
+    with pytest.raises(ValueError):
+        merge_deformation(fitted, R, s, disp[:10])
