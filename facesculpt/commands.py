@@ -259,7 +259,9 @@ def cmd_bag_play(args) -> int:
                     due = t0_wall + (rec.time_ns - t0_rec) / 1e9 / args.rate
                     while node.running and time.monotonic() < due:
                         node.spin_once(min(0.05, max(0.0, due - time.monotonic())))
-                publishers[rec.topic].publish_frames(rec.frames)
+                # --fast never drops: wait for a slow subscriber for as long as we are not stopped.
+                while not publishers[rec.topic].publish_frames(rec.frames, timeout_s=1.0) and node.running:
+                    node.spin_once(0.0)
                 sent += 1
             if not args.loop:
                 break

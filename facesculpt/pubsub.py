@@ -73,7 +73,8 @@ class Publisher:
             hwm = DEFAULT_HWM_SMALL if self.type_name in SMALL_TYPES or reliable else DEFAULT_HWM_LARGE
         self.sock = ctx.socket(zmq.XPUB)
         self.sock.setsockopt(zmq.SNDHWM, hwm)
-        self.sock.setsockopt(zmq.LINGER, 500)
+        # A reliable publisher flushes what it queued before closing (bounded); others wait briefly.
+        self.sock.setsockopt(zmq.LINGER, 30000 if reliable else 500)
         self.sock.setsockopt(zmq.XPUB_VERBOSER, 1)
         if reliable:
             self.sock.setsockopt(zmq.XPUB_NODROP, 1)
@@ -91,6 +92,12 @@ class Publisher:
                 self.subscribers += 1
             elif note[:1] == b"\x00":
                 self.subscribers = max(0, self.subscribers - 1)
+
+    def subscriber_count(self) -> int:
+        """Subscribers connected now (non-blocking)."""
+        with self._lock:
+            self._read_subscriptions()
+            return self.subscribers
 
     def wait_for_subscribers(self, n: int = 1, timeout_s: float = 5.0) -> bool:
         """Block until ``n`` subscribers are connected (or the timeout passes)."""

@@ -28,6 +28,8 @@ class CameraNode(Node):
         "fov_deg": 60.0,      # horizontal field of view for K, unless K is given
         "K": [],              # 9 numbers, row-major, for the output size
         "max_frames": 0,      # stop after this many frames (0: no limit)
+        "wait_subscribers": 0,  # hold the first frame until this many subscribers listen (recording)
+        "wait_timeout_s": 10.0,
     }
 
     def setup(self):
@@ -44,6 +46,7 @@ class CameraNode(Node):
                 raise ValueError(f"camera.K needs 9 numbers, got {len(p.K)}")
             self.K_fixed = np.asarray(p.K, dtype=np.float64).reshape(3, 3)
         self._K_cache: dict[tuple, np.ndarray] = {}
+        self.wait_until = time.monotonic() + p.wait_timeout_s if p.wait_subscribers else 0.0
         self.log.info("%s at %s", self.source.description, f"{rate:.1f} fps" if rate else "full speed")
         self.timer(self.period, self.on_tick)
 
@@ -56,6 +59,10 @@ class CameraNode(Node):
         return self._K_cache[key]
 
     def on_tick(self):
+        if self.wait_until:
+            if self.pub.subscriber_count() < self.params.wait_subscribers and time.monotonic() < self.wait_until:
+                return
+            self.wait_until = 0.0
         try:
             frame, stamp = next(self.frames)
         except StopIteration:
