@@ -1,0 +1,526 @@
+"""Face detection and 468-point face-mesh landmarks on onnxruntime, with ROI tracking.
+
+The pipeline follows mediapipe's face-mesh graph, written out here:
+
+1. **Detector** (short range, 128x128 input, RGB in [-1, 1]): 896 SSD anchors on 16x16 and
+   8x8 grids; each anchor regresses a box and six keypoints (right eye, left eye, nose tip,
+   mouth, right and left ear tragion; "right" is the person's right, image left). Scores pass
+   a sigmoid; overlapping boxes merge by *weighted* non-maximum suppression (score-weighted
+   mean of each cluster, as mediapipe does). The short-range model sees faces of roughly 15 to
+   75 % of its input, so small faces in wide frames are found by also running it on
+   overlapping square tiles of decreasing size (:func:`detection_tiles`).
+2. **ROI**: a square, rotated crop around the face: centre of the box, side 1.5x the longer
+   box side, rotation from the eye line (right eye -> left eye).
+3. **Face mesh** (192x192 crop, RGB in [0, 1]): 468 points (x, y in crop pixels, z relative
+   depth in the same scale) and a face-presence logit. The points are mapped back through the
+   crop: x, y in image pixels, z scaled like x (pixels; smaller = nearer the camera).
+4. **Tracking**: the next frame's ROI comes from the last points (rotation from the outer eye
+   corners 33 -> 263, box of all points in that rotated frame, side 1.5x); the detector runs
+   again only when a face's presence score drops below ``min_tracking_score`` or fewer than
+   ``max_faces`` faces are tracked.
+
+Coordinates: image pixels with the centre of pixel (i, j) at (x=i, y=j) (OpenCV's convention).
+Internally crops use continuous coordinates (pixel i spans [i, i+1]); the conversion is done
+once where results leave this module.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from facesculpt.paths import MissingModelsError, model_home
+
+log = logging.getLogger(__name__)
+
+DETECTOR_SIZE = 128
+MESH_SIZE = 192
+NUM_POINTS = 468
+NUM_KEYPOINTS = 6
+# Mesh points that define the ROI rotation when tracking: outer eye corners (person's right,
+# image left -> person's left, image right).
+RIGHT_EYE_OUTER, LEFT_EYE_OUTER = 33, 263
+ROI_SCALE = 1.5
+# Short-range detector anchors (mediapipe SsdAnchorsCalculator options of the model).
+_ANCHOR_STRIDES = (8, 16, 16, 16)
+_MIN_FACE_IN_TILE = 0.15  # smallest face, as a fraction of a detector tile, to rely on
+_DETECTOR_FILES = ("face_detector.onnx", "face_landmark.onnx")
+
+
+@dataclass
+class Detection:
+    """A detector result in image pixels (continuous coordinates).
+
+    box: (4,) float32 [xmin, ymin, xmax, ymax]; keypoints: (6, 2) float32; score in [0, 1].
+    """
+
+    box: np.ndarray
+    keypoints: np.ndarray
+    score: float
+
+
+@dataclass
+class Face:
+    """One face: ``points`` (468, 3) float32 (x, y image pixels, z relative depth in pixel
+    scale), ``score`` face presence in [0, 1], ``roi`` (5,) float32 [cx, cy, w, h, angle_rad]
+    of the crop the points came from (angle: rotation of the crop's x axis from the image's)."""
+
+    points: np.ndarray
+    score: float
+    roi: np.ndarray
+
+
+# ---------------------------------------------------------------------------------------------
+# Detector: anchors, decoding, weighted NMS
+# ---------------------------------------------------------------------------------------------
+def ssd_anchors(size: int = DETECTOR_SIZE, strides=_ANCHOR_STRIDES) -> np.ndarray:
+    """Anchor centres of the short-range detector, (896, 2) float32, normalised [0, 1].
+
+    Layers with the same stride share one grid; each layer puts two anchors per cell (aspect
+    ratio 1 and the interpolated scale); with fixed anchor size every anchor is 1x1.
+    """
+    centres = []
+    i = 0
+    while i < len(strides):
+        stride = strides[i]
+        per_cell = 0
+        while i < len(strides) and strides[i] == stride:
+            per_cell += 2
+            i += 1
+        grid = int(math.ceil(size / stride))
+        ys, xs = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
+        cell = np.stack([(xs + 0.5) / grid, (ys + 0.5) / grid], axis=-1).reshape(-1, 1, 2)
+        centres.append(np.repeat(cell, per_cell, axis=1).reshape(-1, 2))
+    return np.concatenate(centres).astype(np.float32)
+
+
+def decode_detections(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndarray,
+                      min_score: float = 0.5, size: int = DETECTOR_SIZE):
+    """Decode the detector's raw outputs.
+
+    raw_boxes (896, 16) float32: per anchor dx, dy, w, h, then six (x, y) keypoints, in input
+    pixels relative to the anchor centre; raw_scores (896,) logits. Returns normalised
+    ``boxes`` (N, 4) [xmin, ymin, xmax, ymax], ``keypoints`` (N, 6, 2), ``scores`` (N,) for the
+    anchors whose sigmoid score is at least ``min_score``.
+    """
+    scores = 1.0 / (1.0 + np.exp(-np.clip(raw_scores.astype(np.float64), -100.0, 100.0)))
+    keep = np.flatnonzero(scores >= min_score)
+    raw = raw_boxes[keep].astype(np.float64) / size
+    centre = anchors[keep].astype(np.float64)
+    cxcy = raw[:, 0:2] + centre
+    half = raw[:, 2:4] / 2.0
+    boxes = np.concatenate([cxcy - half, cxcy + half], axis=1)
+    keypoints = raw[:, 4:4 + 2 * NUM_KEYPOINTS].reshape(-1, NUM_KEYPOINTS, 2) + centre[:, None, :]
+    return boxes.astype(np.float32), keypoints.astype(np.float32), scores[keep].astype(np.float32)
+
+
+def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Intersection over union of one box (4,) with boxes (N, 4), [xmin, ymin, xmax, ymax]."""
+    lo = np.maximum(box[:2], boxes[:, :2])
+    hi = np.minimum(box[2:], boxes[:, 2:])
+    inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
+    area = np.prod(box[2:] - box[:2])
+    areas = np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
+    return inter / np.maximum(area + areas - inter, 1e-12)
+
+
+def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
+                 iou_threshold: float = 0.3) -> list[Detection]:
+    """mediapipe's weighted non-maximum suppression.
+
+    Repeatedly take the highest-scoring remaining box, gather every remaining box overlapping
+    it by IoU > ``iou_threshold``, and output the score-weighted mean box and keypoints of that
+    cluster with the top score. Input boxes (N, 4), keypoints (N, K, 2), scores (N,).
+    """
+    order = np.argsort(-scores, kind="stable")
+    boxes, keypoints, scores = boxes[order], keypoints[order], scores[order]
+    remaining = np.ones(len(scores), bool)
+    out = []
+    for i in range(len(scores)):
+        if not remaining[i]:
+            continue
+        cluster = np.flatnonzero(remaining & (box_iou(boxes[i], boxes) > iou_threshold))
+        cluster = np.union1d(cluster, [i])
+        remaining[cluster] = False
+        w = scores[cluster].astype(np.float64)
+        w /= w.sum()
+        out.append(Detection(
+            box=(boxes[cluster] * w[:, None]).sum(0).astype(np.float32),
+            keypoints=(keypoints[cluster] * w[:, None, None]).sum(0).astype(np.float32),
+            score=float(scores[i]),
+        ))
+    return out
+
+
+def detection_tiles(width: int, height: int, min_face: float) -> list[tuple[float, float, float]]:
+    """Square regions (x0, y0, side) in pixels on which to run the 128x128 detector.
+
+    The first is the whole image, letterboxed (centred, padded with black). Then come levels of
+    overlapping tiles (stride half the side) whose side halves from the image's short side until
+    a face of ``min_face`` pixels fills at least 15 % of a tile (the short-range model finds
+    faces from about 12 % of its input, measured). ``min_face`` <= 0: the whole image only.
+    """
+    long_side, short_side = max(width, height), min(width, height)
+    tiles = [((width - long_side) / 2.0, (height - long_side) / 2.0, float(long_side))]
+    if min_face <= 0:
+        return tiles
+    side = float(short_side)
+    if side > long_side / 1.25:  # almost square: the letterboxed view already is this level
+        side /= 2.0
+    while side >= 32 and min_face < _MIN_FACE_IN_TILE * tiles[-1][2]:
+        stride = side / 2.0
+        nx = max(1, int(math.ceil((width - side) / stride)) + 1)
+        ny = max(1, int(math.ceil((height - side) / stride)) + 1)
+        xs = np.linspace(0.0, max(width - side, 0.0), nx)
+        ys = np.linspace(0.0, max(height - side, 0.0), ny)
+        tiles.extend((float(x), float(y), side) for y in ys for x in xs)
+        side /= 2.0
+    return tiles
+
+
+# ---------------------------------------------------------------------------------------------
+# Regions of interest and crops
+# ---------------------------------------------------------------------------------------------
+def _rotation(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def roi_from_detection(det: Detection, scale: float = ROI_SCALE) -> np.ndarray:
+    """Crop ROI (5,) [cx, cy, side, side, angle] from a detection (continuous pixels)."""
+    centre = (det.box[:2] + det.box[2:]) / 2.0
+    side = float(max(det.box[2] - det.box[0], det.box[3] - det.box[1])) * scale
+    eye = det.keypoints[1] - det.keypoints[0]  # right eye -> left eye
+    angle = math.atan2(float(eye[1]), float(eye[0]))
+    return np.array([centre[0], centre[1], side, side, angle], np.float64)
+
+
+def roi_from_points(points_xy: np.ndarray, scale: float = ROI_SCALE) -> np.ndarray:
+    """Crop ROI from mesh points (468, 2) (continuous pixels): rotation from the outer eye
+    corners, square box around all points in that rotated frame, side ``scale`` x larger."""
+    eye = points_xy[LEFT_EYE_OUTER] - points_xy[RIGHT_EYE_OUTER]
+    angle = math.atan2(float(eye[1]), float(eye[0]))
+    rot = _rotation(angle)
+    local = points_xy @ rot  # coordinates along the crop's x and y axes
+    lo, hi = local.min(0), local.max(0)
+    centre = rot @ ((lo + hi) / 2.0)
+    side = float(max(hi - lo)) * scale
+    return np.array([centre[0], centre[1], side, side, angle], np.float64)
+
+
+def crop_matrix(roi: np.ndarray, size: int) -> np.ndarray:
+    """2x3 affine map from crop pixel indices to image pixel indices (for WARP_INVERSE_MAP)."""
+    cx, cy, w, h, angle = (float(v) for v in roi)
+    rot = _rotation(angle)
+    lin = rot @ np.diag([w / size, h / size])
+    # image_cont = c + rot @ ((q + 0.5) / size - 0.5) * (w, h); image index = image_cont - 0.5.
+    offset = np.array([cx, cy]) + rot @ ((0.5 / size - 0.5) * np.array([w, h])) - 0.5
+    return np.hstack([lin, offset[:, None]])
+
+
+def crop_image(image_rgb: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
+    """The rotated ROI (continuous pixels) resampled to (size, size, 3) uint8. Outside the image:
+    ``border`` (replicate the edge pixels for the mesh, black for the detector's letterbox)."""
+    matrix = crop_matrix(roi, size)
+    # Work on the part of the image under the ROI (plus a margin for interpolation).
+    corners = matrix @ np.array([[0, 0, 1], [size, 0, 1], [0, size, 1], [size, size, 1]], np.float64).T
+    h, w = image_rgb.shape[:2]
+    x0, y0 = (int(np.clip(math.floor(v) - 2, 0, lim)) for v, lim in zip(corners.min(axis=1), (w - 1, h - 1)))
+    x1, y1 = (int(np.clip(math.ceil(v) + 3, 1, lim)) for v, lim in zip(corners.max(axis=1), (w, h)))
+    if x1 <= x0 or y1 <= y0:  # the ROI misses the image entirely
+        x0, y0, x1, y1 = 0, 0, w, h
+    part = image_rgb[y0:y1, x0:x1]
+    matrix = matrix - np.array([[0.0, 0.0, x0], [0.0, 0.0, y0]])
+    shrink = float(max(roi[2], roi[3])) / size
+    if shrink > 2.0:
+        # Area-downsample first so bilinear sampling does not alias (a face filling a 4K frame).
+        factor = float(int(shrink // 2))
+        small = cv2.resize(part, (max(int(round(part.shape[1] / factor)), 1), max(int(round(part.shape[0] / factor)), 1)),
+                           interpolation=cv2.INTER_AREA)
+        sx, sy = part.shape[1] / small.shape[1], part.shape[0] / small.shape[0]
+        matrix = matrix.copy()
+        matrix[0] = (matrix[0] + np.array([0.0, 0.0, 0.5])) / sx - np.array([0.0, 0.0, 0.5])
+        matrix[1] = (matrix[1] + np.array([0.0, 0.0, 0.5])) / sy - np.array([0.0, 0.0, 0.5])
+        part = small
+    return cv2.warpAffine(part, matrix, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=border, borderValue=(0, 0, 0))
+
+
+def project_points(raw: np.ndarray, roi: np.ndarray, size: int = MESH_SIZE) -> np.ndarray:
+    """Mesh output (468, 3) in crop pixels -> (468, 3) image pixels (continuous; z scaled like x)."""
+    cx, cy, w, h, angle = (float(v) for v in roi)
+    local = (raw[:, :2] / size - 0.5) * np.array([w, h])
+    xy = local @ _rotation(angle).T + np.array([cx, cy])
+    z = raw[:, 2:3] / size * w
+    return np.hstack([xy, z])
+
+
+# ---------------------------------------------------------------------------------------------
+# Networks
+# ---------------------------------------------------------------------------------------------
+class OnnxNetwork:
+    """One converted network on onnxruntime: ``run(x)`` with x (1, H, W, 3) float32 returns the
+    outputs in the TFLite model's order."""
+
+    def __init__(self, path: Path, threads: int = 1, inter_threads: int = 1):
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = max(int(threads), 0)
+        options.inter_op_num_threads = max(int(inter_threads), 0)
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        self.input_name = self.session.get_inputs()[0].name
+
+    def run(self, x: np.ndarray) -> list[np.ndarray]:
+        return self.session.run(None, {self.input_name: x})
+
+
+class LiteRtNetwork:
+    """The original .tflite network on ai-edge-litert (a reference peer for tests/benchmarks)."""
+
+    def __init__(self, path: Path, threads: int = 1):
+        from ai_edge_litert.interpreter import Interpreter
+
+        self.interpreter = Interpreter(model_path=str(path), num_threads=max(int(threads), 1))
+        self.interpreter.allocate_tensors()
+        self.input_index = self.interpreter.get_input_details()[0]["index"]
+        self.output_indices = [d["index"] for d in self.interpreter.get_output_details()]
+
+    def run(self, x: np.ndarray) -> list[np.ndarray]:
+        self.interpreter.set_tensor(self.input_index, x)
+        self.interpreter.invoke()
+        return [self.interpreter.get_tensor(i).copy() for i in self.output_indices]
+
+
+def as_bgr_uint8(image) -> np.ndarray | None:
+    """Coerce an image to (H, W, 3) uint8 BGR; None when it holds no pixels or is not an image.
+
+    Accepts grey (H, W) or (H, W, 1), BGRA, float images (in [0, 1] when their maximum is at
+    most 1, else [0, 255]), and other integer types (uint16 is scaled to 8 bits).
+    """
+    if not isinstance(image, np.ndarray):
+        try:
+            image = np.asarray(image)
+        except Exception:  # noqa: BLE001 - anything not array-like is "not an image"
+            return None
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim not in (2, 3) or image.size == 0 or (image.ndim == 3 and image.shape[2] not in (3, 4)):
+        return None
+    if image.dtype != np.uint8:
+        if image.dtype == np.bool_:
+            image = image.astype(np.uint8) * 255
+        elif np.issubdtype(image.dtype, np.floating):
+            img = np.nan_to_num(image.astype(np.float32), nan=0.0, posinf=255.0, neginf=0.0)
+            if img.max(initial=0.0) <= 1.0:
+                img = img * 255.0
+            image = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+        elif image.dtype == np.uint16:
+            image = (image >> 8).astype(np.uint8)
+        elif np.issubdtype(image.dtype, np.integer):
+            image = np.clip(image, 0, 255).astype(np.uint8)
+        else:
+            return None
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    if image.shape[2] == 4:
+        return np.ascontiguousarray(image[:, :, :3])
+    return np.ascontiguousarray(image)
+
+
+def _index_coords(face_points: np.ndarray, roi: np.ndarray, score: float) -> Face:
+    """Continuous coordinates -> pixel-index coordinates, as a :class:`Face`."""
+    points = face_points.astype(np.float32)
+    points[:, :2] -= 0.5
+    out_roi = roi.astype(np.float32)
+    out_roi[:2] -= 0.5
+    return Face(points=points, score=float(score), roi=out_roi)
+
+
+@dataclass
+class _Track:
+    """A tracked face, continuous coordinates: the crop its points came from, the points
+    (468, 3), the presence score, and the ROI for the next frame."""
+
+    crop_roi: np.ndarray
+    points: np.ndarray
+    score: float
+    next_roi: np.ndarray
+
+
+class LandmarkDetector:
+    """Face detector + 468-point face mesh with ROI tracking.
+
+    models_dir: the directory `facesculpt setup` filled (default :func:`model_home`); a missing
+    file raises :class:`MissingModelsError` naming `facesculpt setup`. threads: onnxruntime
+    intra-op threads. max_faces: how many faces to return (the largest first). min_face: the
+    smallest face the detector looks for (detector box side, as a fraction of the image's short
+    side; smaller faces need more tiles, see :func:`detection_tiles`); 0 = whole image only. backend: "onnxruntime" (the converted networks) or
+    "litert" (the original .tflite networks on ai-edge-litert, as a reference).
+
+    ``detect(image)`` always runs the detector; ``track(image)`` reuses the last crops and runs
+    the detector only when needed. Both return a list of :class:`Face` (empty when none) and
+    never raise on bad images.
+    """
+
+    def __init__(self, models_dir: str | Path | None = None, threads: int = 1, max_faces: int = 1,
+                 min_detection_score: float = 0.5, min_tracking_score: float = 0.5,
+                 min_face: float = 0.15, nms_iou: float = 0.3, redetect_interval: int = 15,
+                 backend: str = "onnxruntime"):
+        home = Path(models_dir) if models_dir is not None else model_home()
+        ext = {"onnxruntime": ".onnx", "litert": ".tflite"}.get(backend)
+        if ext is None:
+            raise ValueError(f"unknown backend {backend!r} (onnxruntime or litert)")
+        paths = [home / name.replace(".onnx", ext) for name in _DETECTOR_FILES]
+        for path in paths:
+            if not path.is_file():
+                raise MissingModelsError(
+                    f"{path} is missing: run `facesculpt setup` to fetch and convert the face networks "
+                    f"(or point FACESCULPT_HOME / models_dir at the directory where it put them)")
+        if backend == "onnxruntime":
+            self.detector_net, self.mesh_net = (OnnxNetwork(p, threads) for p in paths)
+        else:
+            self.detector_net, self.mesh_net = (LiteRtNetwork(p, threads) for p in paths)
+        self.max_faces = max(int(max_faces), 1)
+        self.min_detection_score = float(min_detection_score)
+        self.min_tracking_score = float(min_tracking_score)
+        self.min_face = max(float(min_face), 0.0)
+        self.nms_iou = float(nms_iou)
+        self.redetect_interval = max(int(redetect_interval), 1)
+        self.anchors = ssd_anchors()
+        self._tracks: list[_Track] = []
+        self._frames_since_detect = 0
+        self.last_ran_detector = False
+
+    # ---- public API ----------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the tracked faces: the next :meth:`track` runs the detector."""
+        self._tracks = []
+
+    def detect(self, image) -> list[Face]:
+        """Run the detector on the whole image (and tiles), then the mesh on each face found."""
+        rgb = self._prepare(image)
+        if rgb is None:
+            self._tracks = []
+            return []
+        self._tracks = self._detect_tracks(rgb, [])
+        self._frames_since_detect = 0
+        self.last_ran_detector = True
+        return self._faces()
+
+    def track(self, image) -> list[Face]:
+        """Landmarks from the last crops; the detector reruns when a face is lost or fewer than
+        ``max_faces`` are tracked (then at most every ``redetect_interval`` frames)."""
+        rgb = self._prepare(image)
+        if rgb is None:
+            self._tracks = []
+            return []
+        self.last_ran_detector = False
+        tracks = [t for t in (self._refine(rgb, t.next_roi) for t in self._tracks) if t is not None]
+        lost = len(tracks) < len(self._tracks)
+        self._frames_since_detect += 1
+        if not tracks or lost or (len(tracks) < self.max_faces
+                                  and self._frames_since_detect >= self.redetect_interval):
+            tracks = self._detect_tracks(rgb, tracks)
+            self._frames_since_detect = 0
+            self.last_ran_detector = True
+        self._tracks = tracks
+        return self._faces()
+
+    # ---- steps ---------------------------------------------------------------------------
+    def _prepare(self, image) -> np.ndarray | None:
+        bgr = as_bgr_uint8(image)
+        if bgr is None:
+            return None
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+    def run_detector(self, rgb: np.ndarray) -> list[Detection]:
+        """All detections in an RGB uint8 image (continuous pixels), merged over tiles."""
+        h, w = rgb.shape[:2]
+        min_face = self.min_face * min(w, h)
+        boxes, keypoints, scores = [], [], []
+        for i, (x0, y0, side) in enumerate(detection_tiles(w, h, min_face)):
+            patch = crop_image(rgb, np.array([x0 + side / 2, y0 + side / 2, side, side, 0.0]),
+                               DETECTOR_SIZE, cv2.BORDER_CONSTANT)
+            x = (patch.astype(np.float32) / 127.5 - 1.0)[None]
+            raw_boxes, raw_scores = self.detector_net.run(x)
+            b, k, s = decode_detections(raw_boxes[0], raw_scores[0, :, 0], self.anchors, self.min_detection_score)
+            if i > 0 and len(s):
+                keep = _owned_by_tile(b, x0 / side, y0 / side, w / side, h / side)
+                b, k, s = b[keep], k[keep], s[keep]
+            if len(s):
+                boxes.append(b * side + np.array([x0, y0, x0, y0], np.float32))
+                keypoints.append(k * side + np.array([x0, y0], np.float32))
+                scores.append(s)
+        if not scores:
+            return []
+        return weighted_nms(np.concatenate(boxes), np.concatenate(keypoints), np.concatenate(scores),
+                            self.nms_iou)
+
+    def _refine(self, rgb: np.ndarray, roi: np.ndarray) -> _Track | None:
+        """Mesh on one ROI; None when the face-presence score is below ``min_tracking_score``."""
+        if not (np.all(np.isfinite(roi)) and roi[2] >= 4.0):
+            return None
+        crop = crop_image(rgb, roi, MESH_SIZE)
+        x = (crop.astype(np.float32) * (1.0 / 255.0))[None]
+        raw_points, raw_score = self.mesh_net.run(x)
+        score = 1.0 / (1.0 + math.exp(-float(np.clip(raw_score.reshape(-1)[0], -100, 100))))
+        if score < self.min_tracking_score:
+            return None
+        points = project_points(raw_points.reshape(NUM_POINTS, 3).astype(np.float64), roi)
+        return _Track(crop_roi=roi, points=points, score=score, next_roi=roi_from_points(points[:, :2]))
+
+    def _detect_tracks(self, rgb: np.ndarray, tracks: list[_Track]) -> list[_Track]:
+        """Add faces from the detector to the tracked ones, up to ``max_faces`` (largest first).
+
+        Detections are taken best score first (the order of :func:`weighted_nms`); one that
+        covers an already accepted face is a duplicate and is skipped.
+        """
+        found: list[_Track] = []
+        for det in self.run_detector(rgb):
+            roi = roi_from_detection(det)
+            if any(_roi_overlap(roi, t.points) for t in tracks + found):
+                continue
+            track = self._refine(rgb, roi)
+            if track is not None:
+                # A second pass from the mesh's own ROI: detector boxes are coarse, and on still
+                # images there is no next frame to correct the crop.
+                track = self._refine(rgb, track.next_roi) or track
+            if track is not None and not any(_roi_overlap(track.next_roi, t.points) for t in tracks + found):
+                found.append(track)
+        found.sort(key=lambda t: -t.next_roi[2])
+        return tracks + found[: max(self.max_faces - len(tracks), 0)]
+
+    def _faces(self) -> list[Face]:
+        tracks = sorted(self._tracks, key=lambda t: -t.next_roi[2])[: self.max_faces]
+        return [_index_coords(t.points, t.crop_roi, t.score) for t in tracks]
+
+
+def _owned_by_tile(boxes: np.ndarray, x0: float, y0: float, width: float, height: float) -> np.ndarray:
+    """Which detections (normalised boxes (N, 4) in a tile) the tile is responsible for.
+
+    Tiles of a level overlap by half, so the central halves of the tiles cover the image (up to
+    its border). A tile keeps faces whose centre lies in its central half (or beyond it towards
+    an image border) and that are at most half the tile's side: a face cut by the tile's edge
+    is found whole by a neighbour, a bigger face by a coarser level. Tile position and image
+    size are in tile sides.
+    """
+    centre = (boxes[:, :2] + boxes[:, 2:]) / 2.0
+    size = np.max(boxes[:, 2:] - boxes[:, :2], axis=1)
+    lo = np.array([0.25 if x0 > 1e-6 else -np.inf, 0.25 if y0 > 1e-6 else -np.inf])
+    hi = np.array([0.75 if x0 + 1.0 < width - 1e-6 else np.inf, 0.75 if y0 + 1.0 < height - 1e-6 else np.inf])
+    return np.all((centre >= lo) & (centre < hi), axis=1) & (size <= 0.5)
+
+
+def _roi_overlap(roi: np.ndarray, points: np.ndarray) -> bool:
+    """True when a tracked face's nose tip (mesh point 1) lies inside the central half of ``roi``."""
+    nose = points[1, :2]
+    local = (nose - roi[:2]) @ _rotation(float(roi[4]))
+    return bool(np.all(np.abs(local) < roi[2:4] / 4.0))
