@@ -52,7 +52,8 @@ def uncovered_mask(original: np.ndarray, deformed: np.ndarray, dilate_px: int = 
     # Drop slivers one pixel wide: where the two outlines nearly coincide they differ by
     # rasterisation alone, and filling those would print background specks under the
     # feathered edge of the face.
-    diff = cv2.morphologyEx(diff, cv2.MORPH_OPEN, _SLIVER_KERNEL)
+    # (An even kernel shifts OpenCV's opening by a pixel: keep only pixels of the difference.)
+    diff &= cv2.morphologyEx(diff, cv2.MORPH_OPEN, _SLIVER_KERNEL)
     return dilate(diff, dilate_px)
 
 

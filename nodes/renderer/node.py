@@ -20,6 +20,7 @@ import numpy as np
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
 from facesculpt.node import Node
+from facesculpt.nodes.deformer import merge_deformation
 
 from .compositor import Compositor
 from .pairing import FramePairer
@@ -63,8 +64,6 @@ class RendererNode(Node):
         self.compositor: Compositor | None = None
         self.window = None
         self.video = None
-        self._merge = None
-        self._merge_missing_logged = False
         self._shown_at: list[float] = []
         if p.window:
             self.timer(1.0 / 120.0, self.on_tick)
@@ -104,19 +103,8 @@ class RendererNode(Node):
         if d.model_id != state.model_id or d.displacement.shape != state.vertices.shape:
             self.count("deformation_model_mismatch")
             return state.vertices
-        if self._merge is None:
-            try:
-                from facesculpt.nodes.deformer import merge_deformation
-            except ImportError:
-                if not self._merge_missing_logged:
-                    self.log.error("facesculpt.nodes.deformer.merge_deformation is not available: "
-                                   "rendering without the edit")
-                    self._merge_missing_logged = True
-                self.count("merge_unavailable")
-                return state.vertices
-            self._merge = merge_deformation
         with self.stage("merge"):
-            return np.asarray(self._merge(state.vertices, state.R, state.scale, d.displacement))
+            return merge_deformation(state.vertices, state.R, state.scale, d.displacement)
 
     def _ensure_output(self, width: int, height: int) -> bool:
         """(Re)create window and compositor for this frame size; False when the size is unusable."""
