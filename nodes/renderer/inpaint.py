@@ -52,8 +52,10 @@ def uncovered_mask(original: np.ndarray, deformed: np.ndarray, dilate_px: int = 
     # Drop slivers one pixel wide: where the two outlines nearly coincide they differ by
     # rasterisation alone, and filling those would print background specks under the
     # feathered edge of the face.
-    # (An even kernel shifts OpenCV's opening by a pixel: keep only pixels of the difference.)
-    diff &= cv2.morphologyEx(diff, cv2.MORPH_OPEN, _SLIVER_KERNEL)
+    # Opening by a 2x2 square: the union of the 2x2 squares inside the difference. (The
+    # dilation takes the reflected anchor; OpenCV's MORPH_OPEN would shift it by a pixel.)
+    core = cv2.erode(diff, _SLIVER_KERNEL, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    diff = cv2.dilate(core, _SLIVER_KERNEL, anchor=(1, 1), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return dilate(diff, dilate_px)
 
 

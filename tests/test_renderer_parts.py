@@ -1,0 +1,185 @@
+"""The renderer's parts: the fills on real pixels, camera recovery, hole closing, video output."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from renderer_scene import read_frames
+
+from facesculpt.nodes.renderer.camera import estimate_projection, project
+from facesculpt.nodes.renderer.inpaint import fill_pushpull, fill_telea, inpaint_region, uncovered_mask
+from facesculpt.nodes.renderer.mesh import boundary_loops, close_holes
+from facesculpt.nodes.renderer.video_out import VideoOutput
+
+
+# -- fills ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def background_patch(data_dir):
+    """A real, face-free 160x160 patch of s18 (plants and floor, left of the person)."""
+    frame = read_frames(data_dir, "s18")[0]
+    return np.ascontiguousarray(frame[200:360, 60:220])
+
+
+def band_hole(shape, width):
+    """A curved band ``width`` px wide across the patch, like the strip a narrowing cheek leaves."""
+    h, w = shape
+    yy, xx = np.mgrid[:h, :w]
+    centre = w / 2 + 20 * np.sin(yy / h * np.pi)
+    return (np.abs(xx - centre) < width / 2) & (yy > 10) & (yy < h - 10)
+
+
+@pytest.mark.parametrize("fill", [fill_pushpull, fill_telea])
+@pytest.mark.parametrize("width", [4, 10])
+def test_fill_recovers_a_real_background_band(background_patch, fill, width):
+    hole = band_hole(background_patch.shape[:2], width)
+    out = fill(background_patch, hole, ~hole)
+    assert np.array_equal(out[~hole], background_patch[~hole])  # only the hole is written
+    truth = background_patch[hole].astype(float)
+    err = np.abs(out[hole].astype(float) - truth).mean()
+    # Far better than the plain guess (the mean colour of the known pixels), and close to truth.
+    naive = np.abs(background_patch[~hole].mean(axis=0) - truth).mean()
+    assert err < 0.4 * naive
+    assert err < 12.0
+
+
+def test_pushpull_reads_only_sources(background_patch):
+    hole = band_hole(background_patch.shape[:2], 8)
+    ignored = np.zeros_like(hole)
+    ignored[:, :40] = True                         # neither source nor hole
+    source = ~hole & ~ignored
+    a = fill_pushpull(background_patch, hole, source)
+    scrambled = background_patch.copy()
+    scrambled[ignored] = 255 - scrambled[ignored]
+    b = fill_pushpull(scrambled, hole, source)
+    assert np.array_equal(a[hole], b[hole])
+    assert np.array_equal(b[ignored], scrambled[ignored])  # ignored pixels are not written
+
+
+def test_fills_need_a_source():
+    img = np.zeros((20, 20, 3), np.uint8)
+    hole = np.zeros((20, 20), bool)
+    hole[5:10, 5:10] = True
+    with pytest.raises(ValueError, match="no source"):
+        fill_pushpull(img, hole, np.zeros_like(hole))
+    with pytest.raises(ValueError, match="no source"):
+        fill_telea(img, hole, np.zeros_like(hole))
+    with pytest.raises(ValueError, match="unknown inpaint"):
+        inpaint_region(img, hole, ~hole, method="ns")
+
+
+def test_inpaint_region_works_on_the_bounding_box_only(background_patch):
+    frame = np.zeros((400, 600, 3), np.uint8)
+    frame[100:260, 200:360] = background_patch
+    hole = np.zeros((400, 600), bool)
+    hole[100:260, 200:360] = band_hole(background_patch.shape[:2], 8)
+    out = inpaint_region(frame, hole, ~hole, method="pushpull", margin=12)
+    x, y, w, h = cv2.boundingRect(hole.astype(np.uint8))
+    crop = (slice(y - 12, y + h + 12), slice(x - 12, x + w + 12))
+    direct = fill_pushpull(frame[crop], hole[crop], ~hole[crop])
+    assert np.array_equal(out[crop], direct)
+    assert np.array_equal(out[~hole], frame[~hole])
+
+
+def test_uncovered_mask_is_the_dilated_difference_without_slivers():
+    original = np.zeros((60, 60), np.uint8)
+    original[10:50, 10:50] = 1
+    deformed = np.zeros_like(original)
+    deformed[10:50, 18:50] = 1          # the left side moved in by 8 px
+    deformed[10:50, 10:11] = 0
+    mask = uncovered_mask(original, deformed, dilate_px=2)
+    assert mask[20:40, 10:18].all()
+    assert not mask[20:40, 21:].any()   # grows 2 px into the moved face, no further
+    assert mask[20:40, 8].all() and not mask[20:40, 7].any()  # and 2 px past the old outline
+    only_sliver = original.copy()
+    only_sliver[10:50, 49] = 0          # a one-pixel sliver: rasterisation noise, not a hole
+    assert not uncovered_mask(original, only_sliver, 2).any()
+
+
+# -- camera -----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def head(data_dir):
+    from facesculpt.nodes.fitter import sfm_from_shared
+
+    model = sfm_from_shared(data_dir)
+    return model.mean.astype(np.float64), dict(zip(model.landmark_names, model.landmark_vertices))
+
+
+def rotation(yaw_deg, pitch_deg):
+    return cv2.Rodrigues(np.array([pitch_deg, yaw_deg, 0.0]) * np.pi / 180)[0]
+
+
+@pytest.mark.parametrize("kind", ["perspective", "orthographic-opencv", "orthographic-opengl"])
+def test_projection_is_recovered_and_depth_orders_nose_before_cheeks(head, kind):
+    mean, names = head
+    # Model space: y up, z toward the viewer. Flip to OpenCV's camera (y down, z away).
+    flip = np.diag([1.0, -1.0, -1.0])
+    R = flip @ rotation(25, 10)
+    if kind == "perspective":
+        K = np.array([[900.0, 0, 428], [0, 900.0, 240], [0, 0, 1]])
+        X = mean @ R.T + [30.0, -10.0, 600.0]
+        p = X @ K.T
+        px = p[:, :2] / p[:, 2:]
+    elif kind == "orthographic-opencv":  # pixel-scale camera space, x right, y down, z away
+        X = 1.7 * mean @ R.T + [420.0, 250.0, 0.0]
+        px = X[:, :2]
+    else:                                # OpenGL-style: y up, z toward the viewer; image y flipped
+        X = 1.7 * mean @ rotation(25, 10).T
+        px = np.column_stack([X[:, 0] + 420.0, 250.0 - X[:, 1]])
+    P = estimate_projection(X, px)
+    got, depth = project(P, X)
+    assert np.abs(got - px).max() < 1e-6
+    nose, cheeks = names["nose_tip"], [names["left_cheek"], names["right_cheek"]]
+    assert depth[nose] < depth[cheeks].min()
+    # Moving the nose 15 mm toward the camera (camera space: -z for OpenCV, +z for OpenGL)
+    # makes it nearer still.
+    toward = np.array([0.0, 0.0, 1.0 if kind == "orthographic-opengl" else -1.0])
+    _, d2 = project(P, X + 15 * toward)
+    assert d2[nose] < depth[nose]
+
+
+def test_projection_needs_a_real_camera():
+    with pytest.raises(ValueError, match="at least 6"):
+        estimate_projection(np.zeros((5, 3)), np.zeros((5, 2)))
+    flat = np.random.default_rng(0).normal(size=(50, 3))
+    flat[:, 2] = 0
+    with pytest.raises(ValueError, match="degenerate"):
+        estimate_projection(flat, flat[:, :2])
+
+
+# -- mesh -------------------------------------------------------------------------------------
+def test_close_holes_leaves_only_the_outline(data_dir):
+    from facesculpt.nodes.fitter import sfm_from_shared
+
+    tri = sfm_from_shared(data_dir).triangles
+    loops = boundary_loops(tri)
+    assert [len(loop) for loop in loops] == [112, 48]   # the outline and the mouth
+    closed = close_holes(tri)
+    assert len(closed) == len(tri) + 48 - 2
+    assert [len(loop) for loop in boundary_loops(closed)] == [112]
+    assert close_holes(closed).shape == closed.shape
+
+
+# -- video ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("suffix", [".mp4", ".avi"])
+def test_video_output_writes_every_frame(data_dir, tmp_path, suffix):
+    frames = read_frames(data_dir, "d0", count=6)
+    path = tmp_path / f"out{suffix}"
+    with VideoOutput(path, fps=25.0) as video:
+        for f in frames:
+            video.write(f)
+        with pytest.raises(ValueError, match="512x512"):
+            video.write(frames[0][:100])
+    cap = cv2.VideoCapture(str(path))
+    back = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        back.append(f)
+    assert len(back) == len(frames)
+    for a, b in zip(frames, back):
+        mse = np.mean((a.astype(float) - b.astype(float)) ** 2)
+        assert 10 * np.log10(255 ** 2 / mse) > 28
+    with pytest.raises(ValueError, match="suffix"):
+        VideoOutput(tmp_path / "out.gif")
