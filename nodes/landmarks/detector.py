@@ -223,18 +223,19 @@ def crop_matrix(roi: np.ndarray, size: int) -> np.ndarray:
     return np.hstack([lin, offset[:, None]])
 
 
-def crop_image(image_rgb: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
-    """The rotated ROI (continuous pixels) resampled to (size, size, 3) uint8. Outside the image:
+def crop_image(image: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
+    """The rotated ROI (continuous pixels) of an (H, W, C) uint8 image resampled to (size, size, C)
+    (channel order kept). Outside the image:
     ``border`` (replicate the edge pixels for the mesh, black for the detector's letterbox)."""
     matrix = crop_matrix(roi, size)
     # Work on the part of the image under the ROI (plus a margin for interpolation).
     corners = matrix @ np.array([[0, 0, 1], [size, 0, 1], [0, size, 1], [size, size, 1]], np.float64).T
-    h, w = image_rgb.shape[:2]
+    h, w = image.shape[:2]
     x0, y0 = (int(np.clip(math.floor(v) - 2, 0, lim)) for v, lim in zip(corners.min(axis=1), (w - 1, h - 1)))
     x1, y1 = (int(np.clip(math.ceil(v) + 3, 1, lim)) for v, lim in zip(corners.max(axis=1), (w, h)))
     if x1 <= x0 or y1 <= y0:  # the ROI misses the image entirely
         x0, y0, x1, y1 = 0, 0, w, h
-    part = image_rgb[y0:y1, x0:x1]
+    part = image[y0:y1, x0:x1]
     matrix = matrix - np.array([[0.0, 0.0, x0], [0.0, 0.0, y0]])
     shrink = float(max(roi[2], roi[3])) / size
     if shrink > 2.0:
@@ -362,8 +363,12 @@ class LandmarkDetector:
     file raises :class:`MissingModelsError` naming `facesculpt setup`. threads: onnxruntime
     intra-op threads. max_faces: how many faces to return (the largest first). min_face: the
     smallest face the detector looks for (detector box side, as a fraction of the image's short
-    side; smaller faces need more tiles, see :func:`detection_tiles`); 0 = whole image only. backend: "onnxruntime" (the converted networks) or
-    "litert" (the original .tflite networks on ai-edge-litert, as a reference).
+    side; smaller faces need more tiles, see :func:`detection_tiles`); 0 = whole image only.
+    min_detection_score, nms_iou: detector thresholds. min_tracking_score: face presence below
+    which a face counts as lost. redetect_interval: frames between detector runs while fewer
+    than ``max_faces`` faces are tracked. backend: "onnxruntime" (the converted networks) or
+    "litert" (the original .tflite networks on ai-edge-litert, a reference for tests and
+    benchmarks).
 
     ``detect(image)`` always runs the detector; ``track(image)`` reuses the last crops and runs
     the detector only when needed. Both return a list of :class:`Face` (empty when none) and
@@ -406,11 +411,11 @@ class LandmarkDetector:
 
     def detect(self, image) -> list[Face]:
         """Run the detector on the whole image (and tiles), then the mesh on each face found."""
-        rgb = self._prepare(image)
-        if rgb is None:
+        bgr = self._prepare(image)
+        if bgr is None:
             self._tracks = []
             return []
-        self._tracks = self._detect_tracks(rgb, [])
+        self._tracks = self._detect_tracks(bgr, [])
         self._frames_since_detect = 0
         self.last_ran_detector = True
         return self._faces()
@@ -418,17 +423,21 @@ class LandmarkDetector:
     def track(self, image) -> list[Face]:
         """Landmarks from the last crops; the detector reruns when a face is lost or fewer than
         ``max_faces`` are tracked (then at most every ``redetect_interval`` frames)."""
-        rgb = self._prepare(image)
-        if rgb is None:
+        bgr = self._prepare(image)
+        if bgr is None:
             self._tracks = []
             return []
         self.last_ran_detector = False
-        tracks = [t for t in (self._refine(rgb, t.next_roi) for t in self._tracks) if t is not None]
+        tracks: list[_Track] = []
+        for track in (self._refine(bgr, t.next_roi) for t in self._tracks):
+            # Two tracks that drifted onto one face become one.
+            if track is not None and not any(_roi_overlap(track.next_roi, t.points) for t in tracks):
+                tracks.append(track)
         lost = len(tracks) < len(self._tracks)
         self._frames_since_detect += 1
         if not tracks or lost or (len(tracks) < self.max_faces
                                   and self._frames_since_detect >= self.redetect_interval):
-            tracks = self._detect_tracks(rgb, tracks)
+            tracks = self._detect_tracks(bgr, tracks)
             self._frames_since_detect = 0
             self.last_ran_detector = True
         self._tracks = tracks
@@ -436,20 +445,17 @@ class LandmarkDetector:
 
     # ---- steps ---------------------------------------------------------------------------
     def _prepare(self, image) -> np.ndarray | None:
-        bgr = as_bgr_uint8(image)
-        if bgr is None:
-            return None
-        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        return as_bgr_uint8(image)
 
-    def run_detector(self, rgb: np.ndarray) -> list[Detection]:
-        """All detections in an RGB uint8 image (continuous pixels), merged over tiles."""
-        h, w = rgb.shape[:2]
+    def run_detector(self, bgr: np.ndarray) -> list[Detection]:
+        """All detections in a BGR uint8 image (continuous pixels), merged over tiles."""
+        h, w = bgr.shape[:2]
         min_face = self.min_face * min(w, h)
         boxes, keypoints, scores = [], [], []
         for i, (x0, y0, side) in enumerate(detection_tiles(w, h, min_face)):
-            patch = crop_image(rgb, np.array([x0 + side / 2, y0 + side / 2, side, side, 0.0]),
+            patch = crop_image(bgr, np.array([x0 + side / 2, y0 + side / 2, side, side, 0.0]),
                                DETECTOR_SIZE, cv2.BORDER_CONSTANT)
-            x = (patch.astype(np.float32) / 127.5 - 1.0)[None]
+            x = (patch[:, :, ::-1].astype(np.float32) * (1.0 / 127.5) - 1.0)[None]  # RGB in [-1, 1]
             raw_boxes, raw_scores = self.detector_net.run(x)
             b, k, s = decode_detections(raw_boxes[0], raw_scores[0, :, 0], self.anchors, self.min_detection_score)
             if i > 0 and len(s):
@@ -464,12 +470,12 @@ class LandmarkDetector:
         return weighted_nms(np.concatenate(boxes), np.concatenate(keypoints), np.concatenate(scores),
                             self.nms_iou)
 
-    def _refine(self, rgb: np.ndarray, roi: np.ndarray) -> _Track | None:
+    def _refine(self, bgr: np.ndarray, roi: np.ndarray) -> _Track | None:
         """Mesh on one ROI; None when the face-presence score is below ``min_tracking_score``."""
         if not (np.all(np.isfinite(roi)) and roi[2] >= 4.0):
             return None
-        crop = crop_image(rgb, roi, MESH_SIZE)
-        x = (crop.astype(np.float32) * (1.0 / 255.0))[None]
+        crop = crop_image(bgr, roi, MESH_SIZE)
+        x = (crop[:, :, ::-1].astype(np.float32) * (1.0 / 255.0))[None]  # RGB in [0, 1]
         raw_points, raw_score = self.mesh_net.run(x)
         score = 1.0 / (1.0 + math.exp(-float(np.clip(raw_score.reshape(-1)[0], -100, 100))))
         if score < self.min_tracking_score:
@@ -477,22 +483,22 @@ class LandmarkDetector:
         points = project_points(raw_points.reshape(NUM_POINTS, 3).astype(np.float64), roi)
         return _Track(crop_roi=roi, points=points, score=score, next_roi=roi_from_points(points[:, :2]))
 
-    def _detect_tracks(self, rgb: np.ndarray, tracks: list[_Track]) -> list[_Track]:
+    def _detect_tracks(self, bgr: np.ndarray, tracks: list[_Track]) -> list[_Track]:
         """Add faces from the detector to the tracked ones, up to ``max_faces`` (largest first).
 
         Detections are taken best score first (the order of :func:`weighted_nms`); one that
         covers an already accepted face is a duplicate and is skipped.
         """
         found: list[_Track] = []
-        for det in self.run_detector(rgb):
+        for det in self.run_detector(bgr):
             roi = roi_from_detection(det)
             if any(_roi_overlap(roi, t.points) for t in tracks + found):
                 continue
-            track = self._refine(rgb, roi)
+            track = self._refine(bgr, roi)
             if track is not None:
                 # A second pass from the mesh's own ROI: detector boxes are coarse, and on still
                 # images there is no next frame to correct the crop.
-                track = self._refine(rgb, track.next_roi) or track
+                track = self._refine(bgr, track.next_roi) or track
             if track is not None and not any(_roi_overlap(track.next_roi, t.points) for t in tracks + found):
                 found.append(track)
         found.sort(key=lambda t: -t.next_roi[2])

@@ -1,0 +1,91 @@
+"""Tracking on every shared video: a face in >= 99 % of frames, the detector rarely rerun,
+landmark jitter of the nose bridge after removing the head's median motion."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from facesculpt.nodes.landmarks import LandmarkDetector
+from facesculpt.nodes.landmarks.detector import RIGHT_EYE_OUTER, LEFT_EYE_OUTER
+
+NOSE_BRIDGE = 168  # mesh point between the eyes (iBUG 28, 1-based)
+
+
+def _frames(path):
+    cap = cv2.VideoCapture(str(path))
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            return
+        yield frame
+
+
+@pytest.mark.parametrize("video", ["d0", "d3", "d12", "s18"])
+def test_tracking_finds_the_face_in_nearly_every_frame(models_dir, data_dir, video):
+    detector = LandmarkDetector(models_dir)
+    frames = found = detector_runs = 0
+    previous, jitter, eye_distance = None, [], []
+    for frame in _frames(data_dir / "video" / f"{video}.mp4"):
+        faces = detector.track(frame)
+        frames += 1
+        detector_runs += detector.last_ran_detector
+        if not faces:
+            previous = None
+            continue
+        found += 1
+        points = faces[0].points[:, :2].astype(np.float64)
+        assert faces[0].points.shape == (468, 3) and faces[0].points.dtype == np.float32
+        eye_distance.append(np.linalg.norm(points[LEFT_EYE_OUTER] - points[RIGHT_EYE_OUTER]))
+        if previous is not None:
+            motion = points - previous
+            jitter.append(np.linalg.norm(motion[NOSE_BRIDGE] - np.median(motion, axis=0)))
+        previous = points
+    jitter = np.array(jitter)
+    print(f"{video}: {frames} frames, face in {found / frames:.1%}, detector ran {detector_runs}x, "
+          f"nose-bridge jitter mean {jitter.mean():.3f} px, median {np.median(jitter):.3f} px, "
+          f"p95 {np.percentile(jitter, 95):.3f} px (eye distance {np.mean(eye_distance):.0f} px)")
+    assert frames > 50
+    assert found >= 0.99 * frames
+    assert detector_runs <= max(2, 0.05 * frames)  # tracking, not detecting every frame
+    assert np.median(jitter) < 0.02 * np.mean(eye_distance)
+
+
+def test_track_reuses_the_last_crop_and_detect_always_detects(models_dir, data_dir):
+    frames = list(_frames(data_dir / "video" / "d0.mp4"))[:5]
+    detector = LandmarkDetector(models_dir)
+    detector.track(frames[0])
+    assert detector.last_ran_detector
+    for frame in frames[1:]:
+        faces = detector.track(frame)
+        assert faces and not detector.last_ran_detector
+    detector.detect(frames[-1])
+    assert detector.last_ran_detector
+    detector.reset()
+    detector.track(frames[-1])
+    assert detector.last_ran_detector
+
+
+def test_a_lost_face_brings_the_detector_back(models_dir, data_dir):
+    frames = list(_frames(data_dir / "video" / "d3.mp4"))[:3]
+    detector = LandmarkDetector(models_dir)
+    assert detector.track(frames[0])
+    blank = np.full_like(frames[0], 127)
+    assert detector.track(blank) == []
+    assert detector.last_ran_detector
+    faces = detector.track(frames[1])
+    assert faces and detector.last_ran_detector
+
+
+def test_several_faces_are_tracked_without_rerunning_the_detector(models_dir, data_dir):
+    image = cv2.imread(str(data_dir / "faces" / "2008_002506.jpg"))  # three faces, 90-110 px
+    detector = LandmarkDetector(models_dir, max_faces=3)
+    first = detector.track(image)
+    assert len(first) == 3 and detector.last_ran_detector
+    for _ in range(5):
+        faces = detector.track(image)
+        assert len(faces) == 3 and not detector.last_ran_detector
+    # Still image: every track stays on its own face.
+    for a, b in zip(first, faces):
+        assert np.abs(a.points[:, :2] - b.points[:, :2]).mean() < 2.0
