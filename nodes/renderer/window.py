@@ -92,6 +92,7 @@ class Window:
         self._vao = self.ctx.vertex_array(self._prog, [(self._vbo, "2f", "in_pos")])
         self._events: list[dict] = []
         self._dragging = False
+        self._pointer: tuple[float, float] | None = None
         self.closed = False
         glfw.set_mouse_button_callback(self.handle, self._on_button)
         glfw.set_cursor_pos_callback(self.handle, self._on_cursor)
@@ -106,7 +107,11 @@ class Window:
         return ((wx + 0.5) * self.width / max(ww, 1) - 0.5, (wy + 0.5) * self.height / max(wh, 1) - 0.5)
 
     def _cursor(self) -> tuple[float, float]:
-        return self.to_frame(*glfw.get_cursor_pos(self.handle))
+        # The position of the last motion event, not glfw.get_cursor_pos(): on X11 that
+        # queries the pointer *now*, past the events still queued behind this one.
+        if self._pointer is None:
+            self._pointer = glfw.get_cursor_pos(self.handle)
+        return self.to_frame(*self._pointer)
 
     def _on_button(self, _win, button, action, mods) -> None:
         x, y = self._cursor()
@@ -121,6 +126,7 @@ class Window:
             self._events.append({"kind": "command", "command": "toggle_static", "x": x, "y": y})
 
     def _on_cursor(self, _win, wx, wy) -> None:
+        self._pointer = (wx, wy)
         if self._dragging:
             x, y = self.to_frame(wx, wy)
             self._events.append({"kind": "drag", "x": x, "y": y, "handle": 0})

@@ -1,0 +1,122 @@
+"""The renderer's window under a real X server (Xvfb): it opens at the frame's size, shows the
+composited frame (checked on a screenshot), and mouse/key events sent with xdotool come back
+as input events in frame pixel coordinates. Needs the Debian packages xvfb, xdotool and
+imagemagick (for `import`); skips without them."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from renderer_scene import place_marked, psnr, read_frames
+
+TOOLS = ("Xvfb", "xdotool", "import")
+
+
+@pytest.fixture(scope="module")
+def display():
+    missing = [t for t in TOOLS if shutil.which(t) is None]
+    if missing:
+        pytest.skip(f"needs {', '.join(missing)} (apt-get install xvfb xdotool imagemagick)")
+    for number in range(91, 140):
+        if not Path(f"/tmp/.X{number}-lock").exists() and not Path(f"/tmp/.X11-unix/X{number}").exists():
+            break
+    proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1920x1080x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10
+    while not Path(f"/tmp/.X11-unix/X{number}").exists():
+        assert proc.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
+        time.sleep(0.05)
+    yield f":{number}"
+    proc.terminate()
+    proc.wait(5)
+
+
+def xtool(display, *args, capture=False):
+    env = dict(os.environ, DISPLAY=display)
+    return subprocess.run(args, env=env, check=True, capture_output=True, timeout=20).stdout if capture else \
+        subprocess.run(args, env=env, check=True, timeout=20)
+
+
+def screenshot(display, window_id: str) -> np.ndarray:
+    png = xtool(display, "import", "-window", window_id, "png:-", capture=True)
+    return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+
+
+def poll_until(window, predicate, timeout=5.0):
+    events = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        events += window.poll()
+        if predicate(events):
+            break
+        time.sleep(0.01)
+    return events
+
+
+def test_window_shows_the_frame_and_reports_input_in_frame_pixels(display, data_dir, monkeypatch):
+    monkeypatch.setenv("DISPLAY", display)
+    from facesculpt.nodes.fitter import sfm_from_shared
+    from facesculpt.nodes.renderer import Compositor
+    from facesculpt.nodes.renderer.window import Window, draw_overlay
+
+    frame = read_frames(data_dir, "s18")[0]
+    H, W = frame.shape[:2]
+    title = f"facesculpt-test-{os.getpid()}"
+    window = Window(W, H, title)
+    try:
+        # The compositor draws with the window's own context, as in the node.
+        pose = place_marked(sfm_from_shared(data_dir), "s18")
+        comp = Compositor(W, H, ctx=window.ctx)
+        out = comp.render(frame, pose.fitted, pose.projected, pose.triangles, pose.fitted)
+        for _ in range(3):
+            window.show(out)
+            window.poll()
+        wid = xtool(display, "xdotool", "search", "--name", title, capture=True).split()[0].decode()
+        shot = screenshot(display, wid)
+        assert shot.shape == (H, W, 3)               # a real window at the frame's size
+        assert psnr(shot, frame) > 40                # showing the composited frame
+        # An overlay drawn into the frame shows up too (handles in red).
+        nose = pose.projected[pose.landmarks["nose_tip"]]
+        window.show(draw_overlay(out, ["42 fps"], points=nose[None]))
+        window.poll()
+        shot = screenshot(display, wid)
+        x, y = np.round(nose).astype(int)
+        ring = shot[y - 7:y + 8, x - 7:x + 8].reshape(-1, 3).astype(int)
+        assert ((ring[:, 2] > 180) & (ring[:, 1] < 80)).sum() > 10
+
+        # A drag on the nose: press, drags, release, at the frame pixels xdotool moved to.
+        start, end = (int(x), int(y)), (int(x) + 30, int(y) - 10)
+        xtool(display, "xdotool", "mousemove", "--window", wid, *map(str, start), "mousedown", "1",
+              "mousemove", "--window", wid, str(start[0] + 15), str(start[1] - 5),
+              "mousemove", "--window", wid, *map(str, end), "mouseup", "1")
+        events = poll_until(window, lambda ev: any(e["kind"] == "release" for e in ev))
+        kinds = [e["kind"] for e in events]
+        assert kinds[0] == "press" and kinds[-1] == "release" and "drag" in kinds
+        assert abs(events[0]["x"] - start[0]) <= 1 and abs(events[0]["y"] - start[1]) <= 1
+        assert abs(events[-1]["x"] - end[0]) <= 1 and abs(events[-1]["y"] - end[1]) <= 1
+
+        # Keys: R resets, U undoes.
+        xtool(display, "xdotool", "key", "--window", wid, "r", "u")
+        events = poll_until(window, lambda ev: len(ev) >= 2)
+        assert [e.get("command") for e in events] == ["reset", "undo"]
+
+        # A window twice the frame's size still reports frame pixels.
+        import glfw
+
+        glfw.set_window_size(window.handle, 2 * W, 2 * H)
+        poll_until(window, lambda ev: glfw.get_window_size(window.handle) == (2 * W, 2 * H), 3)
+        window.show(out)
+        xtool(display, "xdotool", "mousemove", "--window", wid, str(2 * start[0]), str(2 * start[1]),
+              "click", "1")
+        events = poll_until(window, lambda ev: any(e["kind"] == "release" for e in ev))
+        assert abs(events[0]["x"] - start[0]) <= 1 and abs(events[0]["y"] - start[1]) <= 1
+        comp.release()
+    finally:
+        window.close()
