@@ -241,8 +241,8 @@ def crop_image(image: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.
     if shrink > 2.0:
         # Area-downsample first so bilinear sampling does not alias (a face filling a 4K frame).
         factor = float(int(shrink // 2))
-        small = cv2.resize(part, (max(int(round(part.shape[1] / factor)), 1), max(int(round(part.shape[0] / factor)), 1)),
-                           interpolation=cv2.INTER_AREA)
+        small_size = (max(int(round(part.shape[1] / factor)), 1), max(int(round(part.shape[0] / factor)), 1))
+        small = cv2.resize(part, small_size, interpolation=cv2.INTER_AREA)
         sx, sy = part.shape[1] / small.shape[1], part.shape[0] / small.shape[0]
         matrix = matrix.copy()
         matrix[0] = (matrix[0] + np.array([0.0, 0.0, 0.5])) / sx - np.array([0.0, 0.0, 0.5])

@@ -114,8 +114,8 @@ class _Converter:
             return self.clip(name, 0.0, 6.0, stem)
         if act == "RELU_N1_TO_1":
             return self.clip(name, -1.0, 1.0, stem)
-        if act == "TANH":
-            return self.node("Tanh", [name], stem + "_tanh")
+        # TANH and SIGN_BIT exist in the schema but TFLite's kernels do not apply them as fused
+        # activations, so there is no reference behaviour to reproduce.
         raise UnsupportedOperatorError(f"fused activation {act} is not supported")
 
     def clip(self, name: str, lo: float, hi: float, stem: str) -> str:
