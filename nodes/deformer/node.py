@@ -41,7 +41,8 @@ class DeformerNode(Node):
     }
 
     def setup(self):
-        self.pub = self.advertise("face/deformation", Deformation)
+        # latched: a renderer that starts later still gets the current edit
+        self.pub = self.advertise("face/deformation", Deformation, latch=True)
         self.subscribe("face/model", FaceModel, self.on_model)
         self.subscribe("face/state", FaceState, self.on_state)
         self.subscribe("input/events", InputEvent, self.on_event, queued=True)

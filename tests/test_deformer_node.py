@@ -1,0 +1,213 @@
+"""The deformer node: messages in, face/deformation out. In-process (callbacks and rounds
+called directly, real sockets for publishing) and as a real process in a graph."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
+from facesculpt.nodes.deformer import merge_deformation
+from facesculpt.nodes.deformer.node import DeformerNode
+from facesculpt.nodes.deformer.picking import project
+
+K = np.array([[900.0, 0.0, 320.0], [0.0, 900.0, 240.0], [0.0, 0.0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def sfm(data_dir):
+    from facesculpt.nodes.fitter import load_model
+
+    return load_model("sfm")
+
+
+def face_model(m, version=1):
+    return FaceModel(
+        stamp=1,
+        model_id=m.model_id,
+        vertices=m.mean.astype(np.float32),
+        triangles=m.triangles.astype(np.int32),
+        landmark_names=list(m.landmark_names),
+        landmark_vertices=np.asarray(m.landmark_vertices, np.int32),
+        units="mm",
+        version=version,
+    )
+
+
+def face_state(m, yaw=30.0, stamp=2):
+    R = np.diag([1.0, -1.0, -1.0]) @ Rotation.from_euler("y", yaw, degrees=True).as_matrix()
+    s, t = 1.02, np.array([3.0, -5.0, 620.0])
+    V = (s * m.mean.astype(np.float64) @ R.T + t).astype(np.float32)
+    return FaceState(
+        stamp=stamp, model_id=m.model_id, R=R, t=t, scale=s, K=K, alpha=np.zeros(0, np.float32),
+        beta=np.zeros(0, np.float32), vertices=V, projected=project(V, K).astype(np.float32),
+        image_size=[640, 480], projection="perspective",
+    )
+
+
+def ev(kind, **kw):
+    return InputEvent(stamp=kw.pop("stamp", 100), kind=kind, **kw)
+
+
+@pytest.fixture
+def node(monkeypatch, tmp_path):
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    n = DeformerNode(params={"preset_dir": str(tmp_path)})
+    n.setup()
+    n.running = True
+    yield n
+    n.close()
+
+
+def screen(state, displacement, vertex):
+    mesh = merge_deformation(state.vertices, state.R, state.scale, displacement)
+    return mesh[vertex], project(mesh[[vertex]].astype(np.float64), state.K)[0]
+
+
+def test_press_drags_coalesce_into_one_solve_that_follows_the_cursor(node, sfm):
+    st = face_state(sfm)
+    node.on_model(face_model(sfm))
+    node.on_state(st)
+    node.on_round()  # the new model: an empty deformation
+    assert node.last is not None and np.all(node.last.displacement == 0)
+    nose = sfm.landmark_index()["nose_tip"]
+    x0, y0 = st.projected[nose]
+    node.on_event(ev("press", x=float(x0), y=float(y0)))
+    for k in range(1, 7):
+        node.on_event(ev("drag", x=float(x0 + 5 * k), y=float(y0 - 2 * k), stamp=100 + k))
+    solves_before = len(node.stage_times.get("solve", []))
+    version_before = node.last.version
+    node.on_round()
+    assert len(node.stage_times["solve"]) == solves_before + 1  # six drags, one solve
+    out = node.last
+    assert out.version == version_before + 1 and out.stamp == 106
+    assert out.model_id == sfm.model_id and out.displacement.shape == (3448, 3)
+    (v,) = out.handles
+    assert np.linalg.norm(sfm.mean[v] - sfm.mean[nose]) < 6.0  # picked next to the nose tip
+    cam0, _ = screen(st, np.zeros((3448, 3)), v)
+    cam1, px = screen(st, out.displacement, v)
+    moved_px = px - project(cam0[None].astype(np.float64), K)[0]
+    assert np.allclose(moved_px, [30.0, -12.0], atol=0.05)  # moved with the pointer
+    assert abs(cam1[2] - cam0[2]) < 1e-2  # at its depth
+    assert out.roi.size > 500 and v not in out.roi
+    counters = node.diagnostics()["counters"]
+    assert counters["press"] == 1 and counters["drag"] == 6
+
+
+def test_depth_move_axes_and_commands(node, sfm, tmp_path):
+    st = face_state(sfm, yaw=0.0)
+    node.on_model(face_model(sfm))
+    node.on_state(st)
+    lm = sfm.landmark_index()
+    chin = lm["chin"]
+    node.on_event(ev("press", landmark="chin"))
+    node.on_event(ev("depth", depth=4.0))  # 4 mm toward the camera: at yaw 0, model +z
+    node.on_round()
+    d = node.last.displacement[chin]
+    assert np.isclose(np.linalg.norm(d), 4.0, atol=1e-4) and d[2] > 3.9
+    node.on_event(ev("move", vector=np.array([0.0, -3.0, 0.0], np.float32)))
+    node.on_event(ev("release"))
+    node.on_round()
+    assert np.allclose(node.last.displacement[chin], d + [0, -3, 0], atol=1e-4)
+    # joystick: the selected handle moves with the axes' velocity
+    node.on_event(ev("axes", axes=np.array([0.0, -1.0, 0.0], np.float32)))
+    node.on_round()
+    time.sleep(0.1)
+    node.on_event(ev("axes", axes=np.array([0.0, 0.0, 0.0], np.float32)))
+    node.on_round()
+    dy = node.last.displacement[chin][1] - (d[1] - 3.0)
+    assert 0.5 * 0.1 * 40.0 < dy < 0.3 * 40.0  # ~40 mm/s for ~0.1 s, upward
+    # a second edit, a preset, undo, reset
+    node.on_event(ev("press", landmark="nose_tip"))
+    node.on_event(ev("move", vector=np.array([0.0, 0.0, 10.0], np.float32)))
+    node.on_event(ev("command", command="save_preset", argument="two.json"))
+    node.on_round()
+    saved = node.last.displacement.copy()
+    doc = json.loads((tmp_path / "two.json").read_text())
+    assert [h["landmark"] for e in doc["edits"] for h in e["handles"]] == ["chin", "nose_tip"]
+    node.on_event(ev("command", command="undo"))
+    node.on_round()
+    assert abs(node.last.displacement[lm["nose_tip"]][2]) < 1.0  # the nose edit is gone
+    assert list(node.last.handles) == [chin]
+    node.on_event(ev("command", command="reset"))
+    node.on_round()
+    assert np.all(node.last.displacement == 0) and node.last.handles.size == 0
+    node.on_event(ev("command", command="load_preset", argument=str(tmp_path / "two.json")))
+    node.on_round()
+    assert np.allclose(node.last.displacement[[chin, lm["nose_tip"]]], saved[[chin, lm["nose_tip"]]], atol=1e-5)
+
+
+def test_bad_input_is_counted_and_last_good_deformation_stays(node, sfm, tmp_path):
+    st = face_state(sfm)
+    node.on_model(face_model(sfm))
+    node.on_event(ev("press", landmark="nose_tip"))  # no state needed for a landmark press
+    node.on_event(ev("move", vector=np.array([0.0, 0.0, 5.0], np.float32)))
+    node.on_round()
+    good = node.last
+    node.on_event(ev("drag", x=100.0, y=100.0, handle=3))  # no press for pointer 3
+    node.on_event(ev("press", x=1.0, y=1.0))  # no face/state yet
+    node.on_round()
+    node.on_state(st)
+    node.on_event(ev("press", x=1.0, y=1.0))  # background: a miss
+    node.on_event(ev("press", landmark="third_ear"))
+    node.on_event(ev("move", vector=np.array([np.nan, 0.0, 0.0], np.float32)))
+    node.on_event(ev("depth", depth=float("inf")))
+    node.on_event(ev("command", command="load_preset", argument="missing.json"))
+    node.on_round()
+    assert node.last is good  # nothing valid happened: no new solve, the last deformation stays
+    c = node.diagnostics()["counters"]
+    assert c["bad_input"] == 6 and c["pick_miss"] == 1
+    # a preset whose ROI holds no free vertex: the solve is rejected and rolled back
+    doc = {"format": "facesculpt-deformer-preset", "version": 1, "static": [],
+           "edits": [{"handles": [{"landmark": "chin", "offset": [0, 0, 3]}], "roi": {"radius": 1e-4}}]}
+    (tmp_path / "empty_roi.json").write_text(json.dumps(doc))
+    node.on_event(ev("command", command="load_preset", argument="empty_roi.json"))
+    node.on_round()
+    assert node.last is good
+    diag = node.diagnostics()
+    assert diag["counters"]["solve_rejected"] == 1 and "empty" in diag["last_diagnostic"]
+    node.on_event(ev("move", landmark="nose_tip", vector=np.array([0.0, 1.0, 0.0], np.float32)))
+    node.on_round()  # the rolled-back edits still work
+    assert np.allclose(node.last.displacement[sfm.landmark_index()["nose_tip"]], [0, 1, 5], atol=1e-5)
+    assert node.errors == 0  # nothing escaped into the base class's error handler
+
+
+def test_real_process_receives_every_event_and_publishes(graph, sfm):
+    """`facesculpt run deformer` in its own process: latched model, state, 40 queued moves."""
+    from facesculpt.node import Node
+
+    proc = graph.spawn("run", "deformer", "round_s=0.02")
+    client = Node(name="deformer_test_client")
+    got: list[Deformation] = []
+    model_pub = client.advertise("face/model", FaceModel, latch=True)
+    state_pub = client.advertise("face/state", FaceState)
+    events = client.advertise("input/events", InputEvent)
+    client.subscribe("face/deformation", Deformation, got.append, queued=True)
+    from facesculpt.msgs import Diagnostics
+    diags = []
+    client.subscribe("diagnostics", Diagnostics, lambda m: diags.append((m.node, m.values)), queued=True)
+    client.start()
+    try:
+        deadline = time.monotonic() + 30
+        model_pub.publish(face_model(sfm))
+        while not got and time.monotonic() < deadline:  # the node answers the model with an empty edit
+            state_pub.publish(face_state(sfm))
+            client.spin_once(0.2)
+        assert got, f"no face/deformation from the deformer process: {client.diagnostics()} {[d for d in diags if d[0]=='deformer'][-1:]}"
+        events.publish(ev("press", landmark="nose_tip"))
+        for k in range(40):
+            events.publish(ev("move", vector=np.array([0.0, 0.0, 0.25], np.float32), stamp=1000 + k))
+        nose = sfm.landmark_index()["nose_tip"]
+        while time.monotonic() < deadline and not (got[-1].displacement[nose][2] >= 10.0 - 1e-4):
+            client.spin_once(0.1)
+        assert np.isclose(got[-1].displacement[nose][2], 10.0, atol=1e-4)  # no move lost
+        assert got[-1].stamp == 1039
+        assert len(got) < 1 + 41  # moves were coalesced into fewer solves
+    finally:
+        client.close()
+        proc.terminate()
+        assert proc.wait(10) == 0
