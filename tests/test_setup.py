@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from collections import Counter
@@ -120,3 +121,14 @@ def test_triangles_form_a_consistently_oriented_mesh_with_four_boundaries(fresh_
     start = outer.index(10)
     outer = outer[start:] + outer[:start]
     assert outer.index(234) < outer.index(152) < outer.index(454)
+
+
+def test_stale_conversion_is_redone_offline_from_the_kept_wheel(wheel, tmp_path):
+    home = tmp_path / "home"
+    (home / DOWNLOADS_DIR).mkdir(parents=True)
+    shutil.copyfile(wheel, home / DOWNLOADS_DIR / WHEEL_NAME)
+    (home / MANIFEST_FILE).write_text(json.dumps({"format": 1, "converter_version": "0"}))
+    result = _cli("--home", str(home), env_extra=NO_NETWORK)
+    assert result.returncode == 0, result.stderr
+    assert "using the downloaded wheel" in result.stderr
+    assert manifest_is_valid(home)

@@ -238,9 +238,10 @@ def crop_image(image: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.
     part = image[y0:y1, x0:x1]
     matrix = matrix - np.array([[0.0, 0.0, x0], [0.0, 0.0, y0]])
     shrink = float(max(roi[2], roi[3])) / size
-    if shrink > 2.0:
-        # Area-downsample first so bilinear sampling does not alias (a face filling a 4K frame).
-        factor = float(int(shrink // 2))
+    if shrink >= 2.0:
+        # Area-downsample by a whole factor first so the bilinear warp shrinks by less than 2 and
+        # does not alias (a whole frame into the detector, a face filling a 4K frame).
+        factor = float(int(shrink))
         small_size = (max(int(round(part.shape[1] / factor)), 1), max(int(round(part.shape[0] / factor)), 1))
         small = cv2.resize(part, small_size, interpolation=cv2.INTER_AREA)
         sx, sy = part.shape[1] / small.shape[1], part.shape[0] / small.shape[0]
