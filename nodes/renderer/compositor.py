@@ -11,7 +11,8 @@ Per frame, on the bounding box of the face only:
    mesh into an R8 target: the original face region. Both are read back for
    the bounding box only;
 4. the background the face no longer covers (original minus deformed region,
-   slightly dilated) is inpainted from the surrounding background (:mod:`.inpaint`);
+   slightly dilated) is inpainted from the surrounding background (:mod:`.inpaint`),
+   each connected part on its own small box;
 5. the drawn face is blended over it with a feathered edge (alpha ramps from 0
    at the deformed outline to 1 ``feather_px`` inside), and the result is
    written into a copy of the frame at the pixels of the deformed region and
@@ -33,7 +34,7 @@ import numpy as np
 
 from .camera import estimate_projection, project
 from .gl_context import create_headless_context
-from .inpaint import INPAINT_METHODS, dilate, fill_pushpull, fill_telea, uncovered_mask
+from .inpaint import INPAINT_METHODS, dilate, fill_by_parts, uncovered_mask
 from .mesh import close_holes
 
 _FACE_VS = """
@@ -91,7 +92,7 @@ class Compositor:
     ``dilate_px`` growth of the region to inpaint (pixels).
 
     After each :meth:`render`, ``timings`` holds the stage times of that frame in ms
-    (camera, texture, draw, readback, inpaint, composite, total), ``box`` the
+    (camera, texture, draw, readback, masks, inpaint, composite, total), ``box`` the
     frame-pixel rectangle (x0, y0, x1, y1) it worked on (None when nothing was drawn)
     and ``deformed_px`` the (V, 2) pixels of the deformed vertices.
     """
@@ -199,9 +200,9 @@ class Compositor:
         projected_px exactly.
         """
         P = estimate_projection(fitted_vertices, projected_px)
-        px_fit, _ = project(P, fitted_vertices)
-        px_def, depth = project(P, deformed_vertices)
-        return projected_px + (px_def - px_fit), depth
+        V = len(fitted_vertices)
+        px, depth = project(P, np.concatenate([fitted_vertices, deformed_vertices]))  # one pass
+        return projected_px + (px[V:] - px[:V]), depth[V:]
 
     # -- the frame ---------------------------------------------------------------------------
     def render(self, frame_bgr: np.ndarray, fitted_vertices: np.ndarray, projected_px: np.ndarray,
@@ -288,23 +289,25 @@ class Compositor:
                              np.uint8).reshape(bh, bw)
         t_read = time.perf_counter() - t0
 
-        # Inpaint what the face no longer covers, from the background only.
+        # The regions (the targets hold exactly 0 or 255), then the fill of what the face no
+        # longer covers, from the background only.
         t0 = time.perf_counter()
-        orig_mask = (orig > 127).astype(np.uint8)
-        def_mask = (rgba[..., 3] > 127).astype(np.uint8)
+        orig_mask = orig >> 7
+        def_mask = rgba[..., 3] >> 7
         crop = out[y0:y1, x0:x1]
         fill = uncovered_mask(orig_mask, def_mask, self.dilate_px)
-        background = crop
-        if fill.any():
+        has_fill = cv2.countNonZero(fill) > 0
+        if has_fill:
             source = dilate(orig_mask, 1) == 0
             source &= fill == 0
             if not source.any():  # the face fills the whole box: take what is outside the fill
                 source = fill == 0
-            if source.any():
-                if self.inpaint == "pushpull":
-                    background = fill_pushpull(crop, fill, source)
-                else:
-                    background = fill_telea(crop, fill, source, self.telea_radius)
+            has_fill = bool(source.any())
+        t_masks = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        background = crop
+        if has_fill:
+            background = fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius)
         t_inpaint = time.perf_counter() - t0
 
         # Blend the face over the background with a feathered outline; write the region only.
@@ -315,7 +318,7 @@ class Compositor:
             np.minimum(alpha, 1.0, out=alpha)
         else:
             alpha = def_mask.astype(np.float32)
-        face = np.ascontiguousarray(rgba[..., :3])
+        face = cv2.cvtColor(rgba, cv2.COLOR_BGRA2BGR)  # a contiguous copy of the colour
         blended = cv2.blendLinear(face, background, alpha, 1.0 - alpha)
         write = (def_mask | fill).astype(bool)
         np.copyto(crop, blended, where=write[..., None])
@@ -325,7 +328,8 @@ class Compositor:
         self.original_region, self.deformed_region, self.inpainted_region = orig_mask, def_mask, fill
         self.timings = {
             "camera": t_camera * 1e3, "texture": t_texture * 1e3, "draw": t_draw * 1e3,
-            "readback": t_read * 1e3, "inpaint": t_inpaint * 1e3, "composite": t_composite * 1e3,
+            "readback": t_read * 1e3, "masks": t_masks * 1e3, "inpaint": t_inpaint * 1e3,
+            "composite": t_composite * 1e3,
             "total": (time.perf_counter() - t_start) * 1e3,
         }
         return out

@@ -76,41 +76,72 @@ def fill_pushpull(image: np.ndarray, fill: np.ndarray, source: np.ndarray) -> np
     Returns a new (h, w, 3) uint8 image equal to ``image`` except at ``fill`` pixels.
     Raises ValueError when there is no source pixel at all.
     """
-    fill = fill != 0
-    known = (source != 0) & ~fill
+    fill = fill.astype(bool, copy=False)
+    known = source.astype(bool, copy=False) & ~fill
     if not known.any():
         raise ValueError("push-pull fill: no source pixel to fill from")
-    # Premultiplied colour + weight in one 4-channel float image, so one pyrDown per level.
+    h, w = fill.shape
+    # Premultiplied colour and weight pyramids (contiguous arrays: numpy is fast on those).
     weight = known.astype(np.float32)
-    level = cv2.merge([image.astype(np.float32), weight])
-    cv2.multiply(level, cv2.merge([weight, weight, weight, np.ones_like(weight)]), dst=level)
-    sizes = [level.shape[:2]]
-    colours, confidences = [], []
-    # Push: average down until every coarse pixel has some known sample (or 1x1). Level 0
-    # needs no normalising: its known pixels stay, its fill pixels take the pulled value.
-    while max(level.shape[:2]) > 1:
-        level = cv2.pyrDown(level)
-        if level.ndim == 2:  # a level one pixel wide comes back without the channel axis
-            level = level.reshape(level.shape[0], -1, 4)
-        sizes.append(level.shape[:2])
-        wsum = level[..., 3:4]
-        colours.append(level[..., :3] / np.maximum(wsum, 1e-12))
-        # Confidence saturates where the level has enough known samples, so coarse levels
-        # only fill the gaps of finer ones.
-        confidences.append(np.minimum(wsum * 4.0, 1.0))
-        if (wsum > 1e-6).all():
+    colour = image.astype(np.float32)
+    colour *= weight[..., None]
+    colours, weights = [colour], [weight]
+    # Push: average down until every coarse pixel has some known sample (or 1x1).
+    while max(weight.shape) > 1:
+        colour = cv2.pyrDown(colour)
+        weight = cv2.pyrDown(weight)
+        colour = colour.reshape(weight.shape[0], weight.shape[1], 3)  # a 1-px-wide level loses its axis
+        weight = weight.reshape(colour.shape[:2])
+        colours.append(colour)
+        weights.append(weight)
+        if weight.min() > 1e-6:
             break
-    # Pull: from the coarsest level, blend each finer level's own colour over the
-    # upsampled coarse fill in proportion to its confidence.
-    filled = colours[-1]
-    for k in range(len(colours) - 2, -1, -1):
-        hk, wk = sizes[k + 1]
-        up = cv2.pyrUp(filled, dstsize=(wk, hk)).reshape(hk, wk, 3)
-        filled = colours[k] * confidences[k] + up * (1.0 - confidences[k])
-    h0, w0 = sizes[0]
-    up = cv2.pyrUp(filled, dstsize=(w0, h0)).reshape(h0, w0, 3)
+    # Pull: from the coarsest level, blend each finer level's own colour over the upsampled
+    # coarse fill by its confidence min(1, 4 w): it saturates where a level has enough known
+    # samples, so coarse levels only fill the gaps of finer ones. Level 0 needs no blend:
+    # its known pixels stay, its fill pixels take the pulled value.
+    filled = colours[-1] / np.maximum(weights[-1], 1e-12)[..., None]
+    for k in range(len(colours) - 2, 0, -1):
+        lh, lw = weights[k].shape
+        up = cv2.pyrUp(filled, dstsize=(lw, lh)).reshape(lh, lw, 3)
+        wk = weights[k][..., None]
+        conf = np.minimum(wk * 4.0, 1.0)
+        filled = colours[k] * (conf / np.maximum(wk, 1e-12)) + up * (1.0 - conf)
+    up = cv2.pyrUp(filled, dstsize=(w, h)).reshape(h, w, 3)
     out = image.copy()
-    out[fill] = np.clip(up[fill] + 0.5, 0, 255).astype(np.uint8)
+    out[fill] = (up[fill] + 0.5).astype(np.uint8)  # averages of uint8 values: in range
+    return out
+
+
+def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, method: str = "pushpull",
+                  margin: int = 8, radius: float = 3.0) -> np.ndarray:
+    """Fill each connected part of ``fill`` separately, on its bounding box plus ``margin``.
+
+    The uncovered region is usually a few thin bands far apart (one per cheek): their own
+    boxes hold a fraction of the pixels of one box around all of them. Same arguments and
+    return as :func:`fill_pushpull` (method "pushpull" or "telea"); a part whose box holds no
+    source pixel is filled from the whole image instead.
+    """
+    if method not in INPAINT_METHODS:
+        raise ValueError(f"unknown inpaint method {method!r} (known: {', '.join(INPAINT_METHODS)})")
+    fill_u8 = fill.astype(np.uint8, copy=False)
+    contours, _ = cv2.findContours(fill_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    out = image.copy()
+    h, w = fill.shape
+    for contour in contours:
+        x, y, bw, bh = cv2.boundingRect(contour)
+        x0, y0 = max(0, x - margin), max(0, y - margin)
+        x1, y1 = min(w, x + bw + margin), min(h, y + bh + margin)
+        crop = (slice(y0, y1), slice(x0, x1))
+        part_fill = fill_u8[crop] != 0
+        part_source = source[crop]
+        if not (part_source.astype(bool, copy=False) & ~part_fill).any():
+            crop, part_fill, part_source = (slice(0, h), slice(0, w)), fill_u8 != 0, source
+        if method == "pushpull":
+            done = fill_pushpull(image[crop], part_fill, part_source)
+        else:
+            done = fill_telea(np.ascontiguousarray(image[crop]), part_fill, part_source, radius)
+        np.copyto(out[crop], done, where=part_fill[..., None])
     return out
 
 
