@@ -203,7 +203,7 @@ class _Converter:
         return "nchw" if self.rank(op.outputs[0]) == 4 and all(
             self.rank(i) in (0, 4) for i in op.inputs if i not in self.consts) else "plain"
 
-    def _broadcast_const(self, index: int, layout: str, out_rank: int) -> str:
+    def _broadcast_const(self, index: int, layout: str) -> str:
         arr = self.consts[index].astype(np.float32)
         if layout == "nchw":
             arr = arr.reshape((1,) * (4 - arr.ndim) + arr.shape).transpose(NHWC_TO_NCHW)
@@ -211,7 +211,7 @@ class _Converter:
 
     def op_ADD(self, op):
         layout = self._binary_layout(op)
-        names = [self._broadcast_const(i, layout, 4) if i in self.consts and i not in self.values
+        names = [self._broadcast_const(i, layout) if i in self.consts and i not in self.values
                  else self.value(i, layout) for i in op.inputs]
         out = self.node("Add", names, "add")
         self.set(op.outputs[0], self.activation(out, op.options["fused_activation_function"], "add"), layout)
@@ -235,7 +235,7 @@ class _Converter:
                                kernel_shape=[1, 1], group=channels)
             self.set(op.outputs[0], self.node("Add", [scaled, x], "prelu"), layout)
             return
-        alpha = self._broadcast_const(alpha_idx, layout, 4) if alpha_idx in self.consts \
+        alpha = self._broadcast_const(alpha_idx, layout) if alpha_idx in self.consts \
             else self.value(alpha_idx, layout)
         self.set(op.outputs[0], self.node("PRelu", [x, alpha], "prelu"), layout)
 
