@@ -78,7 +78,14 @@ class Window:
         glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
         glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
         glfw.window_hint(glfw.VISIBLE, bool(visible))
-        self.handle = glfw.create_window(self.width, self.height, title, None, None)
+        # EGL first: Mesa refuses a GLX context (BadAccess in glXMakeCurrent) in a process that
+        # already made an EGL one, e.g. a headless compositor; GLX when EGL windows fail.
+        self.handle = None
+        for api in (glfw.EGL_CONTEXT_API, glfw.NATIVE_CONTEXT_API):
+            glfw.window_hint(glfw.CONTEXT_CREATION_API, api)
+            self.handle = glfw.create_window(self.width, self.height, title, None, None)
+            if self.handle:
+                break
         if not self.handle:
             glfw.terminate()
             raise RuntimeError("cannot open a window: glfw could not create an OpenGL 3.3 window")
