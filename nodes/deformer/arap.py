@@ -138,103 +138,91 @@ def _perpendicular(v):
     return _scaled(c, 1.0 / np.sqrt(np.maximum(_dot(c, c), 1e-300)))
 
 
+def _aligned_sum(x, y, z):
+    """x + sign(.) y + sign(.) z for parallel (or anti-parallel) vectors, signs chosen so nothing
+    cancels: |result|^2 >= |x|^2 + |y|^2 + |z|^2."""
+    sy = np.where(_dot(x, y) < 0, -1.0, 1.0)
+    c = (x[0] + sy * y[0], x[1] + sy * y[1], x[2] + sy * y[2])
+    sz = np.where(_dot(c, z) < 0, -1.0, 1.0)
+    return (c[0] + sz * z[0], c[1] + sz * z[1], c[2] + sz * z[2])
+
+
 def _rotations_closed_form(S: np.ndarray) -> np.ndarray:
+    """R = V' U'^T with V' = [v1, v2, v1 x v2], U' = [u1, u2, u1 x u2]: the SVD solution with the
+    reflection fix (flipping the least singular pair) without forming v3, u3 or det(V U^T).
+    v1, v2: the top eigenvectors of B = S^T S, found in the plane orthogonal to v3 (the least
+    one, from cross products of two rows of B - l3 I); rows whose two least eigenvalues nearly
+    coincide (where that is unstable) go to LAPACK."""
     N = S.shape[0]
     s = S.reshape(N, 9).T.copy()  # s[3a + b] = S[:, a, b]
-    # B = S^T S: its eigenvectors are the right singular vectors V
     b00 = s[0] * s[0] + s[3] * s[3] + s[6] * s[6]
     b11 = s[1] * s[1] + s[4] * s[4] + s[7] * s[7]
     b22 = s[2] * s[2] + s[5] * s[5] + s[8] * s[8]
-    tr = np.maximum(b00 + b11 + b22, 1e-300)
-    itr = 1.0 / tr
+    tr = b00 + b11 + b22
+    itr = 1.0 / np.maximum(tr, 1e-300)
     b00 *= itr  # trace 1 from here on: the thresholds below are relative
     b11 *= itr
     b22 *= itr
     b01 = (s[0] * s[1] + s[3] * s[4] + s[6] * s[7]) * itr
     b02 = (s[0] * s[2] + s[3] * s[5] + s[6] * s[8]) * itr
     b12 = (s[1] * s[2] + s[4] * s[5] + s[7] * s[8]) * itr
-    # eigenvalues l1 >= l2 >= l3 (trigonometric formula for symmetric 3x3)
+    # least eigenvalue l3 and the gap l2 - l3 (trigonometric formula for symmetric 3x3)
     q = (b00 + b11 + b22) * (1.0 / 3.0)
     d0, d1, d2 = b00 - q, b11 - q, b22 - q
     p2 = (d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * (b01 * b01 + b02 * b02 + b12 * b12)) * (1.0 / 6.0)
     p = np.sqrt(p2)
-    ip3 = 1.0 / np.maximum(p2 * p, 1e-300)
-    det = (d0 * (d1 * d2 - b12 * b12) - b01 * (b01 * d2 - b12 * b02) + b02 * (b01 * b12 - d1 * b02)) * ip3
+    det = (d0 * (d1 * d2 - b12 * b12) - b01 * (b01 * d2 - b12 * b02) + b02 * (b01 * b12 - d1 * b02)) / np.maximum(p2 * p, 1e-300)
     cphi = np.cos(np.arccos(np.clip(0.5 * det, -1.0, 1.0)) * (1.0 / 3.0))
     sphi = np.sqrt(np.maximum(1.0 - cphi * cphi, 0.0))
-    l1 = q + 2.0 * p * cphi
-    l3 = q - p * (cphi + np.sqrt(3.0) * sphi)  # 2 cos(phi + 2 pi / 3)
-    l2 = 3.0 * q - l1 - l3
-    # first eigenvector: of whichever extreme eigenvalue is better separated, as the largest
-    # cross product of two rows of (B - lam I) (stable when lam is well separated)
-    top_first = (l1 - l2) >= (l2 - l3)
-    lam = np.where(top_first, l1, l3)
-    a00, a11, a22 = b00 - lam, b11 - lam, b22 - lam
-    c01 = (b01 * b12 - b02 * a11, b02 * b01 - a00 * b12, a00 * a11 - b01 * b01)
-    c02 = (b01 * a22 - b02 * b12, b02 * b02 - a00 * a22, a00 * b12 - b01 * b02)
-    c12 = (a11 * a22 - b12 * b12, b12 * b02 - b01 * a22, b01 * b12 - a11 * b02)
-    n01, n02, n12 = _dot(c01, c01), _dot(c02, c02), _dot(c12, c12)
-    first = n01 >= n02
-    v = _pick(first, c01, c02)
-    nv = np.where(first, n01, n02)
-    last = n12 > nv
-    v = _pick(last, c12, v)
-    nv = np.where(last, n12, nv)
-    isotropic = nv < 1e-24  # B ~ I/3: any basis is an eigenbasis
-    v = _scaled(v, 1.0 / np.sqrt(np.maximum(nv, 1e-300)))
-    if np.any(isotropic):
-        v = (np.where(isotropic, 1.0, v[0]), np.where(isotropic, 0.0, v[1]), np.where(isotropic, 0.0, v[2]))
-    # the other two in the orthogonal complement: a 2x2 symmetric problem, exact by Jacobi angle
-    a = _perpendicular(v)
-    b = _cross(v, a)
+    l3 = q - p * (cphi + np.sqrt(3.0) * sphi)
+    gap = (2.0 * np.sqrt(3.0)) * p * sphi
+    # v3: cross products of rows of A = B - l3 I are all parallel to it
+    a00, a11, a22 = b00 - l3, b11 - l3, b22 - l3
+    r0, r1, r2 = (a00, b01, b02), (b01, a11, b12), (b02, b12, a22)
+    v3 = _aligned_sum(_cross(r0, r1), _cross(r0, r2), _cross(r1, r2))
+    n3 = _dot(v3, v3)
+    v3 = _scaled(v3, 1.0 / np.sqrt(np.maximum(n3, 1e-300)))
+    # a basis (a, b) of the plane orthogonal to v3, from the rows of A (which span it)
+    a = _aligned_sum(r0, r1, r2)
+    k = _dot(a, v3)
+    a = (a[0] - k * v3[0], a[1] - k * v3[1], a[2] - k * v3[2])
+    na = _dot(a, a)
+    a = _scaled(a, 1.0 / np.sqrt(np.maximum(na, 1e-300)))
+    b = _cross(v3, a)
+    # the 2x2 problem in that plane, exact by a Jacobi rotation (half-angle formulas)
     Ba = (b00 * a[0] + b01 * a[1] + b02 * a[2], b01 * a[0] + b11 * a[1] + b12 * a[2], b02 * a[0] + b12 * a[1] + b22 * a[2])
-    m00 = _dot(a, Ba)
-    m01 = _dot(b, Ba)
-    m11 = b00 * b[0] * b[0] + b11 * b[1] * b[1] + b22 * b[2] * b[2]
-    m11 += 2.0 * (b01 * b[0] * b[1] + b02 * b[0] * b[2] + b12 * b[1] * b[2])
-    # rotation by theta with tan(2 theta) = 2 m01 / (m00 - m11), by half-angle formulas
-    h = m00 - m11
+    Bb = (b00 * b[0] + b01 * b[1] + b02 * b[2], b01 * b[0] + b11 * b[1] + b12 * b[2], b02 * b[0] + b12 * b[1] + b22 * b[2])
+    m01 = _dot(a, Bb)
+    h = _dot(a, Ba) - _dot(b, Bb)
     r = np.sqrt(h * h + 4.0 * m01 * m01)
-    c2 = np.where(r > 0, h / np.maximum(r, 1e-300), 1.0)
+    c2 = h / np.maximum(r, 1e-300)
+    c2 = np.where(r > 0, c2, 1.0)
     ct = np.sqrt(np.maximum(0.5 * (1.0 + c2), 0.0))
     st = np.copysign(np.sqrt(np.maximum(0.5 * (1.0 - c2), 0.0)), m01)
-    big = (ct * a[0] + st * b[0], ct * a[1] + st * b[1], ct * a[2] + st * b[2])  # larger eigenvalue
-    small = (ct * b[0] - st * a[0], ct * b[1] - st * a[1], ct * b[2] - st * a[2])
-    v1 = _pick(top_first, v, big)
-    v2 = _pick(top_first, big, small)
-    v3 = _pick(top_first, small, v)
-
-    def Sx(x):
-        return (
-            s[0] * x[0] + s[1] * x[1] + s[2] * x[2],
-            s[3] * x[0] + s[4] * x[1] + s[5] * x[2],
-            s[6] * x[0] + s[7] * x[1] + s[8] * x[2],
-        )
-
-    # left singular vectors from S v; u3 = u1 x u2 so det(U) = +1
-    w1 = Sx(v1)
+    v1 = (ct * a[0] + st * b[0], ct * a[1] + st * b[1], ct * a[2] + st * b[2])
+    v2 = (ct * b[0] - st * a[0], ct * b[1] - st * a[1], ct * b[2] - st * a[2])
+    # left singular vectors: u1 = S v1 / s1, u2 = S v2 orthogonalised against u1
+    w1 = (s[0] * v1[0] + s[1] * v1[1] + s[2] * v1[2], s[3] * v1[0] + s[4] * v1[1] + s[5] * v1[2], s[6] * v1[0] + s[7] * v1[1] + s[8] * v1[2])
     s1 = np.sqrt(_dot(w1, w1))
     u1 = _scaled(w1, 1.0 / np.maximum(s1, 1e-300))
-    w2 = Sx(v2)
+    w2 = (s[0] * v2[0] + s[1] * v2[1] + s[2] * v2[2], s[3] * v2[0] + s[4] * v2[1] + s[5] * v2[2], s[6] * v2[0] + s[7] * v2[1] + s[8] * v2[2])
     k = _dot(u1, w2)
     w2 = (w2[0] - k * u1[0], w2[1] - k * u1[1], w2[2] - k * u1[2])
     s2 = np.sqrt(_dot(w2, w2))
     u2 = _scaled(w2, 1.0 / np.maximum(s2, 1e-300))
-    rank1 = s2 <= 1e-9 * s1
-    zero = s1 <= 1e-150
-    if np.any(rank1 | zero):
-        u1 = _pick(zero, v1, u1)  # S = 0: R = V V^T = identity
-        u2 = _pick(zero, v2, _pick(rank1, _perpendicular(u1), u2))  # rank <= 1: any completion is optimal
+    v3 = _cross(v1, v2)
     u3 = _cross(u1, u2)
-    # reflection fix: R = v1 u1' + v2 u2' + det(V U') v3 u3' with det(U) = +1
-    sgn = np.where(_dot(_cross(v1, v2), v3) < 0, -1.0, 1.0)
-    if np.any(zero):
-        sgn = np.where(zero, 1.0, sgn)
-    v3 = _scaled(v3, sgn)
-    R = np.empty((N, 3, 3))
+    Rt = np.empty((3, 3, N))  # contiguous rows to write; returned as an (N, 3, 3) view
     for i in range(3):
         for j in range(3):
-            R[:, i, j] = v1[i] * u1[j] + v2[i] * u2[j] + v3[i] * u3[j]
+            Rt[i, j] = v1[i] * u1[j] + v2[i] * u2[j] + v3[i] * u3[j]
+    R = Rt.transpose(2, 0, 1)
+    # unstable rows: l2 ~ l3 (v3 undetermined), rank <= 1 (u2 undetermined) -> LAPACK
+    bad = (gap < 1e-6) | (n3 < 1e-24) | (na < 1e-24) | (s2 <= 1e-9 * s1) | ~np.isfinite(tr)
+    if np.any(bad):
+        idx = np.flatnonzero(bad)
+        R[idx] = fit_rotations(S[idx], "svd")
+        R[idx[tr[idx] <= 1e-300]] = np.eye(3)  # S = 0: no preference, keep the identity
     return R
 
 
