@@ -1,0 +1,284 @@
+"""Camera pose from 2D-3D and 3D-3D correspondences: scaled orthographic, perspective (intrinsics K),
+and weighted similarity Procrustes.
+
+Conventions. Model space: x toward the subject's left, y up, z out of the face (mm). Camera space is
+OpenCV's: x right, y down, z forward (away from the camera); image pixels: x right, y down. A face
+looking into the camera therefore has R = diag(1, -1, -1).
+
+* Scaled orthographic: ``camera = s · R · X + (tx, ty, 0)``; pixels are its first two coordinates
+  (``s`` in px per model unit, the depth z in the same pixel scale).
+* Perspective: ``camera = R · X + t`` (model units, mm), pixels ``= π(K · camera)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class PoseError(ValueError):
+    """The correspondences do not determine a pose (too few, collinear, or not finite)."""
+
+
+FRONTAL = np.diag([1.0, -1.0, -1.0])
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices."""
+    v = np.asarray(v, np.float64)
+    z = np.zeros(v.shape[:-1])
+    return np.stack(
+        [np.stack([z, -v[..., 2], v[..., 1]], -1),
+         np.stack([v[..., 2], z, -v[..., 0]], -1),
+         np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def rodrigues(omega: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) (radians) -> rotation matrix (3, 3)."""
+    x, y, z = (float(v) for v in omega)
+    theta = (x * x + y * y + z * z) ** 0.5
+    if theta < 1e-12:
+        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+    kx, ky, kz = x / theta, y / theta, z / theta
+    c, sn = np.cos(theta), np.sin(theta)
+    v = 1.0 - c
+    return np.array([
+        [c + kx * kx * v, kx * ky * v - kz * sn, kx * kz * v + ky * sn],
+        [ky * kx * v + kz * sn, c + ky * ky * v, ky * kz * v - kx * sn],
+        [kz * kx * v - ky * sn, kz * ky * v + kx * sn, c + kz * kz * v],
+    ])
+
+
+def rotation_log(R: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) -> rotation vector (3,) (radians)."""
+    R = np.asarray(R, np.float64)
+    cos = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    theta = np.arccos(cos)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if theta < 1e-6:
+        return w / 2
+    if np.pi - theta < 1e-4:
+        # Near 180°: axis from the symmetric part.
+        M = (R + np.eye(3)) / 2
+        axis = M[np.argmax(np.diag(M))]
+        axis = axis / np.linalg.norm(axis)
+        if w @ axis < 0:
+            axis = -axis
+        return axis * theta
+    return w * theta / (2 * np.sin(theta))
+
+
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation matrix closest (Frobenius) to a 3×3 matrix."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def euler_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
+    """Head yaw, pitch, roll in degrees of a model-to-camera rotation, relative to the frontal pose
+    (``R = FRONTAL · Rz(roll) · Rx(pitch) · Ry(yaw)``, angles about the model's y, x, z axes)."""
+    M = FRONTAL.T @ np.asarray(R, np.float64)  # = Rz(roll) Rx(pitch) Ry(yaw)
+    yaw = np.degrees(np.arctan2(-M[2, 0], M[2, 2]))
+    pitch = np.degrees(np.arcsin(np.clip(M[2, 1], -1, 1)))
+    roll = np.degrees(np.arctan2(-M[0, 1], M[1, 1]))
+    return float(yaw), float(pitch), float(roll)
+
+
+def rotation_from_euler(yaw: float, pitch: float, roll: float = 0.0) -> np.ndarray:
+    """Model-to-camera rotation for a head turned by yaw (about y), pitch (about x), roll (about z),
+    degrees, starting from the frontal pose; the inverse of :func:`euler_from_rotation`."""
+    y, p, r = np.radians([yaw, pitch, roll])
+    Ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(p), -np.sin(p)], [0, np.sin(p), np.cos(p)]])
+    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    return FRONTAL @ (Rz @ Rx @ Ry)
+
+
+def _check(points3d: np.ndarray, points2d: np.ndarray, weights: np.ndarray | None, need: int):
+    X = np.asarray(points3d, np.float64)
+    x = np.asarray(points2d, np.float64)
+    if X.ndim != 2 or X.shape[1] != 3 or x.ndim != 2 or x.shape[1] != 2 or len(X) != len(x):
+        raise PoseError(f"need (N, 3) model points and (N, 2) image points, got {X.shape} and {x.shape}")
+    if len(X) < need:
+        raise PoseError(f"a pose needs at least {need} correspondences, got {len(X)}")
+    if not (np.isfinite(X).all() and np.isfinite(x).all()):
+        raise PoseError("correspondences contain NaN or infinite values")
+    w = np.ones(len(X)) if weights is None else np.asarray(weights, np.float64).reshape(-1)
+    if w.shape != (len(X),) or (w < 0).any() or w.sum() <= 0:
+        raise PoseError("weights must be (N,) non-negative with a positive sum")
+    return X, x, w
+
+
+def _spread_check(Xc: np.ndarray, xc: np.ndarray, w: np.ndarray) -> None:
+    s3 = np.linalg.svd(Xc * np.sqrt(w)[:, None], compute_uv=False)
+    s2 = np.linalg.svd(xc * np.sqrt(w)[:, None], compute_uv=False)
+    if s3[0] <= 0 or s3[1] < 1e-6 * s3[0]:
+        raise PoseError("model points are collinear (or coincide): the pose is undetermined")
+    if s2[0] <= 0 or s2[1] < 1e-3 * s2[0]:
+        raise PoseError("image points are collinear (or coincide): the pose is undetermined")
+
+
+def scaled_orthographic(
+    points3d: np.ndarray,
+    points2d: np.ndarray,
+    weights: np.ndarray | None = None,
+    init: tuple[np.ndarray, float] | None = None,
+    iterations: int = 8,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Scaled orthographic pose minimising Σ w ‖s·R[:2]·X + t − x‖².
+
+    points3d (N, 3) model units; points2d (N, 2) pixels; weights (N,); init (R, s) to start from
+    (e.g. the previous frame's). Returns R (3, 3) rotation, t (3,) = (tx, ty, 0) pixels, s px/unit.
+    Starts from the affine least-squares camera made orthogonal (when no init; collinear points are
+    refused then), then Gauss-Newton."""
+    X, x, w = _check(points3d, points2d, weights, 4)
+    W = w / w.sum()
+    Xm = W @ X
+    xm = W @ x
+    Xc = X - Xm
+    xc = x - xm
+    sw = np.sqrt(W)[:, None]
+    if init is None:
+        _spread_check(Xc, xc, w)
+        # Affine camera by weighted least squares, then the nearest scaled rotation.
+        M, *_ = np.linalg.lstsq(Xc * sw, xc * sw, rcond=None)  # (3, 2)
+        A = M.T
+        U, S, Vt = np.linalg.svd(A, full_matrices=False)
+        r12 = U @ Vt
+        s = float(S.mean())
+        R = np.vstack([r12, np.cross(r12[0], r12[1])])
+        R = nearest_rotation(R)
+    else:
+        R, s = np.asarray(init[0], np.float64), float(init[1])
+        if not (np.isfinite(R).all() and np.isfinite(s) and s > 0):
+            return scaled_orthographic(X, x, w, None, iterations)
+    sw1 = sw[:, 0]
+    J = np.empty((2, len(X), 4))
+    for _ in range(iterations):
+        RX = Xc @ R.T  # (N, 3)
+        px, py = s * RX[:, 0], s * RX[:, 1]
+        sz = s * RX[:, 2]
+        r = np.concatenate([(px - xc[:, 0]) * sw1, (py - xc[:, 1]) * sw1])
+        # d(R X)/dω = -[R X]x for the left perturbation exp([ω]) R; last column d/d(log s).
+        J[0, :, 0] = 0.0
+        J[0, :, 1] = sz
+        J[0, :, 2] = -py
+        J[0, :, 3] = px
+        J[1, :, 0] = -sz
+        J[1, :, 1] = 0.0
+        J[1, :, 2] = px
+        J[1, :, 3] = py
+        Jw = (J * sw1[None, :, None]).reshape(-1, 4)
+        H = Jw.T @ Jw
+        H += 1e-9 * np.trace(H) * np.eye(4)
+        delta = -np.linalg.solve(H, Jw.T @ r)
+        R = rodrigues(delta[:3]) @ R
+        s = s * float(np.exp(delta[3]))
+        if np.abs(delta).max() < 1e-7:
+            break
+    t = np.zeros(3)
+    t[:2] = xm - s * (R @ Xm)[:2]
+    return R, t, s
+
+
+def project_orthographic(points: np.ndarray, R: np.ndarray, t: np.ndarray, s: float) -> np.ndarray:
+    """(N, 3) model points -> (N, 2) pixels under the scaled orthographic camera."""
+    return (s * (np.asarray(points) @ np.asarray(R).T) + t)[:, :2]
+
+
+def project_perspective(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-space points -> (N, 2) pixels through intrinsics K (3, 3)."""
+    p = np.asarray(points_cam, np.float64)
+    z = p[:, 2:3]
+    return np.column_stack([K[0, 0] * p[:, 0] / z[:, 0] + K[0, 1] * p[:, 1] / z[:, 0] + K[0, 2],
+                            K[1, 1] * p[:, 1] / z[:, 0] + K[1, 2]])
+
+
+def projection_jacobian(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(N, 2, 3): d pixel / d camera point, for the pinhole camera K (skew ignored)."""
+    p = np.asarray(points_cam, np.float64)
+    z = p[:, 2]
+    fx, fy = K[0, 0], K[1, 1]
+    J = np.zeros((len(p), 2, 3))
+    J[:, 0, 0] = fx / z
+    J[:, 0, 2] = -fx * p[:, 0] / z**2
+    J[:, 1, 1] = fy / z
+    J[:, 1, 2] = -fy * p[:, 1] / z**2
+    return J
+
+
+def check_intrinsics(K: np.ndarray) -> np.ndarray:
+    K = np.asarray(K, np.float64)
+    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-6:
+        raise PoseError(f"K must be a 3x3 pinhole intrinsics matrix with positive focal lengths, got {K.tolist()}")
+    return K
+
+
+def perspective(
+    points3d: np.ndarray,
+    points2d: np.ndarray,
+    K: np.ndarray,
+    weights: np.ndarray | None = None,
+    init: tuple[np.ndarray, np.ndarray] | None = None,
+    iterations: int = 8,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Perspective pose (R, t) minimising Σ w ‖π(K (R X + t)) − x‖² (Gauss-Newton on the pixel error).
+
+    points3d (N, 3) model units (mm); points2d (N, 2) pixels; K (3, 3); init (R, t) to start from.
+    Without init, starts from the scaled orthographic pose about the principal point (depth f / s).
+    Returns R (3, 3), t (3,) in model units."""
+    X, x, w = _check(points3d, points2d, weights, 4)
+    K = check_intrinsics(K)
+    sw = np.sqrt(w / w.sum())
+    if init is None:
+        R, t2, s = scaled_orthographic(X, x, w)
+        f = 0.5 * (K[0, 0] + K[1, 1])
+        tz = f / s
+        # s R X + t2 ≈ f (R X + t)/tz + c  ⇒  t_xy = (t2 − c) tz / f
+        t = np.array([(t2[0] - K[0, 2]) * tz / K[0, 0], (t2[1] - K[1, 2]) * tz / K[1, 1], tz])
+    else:
+        R, t = np.asarray(init[0], np.float64), np.asarray(init[1], np.float64).copy()
+    for _ in range(iterations):
+        RX = X @ R.T
+        C = RX + t
+        if (C[:, 2] <= 1e-6).any():
+            raise PoseError("points fall behind the camera: no perspective pose from these correspondences")
+        r = (project_perspective(C, K) - x) * sw[:, None]
+        Jp = projection_jacobian(C, K)  # (N, 2, 3)
+        J = np.concatenate([Jp @ (-skew(RX)), Jp], axis=2) * sw[:, None, None]
+        J = J.reshape(-1, 6)
+        H = J.T @ J
+        H += 1e-9 * np.trace(H) * np.eye(6)
+        delta = -np.linalg.solve(H, J.T @ r.reshape(-1))
+        R = rodrigues(delta[:3]) @ R
+        t = t + delta[3:]
+        if np.abs(delta).max() < 1e-9:
+            break
+    return R, t
+
+
+def similarity_procrustes(
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None, allow_scale: bool = True
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Weighted similarity (Umeyama) aligning ``source`` to ``target``: ``target ≈ s · R · source + t``.
+
+    source, target (N, 3); weights (N,). Returns s, R (3, 3) proper rotation, t (3,)."""
+    A = np.asarray(source, np.float64)
+    B = np.asarray(target, np.float64)
+    if A.shape != B.shape or A.ndim != 2 or A.shape[1] != 3 or len(A) < 3:
+        raise PoseError(f"need two (N>=3, 3) point sets of the same shape, got {A.shape} and {B.shape}")
+    w = np.ones(len(A)) if weights is None else np.asarray(weights, np.float64).reshape(-1)
+    W = w / w.sum()
+    ma, mb = W @ A, W @ B
+    Ac, Bc = A - ma, B - mb
+    cov = (Bc * W[:, None]).T @ Ac
+    U, S, Vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    D = np.diag([1.0, 1.0, d])
+    R = U @ D @ Vt
+    var_a = float(W @ (Ac**2).sum(1))
+    if var_a <= 0:
+        raise PoseError("source points coincide: no similarity transform")
+    s = float((S * np.diag(D)).sum() / var_a) if allow_scale else 1.0
+    t = mb - s * R @ ma
+    return s, R, t
