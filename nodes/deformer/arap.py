@@ -118,26 +118,6 @@ def _scaled(a, k):
     return (a[0] * k, a[1] * k, a[2] * k)
 
 
-def _pick(mask, a, b):
-    return (np.where(mask, a[0], b[0]), np.where(mask, a[1], b[1]), np.where(mask, a[2], b[2]))
-
-
-def _perpendicular(v):
-    """A unit vector perpendicular to each unit vector ``v`` (cross with its smallest axis)."""
-    ax = (np.abs(v[0]), np.abs(v[1]), np.abs(v[2]))
-    use_x = (ax[0] <= ax[1]) & (ax[0] <= ax[2])
-    use_y = ~use_x & (ax[1] <= ax[2])
-    use_z = ~use_x & ~use_y
-    # v x e_x = (0, vz, -vy); v x e_y = (-vz, 0, vx); v x e_z = (vy, -vx, 0)
-    zero = np.zeros_like(v[0])
-    c = (
-        np.where(use_x, zero, np.where(use_y, -v[2], v[1])),
-        np.where(use_x, v[2], np.where(use_y, zero, -v[0])),
-        np.where(use_x, -v[1], np.where(use_y, v[0], zero)),
-    )
-    return _scaled(c, 1.0 / np.sqrt(np.maximum(_dot(c, c), 1e-300)))
-
-
 def _aligned_sum(x, y, z):
     """x + sign(.) y + sign(.) z for parallel (or anti-parallel) vectors, signs chosen so nothing
     cancels: |result|^2 >= |x|^2 + |y|^2 + |z|^2."""

@@ -23,7 +23,7 @@ from .arap import DeformerError
 from .dragging import axes_velocity, depth_delta, drag_delta
 from .edits import EditStack
 from .merge import merge_deformation
-from .picking import pick_vertex
+from .picking import pick_vertex, project
 
 
 class DeformerNode(Node):
@@ -105,6 +105,8 @@ class DeformerNode(Node):
             if events:
                 self.count("events_without_model", len(events))
             return
+        if not events and not self.dirty and not np.any(self.velocity):
+            return  # an idle round: nothing to apply, nothing to solve
         snapshot = (copy.deepcopy(self.stack.edits), set(self.stack.static))
         for ev in events:
             self.stamp = ev.stamp or self.stamp
@@ -233,8 +235,6 @@ class DeformerNode(Node):
         v, x0, y0 = self.pointers[ev.handle]
         st = self._need_state()
         if not (np.isfinite(x0) and np.isfinite(y0)):  # pressed at a landmark: start from its pixel
-            from .picking import project
-
             x0, y0 = project(self._handle_cam(v, st)[None], st.K, st.projection)[0]
         self._move(v, drag_delta(self._handle_cam(v, st), (x0, y0), (ev.x, ev.y), st.K, st.R, st.scale, st.projection))
         self.pointers[ev.handle] = (v, ev.x, ev.y)
