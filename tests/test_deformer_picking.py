@@ -135,13 +135,21 @@ def test_miss_selects_nothing(sfm):
 
 
 def test_orthographic_ray_hits_front_surface(sfm):
+    """Scaled orthographic as the fitter does it: camera space in pixel scale, pixel = (x, y)."""
     V, F, lm = sfm
-    R, s, t = pose(20.0)
-    Kortho = np.array([[2.0, 0.0, 320.0], [0.0, 2.0, 240.0], [0.0, 0.0, 1.0]])
+    R, _, _ = pose(20.0)
+    s, t = 2.2, np.array([320.0, 240.0, 0.0])  # px per mm
     mesh = s * V @ R.T + t
-    u = project(mesh[[lm["nose_tip"]]], Kortho, "orthographic")[0]
-    hit = pick_vertex(u[0], u[1], Kortho, mesh, F, "orthographic")
-    assert hit is not None and np.linalg.norm(mesh[hit.vertex] - mesh[lm["nose_tip"]]) < 6.0
+    nose = lm["nose_tip"]
+    u = project(mesh[[nose]], None, "orthographic")[0]
+    assert np.allclose(u, mesh[nose, :2])
+    hit = pick_vertex(u[0], u[1], None, mesh, F, "orthographic")
+    assert hit is not None and np.linalg.norm(mesh[hit.vertex] - mesh[nose]) < 6.0 * s
+    assert abs(hit.point[2] - mesh[nose, 2]) < 3.0 * s  # the front surface, not the back of the head
+    # a drag of (10, -4) px moves the handle 10/s, -4/s mm in the image plane
+    delta = drag_delta(mesh[nose], u, u + [10.0, -4.0], None, R, s, "orthographic")
+    moved = s * R @ (V[nose] + delta) + t
+    assert np.allclose(moved[:2], u + [10.0, -4.0]) and np.isclose(moved[2], mesh[nose, 2])
 
 
 @pytest.mark.parametrize("yaw", [0.0, 40.0])
