@@ -203,3 +203,54 @@ def test_merge_turns_displacement_into_pose():
     assert np.allclose(half, s * (model_pts + w[:, None] * disp) @ R.T + t, atol=1e-3)
     with pytest.raises(ValueError):
         merge_deformation(fitted, R, s, disp[:10])
+
+
+def fit_video(model, data_dir, models_dir, name, frames=12):
+    """Fit the SFM to the first frames of a shared video: (FitResult, person's neutral (V, 3))."""
+    cv2 = pytest.importorskip("cv2")
+    from facesculpt.nodes.fitter import Fitter
+    from facesculpt.nodes.landmarks.detector import LandmarkDetector
+    from facesculpt.nodes.landmarks.ibug68 import to_ibug68
+
+    detector = LandmarkDetector(models_dir)
+    cap = cv2.VideoCapture(str(data_dir / "video" / f"{name}.mp4"))
+    fitter = None
+    result = None
+    for _ in range(frames):
+        ok, frame = cap.read()
+        assert ok, f"cannot read {name}.mp4"
+        if fitter is None:
+            fitter = Fitter(model, image_size=(frame.shape[1], frame.shape[0]))
+        faces = detector.track(frame)
+        assert faces, f"no face in {name}.mp4"
+        result = fitter.fit(to_ibug68(faces[0].points))
+    cap.release()
+    return result, model.instance(result.alpha)
+
+
+def test_preset_from_one_video_applies_to_another(model, data_dir, models_dir, tmp_path):
+    """Edits made on the person fitted in d0.mp4, saved, loaded on the person in d3.mp4: the same
+    named landmarks move by the same model-space offsets, and in d3's frame they move on screen by
+    that offset in d3's head pose; a click on d3's deformed face picks the moved nose."""
+    from facesculpt.nodes.deformer.picking import pick_vertex, project
+
+    fit_a, person_a = fit_video(model, data_dir, models_dir, "d0")
+    fit_b, person_b = fit_video(model, data_dir, models_dir, "d3")
+    assert np.abs(person_a - person_b).max() > 2.0  # two fitted identities
+    a = stack_for(model, person_a)
+    make_edits(a)
+    a.save_preset(tmp_path / "video.json")
+    b = stack_for(model, person_b)
+    b.load_preset(tmp_path / "video.json")
+    disp = b.solve()
+    merged = merge_deformation(fit_b.vertices, fit_b.R, fit_b.scale, disp)
+    for edit in FIG6E:
+        for name, off in edit.items():
+            v = b.landmark_vertex(name)
+            assert np.allclose(disp[v], off, atol=1e-6)
+            on_screen = merged[v, :2] - fit_b.vertices[v, :2]  # orthographic: camera x, y are pixels
+            assert np.allclose(on_screen, (fit_b.scale * fit_b.R @ np.asarray(off))[:2], atol=1e-3)
+    nose = b.landmark_vertex("nose_tip")
+    u = project(merged[[nose]].astype(np.float64), None, fit_b.projection)[0]
+    hit = pick_vertex(u[0], u[1], fit_b.K, merged, model.triangles, fit_b.projection)
+    assert hit is not None and np.linalg.norm(person_b[hit.vertex] + disp[hit.vertex] - person_b[nose] - disp[nose]) < 6.0
