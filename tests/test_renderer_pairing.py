@@ -113,3 +113,20 @@ def test_bad_configuration_is_refused():
         FramePairer("newest")
     with pytest.raises(ValueError, match="capacity"):
         FramePairer("sync", capacity=0)
+
+
+def test_sync_pairs_a_state_that_arrives_before_its_frame():
+    # Frames (1.2 MB) and states (small) travel on different sockets: a state may come first.
+    pairer = FramePairer("sync", capacity=4)
+    assert pairer.push_state(1000, "s1") == []
+    ready = pairer.push_frame(1000, "f1")
+    assert [(p.frame, p.state) for p in ready] == [("f1", "s1")]
+    pairer.push_state(3000, "s3")           # frame 2000 never gets a state, frame 3000 is late
+    assert pairer.push_frame(2000, "f2") == []
+    ready = pairer.push_frame(3000, "f3")
+    assert [(p.frame, p.state) for p in ready] == [("f3", "s3")]
+    assert pairer.counters["skipped_by_fitter"] == 1 and pairer.buffered == 0
+    # An early state whose frame never comes is dropped once a newer frame arrives.
+    pairer.push_state(4000, "s4")
+    pairer.push_frame(5000, "f5")
+    assert pairer.counters["state_without_frame"] == 1

@@ -64,6 +64,7 @@ class FramePairer:
         if self.capacity < 1:
             raise ValueError(f"pairing buffer capacity must be >= 1, got {self.capacity}")
         self._frames: OrderedDict[int, Any] = OrderedDict()   # sync: stamp -> frame, in arrival order
+        self._early: OrderedDict[int, Any] = OrderedDict()    # sync: states that came before their frame
         self._latest_state: Any = None
         self._latest_state_stamp: int | None = None
         self._newest_frame_stamp: int | None = None
@@ -93,6 +94,11 @@ class FramePairer:
                 self._count("passed_without_face")
             return [Pair(frame, stamp, state, None if state is None else self._latest_state_stamp)]
         self._frames[stamp] = frame
+        if stamp in self._early:  # its state came first
+            return self._pair(stamp, self._early.pop(stamp))
+        for early in [s for s in self._early if s < stamp]:  # their frames never came
+            del self._early[early]
+            self._count("state_without_frame")
         ready = []
         while len(self._frames) > self.capacity:
             old_stamp, old_frame = self._frames.popitem(last=False)
@@ -108,8 +114,9 @@ class FramePairer:
     def push_state(self, stamp: int, state: Any) -> list[Pair]:
         """A new face state fitted on the frame stamped ``stamp`` (None: no face in it).
 
-        Returns the pairs now ready to render (sync: the state's own frame; latest: none,
-        the next frame is rendered with it).
+        Returns the pairs now ready to render (sync: the state's own frame, or nothing yet
+        when that frame has not arrived: frames and states travel on different sockets;
+        latest: none, the next frame is rendered with it).
         """
         stamp = int(stamp)
         if self._latest_state_stamp is not None and stamp < self._latest_state_stamp:
@@ -118,24 +125,32 @@ class FramePairer:
         self._latest_state, self._latest_state_stamp = state, stamp
         if self.mode == "latest":
             return []
-        if stamp not in self._frames:
-            self._count("state_without_frame")
-            # Its frame is gone (emitted on timeout) or never came; older frames still
-            # waiting can never be paired now.
-            skipped = [s for s in self._frames if s < stamp]
-            for s in skipped:
-                del self._frames[s]
-            if skipped:
-                self._count("skipped_by_fitter", len(skipped))
+        if stamp in self._frames:
+            return self._pair(stamp, state)
+        if self._newest_frame_stamp is None or stamp > self._newest_frame_stamp:
+            self._early[stamp] = state  # its frame is still on its way
+            while len(self._early) > self.capacity:
+                self._early.popitem(last=False)
+                self._count("state_without_frame")
             return []
-        ready = []
+        # Its frame is gone (let through on timeout, or never came); older frames still
+        # waiting can never be paired now.
+        self._count("state_without_frame")
+        skipped = [s for s in self._frames if s < stamp]
+        for s in skipped:
+            del self._frames[s]
+        if skipped:
+            self._count("skipped_by_fitter", len(skipped))
+        return []
+
+    def _pair(self, stamp: int, state: Any) -> list[Pair]:
+        """Render the buffered frame ``stamp`` with ``state``; drop the older waiting frames."""
         for old_stamp in list(self._frames):
             if old_stamp >= stamp:
                 break
             del self._frames[old_stamp]
             self._count("skipped_by_fitter")
-        ready.append(self._emit(stamp, self._frames.pop(stamp), state))
-        return ready
+        return [self._emit(stamp, self._frames.pop(stamp), state)]
 
     def _emit(self, stamp: int, frame: Any, state: Any) -> Pair:
         if state is None:
