@@ -120,3 +120,79 @@ def test_window_shows_the_frame_and_reports_input_in_frame_pixels(display, data_
         comp.release()
     finally:
         window.close()
+
+
+def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph, data_dir):
+    """The graph: this test plays camera + fitter (real frame, posed SFM); the renderer (window)
+    and the deformer run as real processes. A drag sent with xdotool on the nose reaches the
+    deformer as input/events, and the window then shows a changed nose."""
+    from facesculpt.msgs import FaceModel, FaceState, Image, InputEvent
+    from facesculpt.node import Node
+    from facesculpt.nodes.fitter import sfm_from_shared
+
+    model = sfm_from_shared(data_dir)
+    pose = place_marked(model, "s18")
+    frame = read_frames(data_dir, "s18")[0]
+    H, W = frame.shape[:2]
+
+    class Feeder(Node):
+        NAME = "window_feeder"
+
+        def setup(self):
+            self.image_pub = self.advertise("camera/image", Image)
+            self.state_pub = self.advertise("face/state", FaceState)
+            self.model_pub = self.advertise("face/model", FaceModel, latch=True)
+            self.events = []
+            self.subscribe("input/events", InputEvent, self.events.append, queued=True)
+            self.timer(1 / 15, self.tick)
+            self.n = 0
+
+        def tick(self):
+            self.n += 1
+            stamp = time.time_ns()
+            self.image_pub.publish(Image(stamp=stamp, image=frame, K=pose.K))
+            self.state_pub.publish(FaceState(
+                stamp=stamp, model_id=model.model_id, R=pose.R, t=np.zeros(3), scale=1.0, K=pose.K,
+                vertices=pose.fitted.astype(np.float32), projected=pose.projected.astype(np.float32),
+                image_size=[W, H], projection="perspective"))
+
+    title = f"facesculpt-graph-{os.getpid()}"
+    graph.env["DISPLAY"] = display
+    graph.spawn("run", "renderer", "window=true", "overlay=false", f"title={title}")
+    graph.spawn("run", "deformer")
+    feeder = graph.node(Feeder())
+    feeder.model_pub.publish(FaceModel(stamp=1, model_id=model.model_id, vertices=model.mean.astype(np.float32),
+                                       triangles=model.triangles.astype(np.int32)))
+    found = []
+
+    def window_up():
+        if not found:
+            r = subprocess.run(["xdotool", "search", "--name", title], env=dict(os.environ, DISPLAY=display),
+                               capture_output=True)
+            found.extend(r.stdout.split())
+        return bool(found)
+
+    assert graph.spin_until(feeder, window_up, 40.0), "the renderer's window did not open"
+    wid = found[0].decode()
+    graph.spin_until(feeder, lambda: False, 1.5)
+    before = screenshot(display, wid)
+    assert before.shape == (H, W, 3) and psnr(before, frame) > 40  # no edit yet: the frame itself
+
+    x, y = np.round(pose.projected[pose.landmarks["nose_tip"]]).astype(int)
+    path = [(x + dx, y) for dx in (0, 8, 16, 24, 32)]
+    args = ["mousemove", "--window", wid, str(path[0][0]), str(path[0][1]), "mousedown", "1"]
+    for px, py in path[1:]:
+        args += ["mousemove", "--window", wid, str(px), str(py), "sleep", "0.1"]
+    args += ["mouseup", "1"]
+    xtool(display, "xdotool", *args)
+    assert graph.spin_until(feeder, lambda: any(e.kind == "release" for e in feeder.events), 10.0)
+    kinds = [e.kind for e in feeder.events]
+    assert kinds[0] == "press" and "drag" in kinds and kinds[-1] == "release"
+    assert abs(feeder.events[0].x - x) <= 1 and abs(feeder.events[0].y - y) <= 1
+    assert abs(feeder.events[-1].x - path[-1][0]) <= 1 and feeder.events[0].source == "window"
+    graph.spin_until(feeder, lambda: False, 2.0)  # the deformer solves, the renderer draws
+    after = screenshot(display, wid)
+    patch = (slice(y - 25, y + 26), slice(x - 20, x + 45))
+    assert np.abs(after[patch].astype(int) - before[patch]).mean() > 8, "the nose did not change"
+    # Far from the face nothing changed.
+    assert np.array_equal(after[:, :300], before[:, :300])
