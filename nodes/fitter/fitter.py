@@ -93,8 +93,9 @@ class Fitter:
     relative to a fixed one (they slide along the silhouette and are annotated less precisely);
     num_shape: how many leading shape components to fit (default all); accumulate_identity: keep
     identity evidence across frames; smoothing: One Euro filtering of pose and expression
-    (smooth_min_cutoff Hz, smooth_beta); neutral_frames: frames averaged into the learned neutral
-    (dense mode). All thresholds are documented where they are used."""
+    (smooth_min_cutoff Hz; smooth_beta Hz per unit/s for rotation (rad), scale and expression;
+    smooth_beta_mm Hz per mm/s for translation and dense vertices); neutral_frames: frames
+    averaged into the learned neutral (dense mode). Thresholds are documented where they are used."""
 
     def __init__(
         self,
@@ -117,6 +118,7 @@ class Fitter:
         smoothing: bool = True,
         smooth_min_cutoff: float = 1.5,
         smooth_beta: float = 0.5,
+        smooth_beta_mm: float = 0.05,
         neutral_frames: int = 30,
         warm_start_gap_s: float = 0.5,
     ):
@@ -157,6 +159,7 @@ class Fitter:
         self.smoothing = smoothing
         self.smooth_min_cutoff = smooth_min_cutoff
         self.smooth_beta = smooth_beta
+        self.smooth_beta_mm = smooth_beta_mm
         self.neutral_frames = int(neutral_frames)
         self.warm_start_gap_s = warm_start_gap_s
 
@@ -199,7 +202,9 @@ class Fitter:
         self._pose = None  # (R, t, s) of the previous frame
         self._last_time = None
         self._frame = 0
-        self._filters = {k: OneEuroFilter(self.smooth_min_cutoff, self.smooth_beta) for k in ("rot", "t", "s", "beta", "dense")}
+        self._filters = {k: OneEuroFilter(self.smooth_min_cutoff, self.smooth_beta) for k in ("rot", "s", "beta")}
+        for k in ("t", "dense"):  # millimetre-valued signals
+            self._filters[k] = OneEuroFilter(self.smooth_min_cutoff, self.smooth_beta_mm)
         self._neutral_sum = None
         self._neutral_count = 0
         self._neutral_frozen = False
@@ -430,8 +435,11 @@ class Fitter:
     def _smooth(self, R, t, s, beta, now):
         rot = pose.rotation_log(R @ pose.FRONTAL.T)
         rot = self._filters["rot"](rot, now)
-        t = self._filters["t"](t, now)
-        s = float(self._filters["s"](np.array([s]), now)[0])
+        # Translation filtered in model millimetres (orthographic t is in pixels: divide by s).
+        unit = s if self.projection == "orthographic" else 1.0
+        s_new = float(self._filters["s"](np.array([s]), now)[0])
+        t = self._filters["t"](t / unit, now) * (s_new if self.projection == "orthographic" else 1.0)
+        s = s_new
         if len(beta):
             beta = self._filters["beta"](beta, now)
         return pose.rodrigues(rot) @ pose.FRONTAL, t, s, beta
@@ -469,46 +477,43 @@ class Fitter:
         if pts.shape[1] == 2:
             raise FitError("dense mode needs (N, 3) points with the network's relative depth")
 
-        if self._neutral_count == 0 and "canonical" not in m.source:
+        learned_now = False
+        if self._neutral_count == 0 and "canonical" not in self.model.source and have.all():
             # No reference yet: this frame's own shape is the first estimate of the neutral.
-            self._learn_neutral(obs, have, None)
-        ref = m.mean.astype(np.float64)
-        # Robust weighted similarity: downweight vertices moved by expression (Geman-McClure on the
-        # residual, scale 3 mm), starting from the rigid-region weights.
+            learned_now = self._learn_neutral(obs, None)
+        ref = self.model.mean.astype(np.float64)
+        # Robust weighted similarity: vertices moved by expression are down-weighted
+        # (Geman-McClure on the residual, scale 3 mm) over a few re-weighting rounds.
         wr = wv * have
-        s = R = t = None
         for _ in range(4):
             s, R, t = pose.similarity_procrustes(ref[have], obs[have], wr[have])
             res = np.linalg.norm((s * ref @ R.T + t) - obs, axis=1) / s  # mm
             wr = wv * have / (1 + (res / 3.0) ** 2) ** 2
-        if np.linalg.det(R) < 0:
-            raise FitError("dense points are mirrored relative to the model")
-        residual = float(np.sqrt((((s * ref @ R.T + t)[have, :2] - obs[have, :2]) ** 2).sum(1).mean()))
-        self._learn_neutral(obs, have, (s, R, t))
-        # Smooth pose and the observed shape (in model space) over time.
-        local = (obs - t) @ R / s  # observation mapped into model space (mm)
-        local[~have] = (s * ref @ R.T + t)[~have] @ R / s - t @ R / s  # unobserved: the reference
+        posed_ref = s * ref @ R.T + t
+        # Non-rigid deviation of the observation from the posed reference (expression + reference error).
+        residual = float(np.sqrt(((posed_ref[have, :2] - obs[have, :2]) ** 2).sum(1).mean()))
+        if not learned_now and have.all():
+            self._learn_neutral(obs, (s, R, t))
+        # The fitted shape in model space: the observation itself, the reference where unobserved.
+        local = ref.copy()
+        local[have] = (obs[have] - t) @ R / s
         if self.smoothing:
-            R, tt, s, _ = self._smooth(R, t, s, np.zeros(0), now)
-            t = tt
+            R, t, s, _ = self._smooth(R, t, s, np.zeros(0), now)
             local = self._filters["dense"](local, now)
-        cam_px = s * local @ R.T + t  # pixel-scale camera points
+        cam_px = s * local @ R.T + t  # camera space in pixel scale (x, y pixels; z relative depth)
         if self.projection == "orthographic":
-            vertices = cam_px
+            vertices, proj = cam_px, cam_px[:, :2]
             R_out, t_out, s_out = R, t, s
-            proj = cam_px[:, :2]
         else:
+            # Weak perspective made metric: s px/mm at the reference depth Z0 = f / s; each point's
+            # depth is offset by its relative depth / s (mm), and back-projected through K.
             f = 0.5 * (self.K[0, 0] + self.K[1, 1])
-            # Weak perspective: s px/mm at the reference depth Z0 = f / s; each point's depth
-            # offset is its relative depth / s (mm).
             Z0 = f / s
             Z = Z0 + (cam_px[:, 2] - t[2]) / s
             X = (cam_px[:, 0] - self.K[0, 2]) * Z / self.K[0, 0]
             Y = (cam_px[:, 1] - self.K[1, 2]) * Z / self.K[1, 1]
             vertices = np.column_stack([X, Y, Z])
-            centre_px = t[:2]
-            t_out = np.array([(centre_px[0] - self.K[0, 2]) * Z0 / self.K[0, 0],
-                              (centre_px[1] - self.K[1, 2]) * Z0 / self.K[1, 1], Z0])
+            t_out = np.array([(t[0] - self.K[0, 2]) * Z0 / self.K[0, 0], (t[1] - self.K[1, 2]) * Z0 / self.K[1, 1], Z0])
             R_out, s_out = R, 1.0
             proj = pose.project_perspective(vertices, self.K)
         self._pose = (R, t, s)
@@ -519,17 +524,17 @@ class Fitter:
             model_vertices=local.astype(np.float32), landmarks_used=int(have.sum()),
         )
 
-    def _learn_neutral(self, obs, have, sim) -> None:
+    def _learn_neutral(self, obs, sim) -> bool:
         """Running mean (model space) of the first ``neutral_frames`` frames' shapes; each frame is
-        normalised (centred, eye-corner axis, 90 mm) before it is averaged."""
-        if self._neutral_frozen or not have.all():
-            return
+        normalised (centred, eye-corner axis, 90 mm) and aligned to the current reference before it
+        is averaged. Returns whether the reference changed."""
+        if self._neutral_frozen:
+            return False
         try:
             shape = normalise_facemesh_neutral(obs if sim is None else (obs - sim[2]) @ sim[1] / sim[0])
         except ValueError:
-            return
-        if sim is not None and self._neutral_count:
-            # Align to the current reference so the mean does not drift or blur.
+            return False
+        if self._neutral_count:
             s2, R2, t2 = pose.similarity_procrustes(shape, self.model.mean)
             shape = s2 * shape @ R2.T + t2
         if self._neutral_sum is None:
@@ -537,7 +542,9 @@ class Fitter:
         self._neutral_sum += shape
         self._neutral_count += 1
         mean = normalise_facemesh_neutral(self._neutral_sum / self._neutral_count)
-        self.model = self.model.with_mean(mean, source=self.model.source.split("; ")[0] + f"; neutral learned from {self._neutral_count} frames")
+        base = self.model.source.split("; neutral learned")[0]
+        self.model = self.model.with_mean(mean, source=f"{base}; neutral learned from {self._neutral_count} frames")
         self.neutral_version += 1
         if self._neutral_count >= self.neutral_frames:
             self._neutral_frozen = True
+        return True

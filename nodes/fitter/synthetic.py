@@ -116,13 +116,14 @@ def make_face(
     scale_range: tuple[float, float] = (1.2, 2.0),
     K: np.ndarray | None = None,
     distance_mm: float = 600.0,
+    alpha: np.ndarray | None = None,
 ) -> SyntheticFace:
     """A random face: alpha uniform in ±alpha_range sigma (all components), each blendshape weight
     uniform in [0, beta_max], yaw ±60°, pitch ±20°, roll ±10° unless given; scaled orthographic with
     s uniform in ``scale_range`` px/mm, or perspective through K at ``distance_mm``; Gaussian
-    landmark noise of ``noise_px`` px per coordinate."""
+    landmark noise of ``noise_px`` px per coordinate; ``alpha`` fixes the identity (same person)."""
     S, E = model.num_shape, model.num_expression
-    alpha = rng.uniform(-alpha_range, alpha_range, S).astype(np.float32)
+    alpha = rng.uniform(-alpha_range, alpha_range, S).astype(np.float32) if alpha is None else np.asarray(alpha, np.float32)
     beta = rng.uniform(0, beta_max, E).astype(np.float32) if E else np.zeros(0, np.float32)
     yaw = rng.uniform(-60, 60) if yaw is None else yaw
     pitch = rng.uniform(-20, 20) if pitch is None else pitch
