@@ -33,16 +33,17 @@ FRAMES = {
 
 
 def read_frames(data_dir: Path, name: str, count: int = 1, start: int = 0) -> list[np.ndarray]:
-    """``count`` consecutive BGR frames of video ``name`` from ``start``, at FRAMES[name]["size"]."""
+    """``count`` consecutive BGR frames of video ``name`` from ``start``, at FRAMES[name]["size"]
+    (the video's own size for videos not listed there)."""
     cap = cv2.VideoCapture(str(Path(data_dir) / "video" / f"{name}.mp4"))
     cap.set(cv2.CAP_PROP_POS_FRAMES, start)
     frames = []
-    size = FRAMES[name]["size"]
+    size = FRAMES.get(name, {}).get("size")
     while len(frames) < count:
         ok, frame = cap.read()
         if not ok:
             break
-        if (frame.shape[1], frame.shape[0]) != size:
+        if size is not None and (frame.shape[1], frame.shape[0]) != size:
             frame = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
         frames.append(frame)
     cap.release()

@@ -130,3 +130,44 @@ def test_sync_pairs_a_state_that_arrives_before_its_frame():
     pairer.push_state(4000, "s4")
     pairer.push_frame(5000, "f5")
     assert pairer.counters["state_without_frame"] == 1
+
+
+def test_sync_keeps_the_mesh_on_the_face_while_latest_lags_a_slow_fitter(data_dir, models_dir):
+    """Real frames (d3, a talking head), the real detector and fitter (face mesh, dense), a slow
+    fitter (takes every 3rd frame, its state comes 3 frames later), the compositor drawing each
+    pair. The mesh drawn lies where the state puts it (state.projected); the face in the
+    rendered frame is where a fresh detection finds it. sync: they agree; latest: the lag."""
+    import numpy as np
+    from renderer_scene import read_frames
+
+    from facesculpt.nodes.fitter import Fitter, facemesh_model
+    from facesculpt.nodes.landmarks import LandmarkDetector
+    from facesculpt.nodes.renderer import Compositor
+
+    frames = read_frames(data_dir, "d3", count=30)
+    H, W = frames[0].shape[:2]
+    model = facemesh_model()
+    detector = LandmarkDetector(models_dir)
+    fitter = Fitter(model, image_size=(W, H), smoothing=False)
+    states = [fitter.fit(detector.detect(f)[0].points, stamp=i / 30) for i, f in enumerate(frames)]
+    comp = Compositor(W, H)
+    latency = 3
+    errors = {}
+    for mode in ("sync", "latest"):
+        pairer = FramePairer(mode, capacity=10, timeout_ns=10**12, max_age_ns=10**12)
+        errors[mode] = []
+        for i, frame in enumerate(frames):
+            pairs = pairer.push_frame(i, frame)
+            if i >= latency and (i - latency) % latency == 0:
+                pairs += pairer.push_state(i - latency, states[i - latency])
+            for p in pairs:
+                st = p.state
+                if st is None:  # latest: before the first state the frame passes through
+                    continue
+                out = comp.render(p.frame, st.vertices, st.projected, model.triangles, st.vertices)
+                seen = detector.detect(out)[0].points[:, :2]
+                errors[mode].append(float(np.median(np.linalg.norm(seen - st.projected, axis=1))))
+    comp.release()
+    assert len(errors["sync"]) == 9 and len(errors["latest"]) == 26
+    assert max(errors["sync"]) <= 2.0
+    assert np.median(errors["latest"]) >= 5.0
