@@ -563,20 +563,26 @@ def _placeholder_facemesh_neutral(triangles: np.ndarray) -> np.ndarray:
     key = np.sort(edges, axis=1)
     uniq, counts = np.unique(key, axis=0, return_counts=True)
     boundary_edges = uniq[counts == 1]
-    # Order the boundary loop.
-    nxt: dict[int, list[int]] = {}
+    # Boundary loops (the face oval, and the eye and mouth holes); the longest is the outline.
+    nbrs: dict[int, list[int]] = {}
     for a, b in boundary_edges:
-        nxt.setdefault(int(a), []).append(int(b))
-        nxt.setdefault(int(b), []).append(int(a))
-    start = int(boundary_edges[0, 0]) if len(boundary_edges) else 0
-    loop, prev = [start], -1
-    while len(boundary_edges) and len(loop) < len(nxt):
-        cur = loop[-1]
-        cand = [n for n in nxt[cur] if n != prev and n not in loop[-2:]]
-        if not cand or cand[0] == start:
-            break
-        prev = cur
-        loop.append(cand[0])
+        nbrs.setdefault(int(a), []).append(int(b))
+        nbrs.setdefault(int(b), []).append(int(a))
+    loops, seen = [], set()
+    for start in nbrs:
+        if start in seen:
+            continue
+        loop, prev, cur = [start], None, start
+        seen.add(start)
+        while True:
+            nxt = [n for n in nbrs[cur] if n != prev and n not in seen]
+            if not nxt:
+                break
+            prev, cur = cur, nxt[0]
+            seen.add(cur)
+            loop.append(cur)
+        loops.append(loop)
+    loop = max(loops, key=len) if loops else []
     pos = np.zeros((V, 2))
     fixed = np.zeros(V, bool)
     if len(loop) >= 3:
