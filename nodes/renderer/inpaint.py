@@ -104,9 +104,14 @@ def fill_pushpull(image: np.ndarray, fill: np.ndarray, source: np.ndarray) -> np
     for k in range(len(colours) - 2, 0, -1):
         lh, lw = weights[k].shape
         up = cv2.pyrUp(filled, dstsize=(lw, lh)).reshape(lh, lw, 3)
-        wk = weights[k][..., None]
+        wk = weights[k]
         conf = np.minimum(wk * 4.0, 1.0)
-        filled = colours[k] * (conf / np.maximum(wk, 1e-12)) + up * (1.0 - conf)
+        # colour * conf / w + up * (1 - conf), in place on the arrays this level owns
+        scale = conf / np.maximum(wk, 1e-12)
+        filled = colours[k]
+        filled *= scale[..., None]
+        up *= (1.0 - conf)[..., None]
+        filled += up
     up = cv2.pyrUp(filled, dstsize=(w, h)).reshape(h, w, 3)
     out = image.copy()
     out[fill] = (up[fill] + 0.5).astype(np.uint8)  # averages of uint8 values: in range
