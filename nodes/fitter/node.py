@@ -1,0 +1,160 @@
+"""The fitter node: ``face/landmarks`` -> ``face/state``, and ``face/model`` (latched).
+
+A thin shell over :class:`facesculpt.nodes.fitter.Fitter`. The model is the ``model`` param:
+``facemesh`` (built-in, dense: the 468 network points are fitted directly) or a ``.npz`` made by
+``facesculpt model import-eos`` (sparse: the 468 points are reduced to iBUG-68 with the landmark
+node's mapping and fitted with ids 1..68). ``face/model`` carries the neutral the deformer works
+on: the model mean, then the learned reference of this person (dense: the mean of the first
+frames; sparse: the accumulated identity) — published when it changes, at most every
+``model_period_s`` seconds while it is still being learned. No face, too few valid landmarks or
+any other refusal: no state, a counter in diagnostics, never an exception.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
+from facesculpt.node import Node
+
+from .fitter import FitError, Fitter
+from .model import MorphableModel, load_model
+
+
+def valid_intrinsics(K) -> bool:
+    K = np.asarray(K, np.float64)
+    return K.shape == (3, 3) and bool(np.isfinite(K).all()) and K[0, 0] > 0 and K[1, 1] > 0 and abs(K[2, 2] - 1) < 1e-6
+
+
+class FitterNode(Node):
+    NAME = "fitter"
+    PARAMS = {
+        "model": "facemesh",  # "facemesh", or a .npz model file (facesculpt model import-eos)
+        "iterations": 5,  # pose / correspondence / coefficient iterations per frame
+        "projection": "auto",  # "perspective" (with the frame's K), "orthographic", or auto: K if valid
+        "shape_lambda": 3.0,  # Eq. 2 regularisation, mm²
+        "expression_lambda": 4.0,
+        "outline": "ray",  # "ray" (paper), "nearest", "off"
+        "smoothing": True,  # One Euro filter on pose and expression
+        "min_cutoff": 1.5,  # Hz, One Euro
+        "neutral_frames": 30,  # dense: frames averaged into the neutral reference
+        "model_period_s": 1.0,  # least time between face/model updates while the neutral is learned
+        "min_score": 0.5,  # faces below this landmark score are not fitted
+    }
+
+    def setup(self):
+        self.state_pub = self.advertise("face/state", FaceState)
+        self.model_pub = self.advertise("face/model", FaceModel, latch=True)
+        self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
+        self.model: MorphableModel | None = None
+        self.fitter: Fitter | None = None
+        self.camera_key = None
+        self.model_version = 0
+        self.published_neutral: np.ndarray | None = None
+        self.last_model_publish = -np.inf
+        self.final_published = False
+        try:
+            self.model = load_model(self.params.model)
+        except Exception as exc:  # missing setup files, bad .npz: report, stay up, fit nothing
+            self.log.error("cannot load model %r: %s", self.params.model, exc)
+            self.count("model_error")
+            self.last_error = str(exc)
+            return
+        self.publish_model(self.model.mean, stamp=0)
+
+    # -- model ---------------------------------------------------------------------------------
+    def publish_model(self, neutral: np.ndarray, stamp: int) -> None:
+        m = self.model
+        self.model_version += 1
+        self.model_pub.publish(FaceModel(
+            stamp=int(stamp), model_id=m.model_id, vertices=np.asarray(neutral, np.float32),
+            triangles=m.triangles.astype(np.int32), landmark_names=list(m.landmark_names),
+            landmark_vertices=m.landmark_vertices.astype(np.int32), units=m.units, version=self.model_version,
+        ))
+        self.published_neutral = np.array(neutral, np.float32)
+        self.count("model_published")
+
+    def maybe_publish_model(self, stamp: int, now_s: float) -> None:
+        """Publish the learned neutral when it moved by more than 0.5 mm somewhere, at most every
+        ``model_period_s``; always once when a dense reference is complete."""
+        f = self.fitter
+        neutral = f.neutral
+        done = f.model.dense and f.neutral_ready
+        if done and self.final_published:
+            return
+        moved = float(np.abs(neutral - self.published_neutral).max()) if self.published_neutral is not None else np.inf
+        if (done and moved > 0) or (moved > 0.5 and now_s - self.last_model_publish >= self.params.model_period_s):
+            self.publish_model(neutral, stamp)
+            self.last_model_publish = now_s
+            self.final_published = done
+
+    # -- frames --------------------------------------------------------------------------------
+    def make_fitter(self, image_size, K) -> Fitter:
+        projection = self.params.projection
+        if projection == "auto":
+            projection = "perspective" if K is not None else "orthographic"
+        return Fitter(
+            self.model, image_size=image_size, K=K if projection == "perspective" else None, projection=projection,
+            iterations=self.params.iterations, shape_lambda=self.params.shape_lambda,
+            expression_lambda=self.params.expression_lambda, outline=self.params.outline,
+            smoothing=self.params.smoothing, smooth_min_cutoff=self.params.min_cutoff,
+            neutral_frames=self.params.neutral_frames,
+        )
+
+    def on_landmarks(self, msg: FaceLandmarks):
+        if self.model is None:
+            self.count("no_model")
+            return
+        points = np.asarray(msg.points)
+        if points.ndim != 3 or points.shape[0] == 0:
+            self.count("no_face")
+            return
+        best = int(np.argmax(msg.scores)) if len(msg.scores) == points.shape[0] else 0
+        if len(msg.scores) == points.shape[0] and float(msg.scores[best]) < self.params.min_score:
+            self.count("low_score")
+            return
+        pts = points[best].astype(np.float64)
+        try:
+            size = (int(msg.image_size[0]), int(msg.image_size[1]))
+        except (TypeError, ValueError, IndexError):
+            size = (0, 0)
+        if size[0] <= 0 or size[1] <= 0:
+            self.count("bad_image_size")
+            return
+        K = np.asarray(msg.K, np.float64) if valid_intrinsics(msg.K) else None
+        if self.params.projection == "perspective" and K is None:
+            self.count("bad_intrinsics")
+            return
+        key = (size, None if K is None else K.round(6).tobytes())
+        try:
+            if self.fitter is None or key != self.camera_key:
+                if self.fitter is not None:
+                    self.count("camera_changed")
+                self.fitter = self.make_fitter(size, K)
+                self.camera_key = key
+            ids = None
+            if not self.model.dense:
+                if pts.shape[0] == 468:
+                    from facesculpt.nodes.landmarks import to_ibug68
+
+                    pts = to_ibug68(pts)
+                if pts.shape[0] != 68:
+                    self.count("bad_landmark_count")
+                    return
+                ids = [str(i) for i in range(1, 69)]
+            with self.stage("fit"):
+                result = self.fitter.fit(pts, ids, stamp=msg.stamp * 1e-9)
+        except FitError as exc:
+            self.count("fit_refused")
+            self.last_error = str(exc)
+            return
+        self.state_pub.publish(FaceState(
+            stamp=msg.stamp, frame_id=msg.frame_id, model_id=self.model.model_id,
+            R=np.asarray(result.R, np.float64), t=np.asarray(result.t, np.float64), scale=float(result.scale),
+            K=np.asarray(msg.K, np.float64) if np.shape(msg.K) == (3, 3) else np.eye(3),
+            alpha=result.alpha.astype(np.float32), beta=result.beta.astype(np.float32),
+            vertices=result.vertices, projected=result.projected, residual_px=float(result.residual_px),
+            image_size=[size[0], size[1]], projection=result.projection,
+        ))
+        self.count("fitted")
+        self.maybe_publish_model(msg.stamp, msg.stamp * 1e-9)

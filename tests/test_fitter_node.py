@@ -1,0 +1,162 @@
+"""The fitter node: face/landmarks in, face/state and the latched face/model out. In-process
+(callbacks called directly, real sockets for publishing) and as a real process in a graph."""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
+from facesculpt.nodes.fitter.node import FitterNode
+
+
+@pytest.fixture(scope="module")
+def frames(models_dir, data_dir):
+    """Real FaceLandmarks messages: the landmark networks on the first 12 frames of d0.mp4."""
+    from facesculpt.nodes.landmarks import LandmarkDetector
+
+    detector = LandmarkDetector(models_dir)
+    cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
+    msgs = []
+    while len(msgs) < 12:
+        ok, frame = cap.read()
+        assert ok
+        faces = detector.track(frame)
+        if not faces:
+            continue
+        h, w = frame.shape[:2]
+        K = np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1.0]])
+        msgs.append(FaceLandmarks(
+            stamp=1_000_000_000 + len(msgs) * 40_000_000, seq=len(msgs), frame_id="camera",
+            points=np.asarray(faces[0].points, np.float32)[None], scores=np.array([faces[0].score], np.float32),
+            rois=np.asarray(faces[0].roi, np.float32).reshape(1, 5), image_size=[w, h], K=K,
+        ))
+    cap.release()
+    return msgs
+
+
+def test_facemesh_node_fits_frames_and_publishes_the_learned_neutral(monkeypatch, tmp_path, frames):
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    node = FitterNode(params={"neutral_frames": 6, "model_period_s": 0.1})
+    node.setup()  # publishes the placeholder neutral (version 1) before any capture
+    out = {"state": [], "model": []}
+    for key, pub in (("state", node.state_pub), ("model", node.model_pub)):
+        original = pub.publish
+        pub.publish = lambda msg, _o=original, _k=key: (out[_k].append(msg), _o(msg))[1]
+    try:
+        for msg in frames:
+            node.on_landmarks(msg)
+        states = out["state"]
+        assert len(states) == len(frames)
+        for st, msg in zip(states, frames):
+            assert st.stamp == msg.stamp and st.frame_id == msg.frame_id and st.model_id == "facemesh"
+            assert st.vertices.shape == (468, 3) and st.projection == "perspective"
+            # One Euro smoothing is on: the mesh follows the points within a pixel or two.
+            assert np.abs(st.projected - msg.points[0, :, :2]).max() < 3.0
+        # The learned neutral went out while it was learned, and once more when complete; then no more.
+        models = out["model"]
+        assert 1 <= len(models) <= 6 and models[-1].version == node.model_version
+        assert [m.version for m in models] == sorted(m.version for m in models)
+        assert np.allclose(models[-1].vertices, node.fitter.model.mean) and node.fitter.neutral_ready
+        assert models[-1].landmark_names[:2] == ["0", "1"] and "nose_tip" in models[-1].landmark_names
+        n = len(models)
+        node.on_landmarks(frames[-1])
+        assert len(out["model"]) == n
+        assert node.counters["fitted"] == len(frames) + 1 and node.errors == 0
+    finally:
+        node.close()
+
+
+def test_bad_input_is_counted_never_raised(monkeypatch, tmp_path, frames):
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    node = FitterNode(params={"model": "facemesh"})
+    node.setup()
+    try:
+        good = frames[0]
+        empty = FaceLandmarks(stamp=5, points=np.zeros((0, 468, 3), np.float32), scores=np.zeros(0, np.float32),
+                              rois=np.zeros((0, 5), np.float32), image_size=good.image_size, K=good.K)
+        node.on_landmarks(empty)
+        nan = FaceLandmarks(stamp=6, points=np.full((1, 468, 3), np.nan, np.float32), scores=good.scores,
+                            rois=good.rois, image_size=good.image_size, K=good.K)
+        node.on_landmarks(nan)
+        zero = FaceLandmarks(stamp=7, points=good.points, scores=good.scores, rois=good.rois, image_size=[0, 0], K=good.K)
+        node.on_landmarks(zero)
+        few = FaceLandmarks(stamp=8, points=good.points[:, :20], scores=good.scores, rois=good.rois,
+                            image_size=good.image_size, K=good.K)
+        node.on_landmarks(few)
+        c = node.counters
+        assert c["no_face"] == 1 and c["bad_image_size"] == 1 and c["fit_refused"] == 2
+        assert "fitted" not in c and node.errors == 0
+        node.on_landmarks(good)  # and it still fits afterwards
+        assert node.counters["fitted"] == 1
+    finally:
+        node.close()
+
+
+def test_sfm_node_fits_the_68_point_mapping(monkeypatch, tmp_path, frames, data_dir):
+    from facesculpt.nodes.fitter import save_model, sfm_from_shared
+
+    path = save_model(sfm_from_shared(data_dir), tmp_path / "sfm.npz")
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    node = FitterNode(params={"model": str(path), "projection": "orthographic", "model_period_s": 0.0})
+    node.setup()
+    states, models = [], []
+    o_state, o_model = node.state_pub.publish, node.model_pub.publish
+    node.state_pub.publish = lambda m: (states.append(m), o_state(m))[1]
+    node.model_pub.publish = lambda m: (models.append(m), o_model(m))[1]
+    try:
+        for msg in frames:
+            node.on_landmarks(msg)
+        assert len(states) == len(frames)
+        st = states[-1]
+        assert st.vertices.shape == (3448, 3) and st.alpha.shape == (63,) and st.beta.shape == (6,)
+        assert st.projection == "orthographic" and st.residual_px < 8
+        assert (st.beta >= 0).all()
+        # The accumulated identity changes the neutral: face/model follows it.
+        assert models and models[-1].vertices.shape == (3448, 3)
+        assert not np.allclose(models[-1].vertices, node.model.mean)
+    finally:
+        node.close()
+
+
+def test_missing_model_keeps_the_node_up(monkeypatch, tmp_path, frames):
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    node = FitterNode(params={"model": str(tmp_path / "nope.npz")})
+    node.setup()
+    try:
+        node.on_landmarks(frames[0])
+        assert node.counters["model_error"] == 1 and node.counters["no_model"] == 1
+        assert "nope.npz" in node.last_error
+    finally:
+        node.close()
+
+
+def test_real_process_publishes_state_and_latched_model(graph, frames):
+    from facesculpt.node import Node
+
+    proc = graph.spawn("run", "fitter", "model=facemesh", "neutral_frames=3")
+    client = Node(name="fitter_test_client")
+    states: list[FaceState] = []
+    models: list[FaceModel] = []
+    pub = client.advertise("face/landmarks", FaceLandmarks)
+    client.subscribe("face/state", FaceState, states.append, queued=True)
+    client.subscribe("face/model", FaceModel, models.append, queued=True)
+    client.start()
+    try:
+        deadline = time.monotonic() + 30
+        k = 0
+        while (len(states) < 5 or not models) and time.monotonic() < deadline:
+            pub.publish(frames[k % len(frames)])
+            k += 1
+            client.spin_once(0.1)
+        assert len(states) >= 5, f"no face/state from the fitter process: {client.diagnostics()}"
+        assert models and models[-1].model_id == "facemesh" and models[-1].vertices.shape == (468, 3)
+        stamps = {m.stamp for m in frames}
+        assert all(s.stamp in stamps for s in states)
+    finally:
+        client.close()
+        proc.terminate()
+        assert proc.wait(10) == 0
