@@ -3,7 +3,6 @@ frames out on render/image and in a video file, per-stage times in diagnostics."
 
 from __future__ import annotations
 
-import time
 
 import cv2
 import numpy as np
@@ -92,7 +91,7 @@ def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_pa
 
     # Diagnostics carry the per-stage times and what happened.
     assert graph.spin_until(feeder, lambda: any(d["counters"].get("rendered") == 5 for d in feeder.diagnostics_seen),
-                            5.0)
+                            15.0)
     stages = {k for d in feeder.diagnostics_seen for k in d["stages_ms"]}
     assert {"pair", "merge", "camera", "texture", "draw", "readback", "inpaint", "composite", "output"} <= stages
     counters = feeder.diagnostics_seen[-1]["counters"]
@@ -111,4 +110,3 @@ def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_pa
     assert len(written) == len(frames)
     mse = np.mean((written[no_face].astype(float) - frames[no_face]) ** 2)
     assert 10 * np.log10(255 ** 2 / mse) > 28
-    time.sleep(0)  # (the graph fixture stops the rest)

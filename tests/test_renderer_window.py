@@ -1,7 +1,7 @@
 """The renderer's window under a real X server (Xvfb): it opens at the frame's size, shows the
 composited frame (checked on a screenshot), and mouse/key events sent with xdotool come back
 as input events in frame pixel coordinates. Needs the Debian packages xvfb, xdotool and
-imagemagick (for `import`); skips without them."""
+x11-apps (xwd, for screenshots; ImageMagick's `import` also works); skips without them."""
 
 from __future__ import annotations
 
@@ -16,14 +16,16 @@ import numpy as np
 import pytest
 from renderer_scene import place_marked, psnr, read_frames
 
-TOOLS = ("Xvfb", "xdotool", "import")
+TOOLS = ("Xvfb", "xdotool")
 
 
 @pytest.fixture(scope="module")
 def display():
     missing = [t for t in TOOLS if shutil.which(t) is None]
+    if not (shutil.which("xwd") or shutil.which("import")):
+        missing.append("xwd")
     if missing:
-        pytest.skip(f"needs {', '.join(missing)} (apt-get install xvfb xdotool imagemagick)")
+        pytest.skip(f"needs {', '.join(missing)} (apt-get install xvfb xdotool x11-apps)")
     for number in range(91, 140):
         if not Path(f"/tmp/.X{number}-lock").exists() and not Path(f"/tmp/.X11-unix/X{number}").exists():
             break
@@ -44,7 +46,28 @@ def xtool(display, *args, capture=False):
         subprocess.run(args, env=env, check=True, timeout=20)
 
 
+def decode_xwd(data: bytes) -> np.ndarray:
+    """A (H, W, 3) uint8 BGR image from an X window dump (xwd) of a 24/32-bit TrueColor window."""
+    header = np.frombuffer(data[:100], ">u4")
+    header_size, version, pixmap_format, depth, width, height = (int(v) for v in header[:6])
+    byte_order, bits_per_pixel, bytes_per_line = int(header[7]), int(header[11]), int(header[12])
+    red_mask, green_mask, blue_mask, ncolors = int(header[14]), int(header[15]), int(header[16]), int(header[19])
+    assert version == 7 and pixmap_format == 2 and bits_per_pixel == 32, "unsupported xwd dump"
+    start = header_size + 12 * ncolors
+    rows = np.frombuffer(data[start:start + bytes_per_line * height], np.uint8).reshape(height, bytes_per_line)
+    pixels = rows[:, :4 * width].copy().view("<u4" if byte_order == 0 else ">u4").reshape(height, width)
+
+    def channel(mask):
+        shift = (mask & -mask).bit_length() - 1
+        return ((pixels & mask) >> shift).astype(np.uint8)
+
+    return np.dstack([channel(blue_mask), channel(green_mask), channel(red_mask)])
+
+
 def screenshot(display, window_id: str) -> np.ndarray:
+    """The window's pixels as the X server has them, (H, W, 3) uint8 BGR (xwd, else ImageMagick)."""
+    if shutil.which("xwd"):
+        return decode_xwd(xtool(display, "xwd", "-silent", "-id", window_id, capture=True))
     png = xtool(display, "import", "-window", window_id, "png:-", capture=True)
     return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
 
@@ -174,9 +197,15 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
 
     assert graph.spin_until(feeder, window_up, 40.0), "the renderer's window did not open"
     wid = found[0].decode()
-    graph.spin_until(feeder, lambda: False, 1.5)
-    before = screenshot(display, wid)
-    assert before.shape == (H, W, 3) and psnr(before, frame) > 40  # no edit yet: the frame itself
+    shots = []
+
+    def shows(predicate):
+        shots.append(screenshot(display, wid))
+        return predicate(shots[-1])
+
+    # No edit yet: the window shows the frame itself.
+    assert graph.spin_until(feeder, lambda: shows(lambda s: s.shape == (H, W, 3) and psnr(s, frame) > 40), 20.0)
+    before = shots[-1]
 
     x, y = np.round(pose.projected[pose.landmarks["nose_tip"]]).astype(int)
     path = [(x + dx, y) for dx in (0, 8, 16, 24, 32)]
@@ -190,9 +219,11 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     assert kinds[0] == "press" and "drag" in kinds and kinds[-1] == "release"
     assert abs(feeder.events[0].x - x) <= 1 and abs(feeder.events[0].y - y) <= 1
     assert abs(feeder.events[-1].x - path[-1][0]) <= 1 and feeder.events[0].source == "window"
-    graph.spin_until(feeder, lambda: False, 2.0)  # the deformer solves, the renderer draws
-    after = screenshot(display, wid)
+    # The deformer solves, the renderer draws the edit.
     patch = (slice(y - 25, y + 26), slice(x - 20, x + 45))
-    assert np.abs(after[patch].astype(int) - before[patch]).mean() > 8, "the nose did not change"
+    changed = graph.spin_until(
+        feeder, lambda: shows(lambda s: np.abs(s[patch].astype(int) - before[patch]).mean() > 8), 20.0)
+    assert changed, "the nose did not change"
+    after = shots[-1]
     # Far from the face nothing changed.
     assert np.array_equal(after[:, :300], before[:, :300])
