@@ -71,3 +71,19 @@ def launch_file(name_or_path: str) -> Path:
             return candidate
     known = ", ".join(sorted(p.stem for p in shipped.glob("*.yaml"))) or "none"
     raise FileNotFoundError(f"launch file {name_or_path!r} not found (shipped launch files: {known})")
+
+
+def embedded_face_image() -> Path:
+    """A real face photo shipped by an installed package, the main job's default input:
+    scikit-image's ``astronaut.png`` (Eileen Collins, NASA, public domain). Found on disk
+    without importing scikit-image."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("skimage")
+    if spec is None or not spec.submodule_search_locations:
+        raise FileNotFoundError("scikit-image is not installed; it ships the demo's face photo "
+                                "(pip install scikit-image, or reinstall facesculpt)")
+    path = Path(list(spec.submodule_search_locations)[0]) / "data" / "astronaut.png"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing from the scikit-image installation")
+    return path
