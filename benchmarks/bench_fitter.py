@@ -9,8 +9,13 @@
    similarity alignment (mm), landmark reprojection error (px), time per fit — by |yaw| bin.
 2. Paper Table 1 analogue: with / without the ray-triangle outline refinement (nearest vertex),
    frontal vs yaw 45°, time and error.
-3. Facemesh dense fit time per frame (needs `facesculpt setup` for the tessellation; synthetic
+3. Perspective ground truth: the same faces through a pinhole camera, fitted with and without K.
+4. Facemesh dense fit time per frame (needs `facesculpt setup` for the tessellation; synthetic
    468-point observations from the canonical/learned neutral), and the paper's 20.63 / 30.58 ms.
+5. Real video (needs `facesculpt setup`): the landmark networks on every frame of
+   ../shared/data/video/*.mp4; the SFM fitted to their iBUG-68 mapping (reprojection RMSE of the
+   68 landmarks per frame, px) and the facemesh dense fit (its residual: RMS distance of the points
+   from the rigidly posed neutral, px), with time per fit for both.
 
 Run: ``python benchmarks/bench_fitter.py [--faces 200]``. BLAS is limited to one thread (eos runs
 single-threaded; tiny matrices gain nothing from threads).
@@ -107,6 +112,39 @@ def table1(model, n: int = 40, seed: int = 7) -> str:
     return "\n".join(lines)
 
 
+def perspective_table(model, files, n: int = 60, seed: int = 5) -> str:
+    """Faces seen through a pinhole camera (f = 700 px, 640x480, head 450-650 mm away): our fitter
+    with K (perspective) and without (scaled orthographic), and eos (scaled orthographic)."""
+    K = np.array([[700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]])
+    rng = np.random.default_rng(seed)
+    faces = [make_face(model, rng, K=K, distance_mm=float(rng.uniform(450, 650))) for _ in range(n)]
+    fitters = {"ours, perspective K": Fitter(model, (640, 480), K=K, smoothing=False, accumulate_identity=False),
+               "ours, orthographic": Fitter(model, (640, 480), smoothing=False, accumulate_identity=False)}
+    try:
+        peer = EosPeer(files, (640, 480), 5)
+    except ImportError:
+        peer = None
+    lines = ["| fitter | 3D err (mm) | reproj (px) | ms per fit |", "|---|---|---|---|"]
+    for name, fitter in fitters.items():
+        errs, reps, times = [], [], []
+        for f in faces:
+            fitter.reset()
+            r, ms = timed(fitter.fit, f.noisy, f.ids)
+            errs.append(similarity_aligned_error(r.model_vertices, f.vertices))
+            reps.append(landmark_reprojection_error(r.projected, model, f.ids, f.noisy))
+            times.append(ms)
+        lines.append(f"| {name} | {np.mean(errs):.2f} | {np.mean(reps):.2f} | {np.median(times):.1f} |")
+    if peer is not None:
+        errs, reps, times = [], [], []
+        for f in faces:
+            (V, P), ms = timed(peer.fit, f.noisy, f.ids)
+            errs.append(similarity_aligned_error(V.astype(np.float32), f.vertices))
+            reps.append(landmark_reprojection_error(P, model, f.ids, f.noisy))
+            times.append(ms)
+        lines.append(f"| eos-py, orthographic | {np.mean(errs):.2f} | {np.mean(reps):.2f} | {np.median(times):.1f} |")
+    return "\n".join(lines)
+
+
 def dense_timing(frames: int = 200) -> str:
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.fitter.pose import rotation_from_euler
@@ -129,6 +167,48 @@ def dense_timing(frames: int = 200) -> str:
     return f"facemesh dense ({frames} frames, 468 points, perspective K): median {np.median(times):.2f} ms per fit"
 
 
+def real_video(model, max_frames: int = 400) -> str:
+    import cv2
+
+    from facesculpt.paths import MissingModelsError
+
+    try:
+        from facesculpt.nodes.landmarks import LandmarkDetector, to_ibug68
+
+        detector = LandmarkDetector()
+    except (ImportError, MissingModelsError) as exc:
+        return f"real video: skipped ({exc})"
+    lines = ["| video | frames fitted | SFM RMSE px median / p90 | SFM ms | dense residual px median / p90 | dense ms |",
+             "|---|---|---|---|---|---|"]
+    for path in sorted((shared_data_dir() / "video").glob("*.mp4")):
+        cap = cv2.VideoCapture(str(path))
+        W, H = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+        sparse = Fitter(model, (W, H))
+        dense = Fitter("facemesh", (W, H))
+        detector.reset()
+        rmse, res, t_s, t_d = [], [], [], []
+        i = 0
+        while i < max_frames:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            faces = detector.track(frame)
+            if faces:
+                pts = np.asarray(faces[0].points, np.float64)
+                r, ms = timed(sparse.fit, to_ibug68(pts), None, None, i / fps)
+                rmse.append(r.residual_px)
+                t_s.append(ms)
+                r, ms = timed(dense.fit, pts, None, None, i / fps)
+                res.append(r.residual_px)
+                t_d.append(ms)
+            i += 1
+        cap.release()
+        lines.append(f"| {path.name} ({W}x{H}) | {len(rmse)}/{i} | {np.median(rmse):.2f} / {np.percentile(rmse, 90):.2f} | "
+                     f"{np.median(t_s):.1f} | {np.median(res):.2f} / {np.percentile(res, 90):.2f} | {np.median(t_d):.2f} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--faces", type=int, default=200)
@@ -147,7 +227,11 @@ def main(argv=None) -> int:
     print(f"\npaper (i7-3770, CUDA-accelerated): {PAPER_MS[0]} ms frontal / {PAPER_MS[1]} ms oblique")
     print("\n## Outline correspondences (paper Table 1 analogue, 40 faces each)")
     print(table1(model))
+    print("\n## Perspective ground truth (60 faces)")
+    print(perspective_table(model, files))
     print("\n## " + dense_timing())
+    print("\n## Real video: landmark networks -> fitter (SFM via iBUG-68, 5 iterations; facemesh dense)")
+    print(real_video(model))
     return 0
 
 

@@ -127,19 +127,9 @@ def test_import_eos_command_writes_a_loadable_model(data_dir, tmp_path):
     out = tmp_path / "model.npz"
     argv = ["model", "import-eos", str(files["shape_bin"]), "--blendshapes", str(files["blendshapes"]),
             "--landmarks", str(files["landmarks"]), "--contours", str(files["contours"]), "-o", str(out)]
-    try:
-        from facesculpt.cli import main
+    from facesculpt.cli import main
 
-        rc = main(argv)
-    except ImportError:  # the runtime's own commands are not there yet: drive our parser alone
-        import argparse
-
-        from facesculpt.nodes.fitter.cli import register
-
-        parser = argparse.ArgumentParser()
-        register(parser.add_subparsers())
-        args = parser.parse_args(argv)
-        rc = args.func(args)
+    rc = main(argv)
     assert rc == 0
     model = load_model(out)
     assert (model.num_vertices, model.num_shape, model.num_expression) == (3448, 63, 6)

@@ -356,7 +356,7 @@ class Fitter:
                 X = base + rows_s @ alpha + rows_e @ beta
                 C, u0 = self._camera(X, R, t, s)
                 J, rho = self._linearisation(C, R, s)
-                alpha, beta = self._solve_coefficients(J, rho, rows_s, rows_e, x_all, w_all, u0, alpha, beta, prior, base)
+                alpha, beta = self._solve_coefficients(J, rho, rows_s, rows_e, x_all, w_all, u0, alpha, beta, prior)
                 R, t, s = self._estimate_pose(base + rows_s @ alpha + rows_e @ beta, x_all, w_all, (R, t, s))
         # The frame's residual and identity evidence at the final pose and coefficients.
         X = base + rows_s @ alpha + rows_e @ beta
@@ -381,7 +381,7 @@ class Fitter:
             landmarks_used=usable, correspondences=(cv, cw),
         )
 
-    def _solve_coefficients(self, J, rho, rows_s, rows_e, x_all, w_all, u0, alpha, beta, prior, base):
+    def _solve_coefficients(self, J, rho, rows_s, rows_e, x_all, w_all, u0, alpha, beta, prior):
         """alpha, beta for fixed camera and correspondences (joint, or one beta-then-alpha step)."""
         m = self.model
         As = fitting.design(J, rows_s, rho, w_all)

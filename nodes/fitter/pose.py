@@ -245,14 +245,19 @@ def perspective(
             raise PoseError("points fall behind the camera: no perspective pose from these correspondences")
         r = (project_perspective(C, K) - x) * sw[:, None]
         Jp = projection_jacobian(C, K)  # (N, 2, 3)
-        J = np.concatenate([Jp @ (-skew(RX)), Jp], axis=2) * sw[:, None, None]
+        # Row j of the projection Jacobian times -[R X]x is (R X) x j.
+        a = RX[:, None, :]
+        Jw = np.stack([a[..., 1] * Jp[..., 2] - a[..., 2] * Jp[..., 1],
+                       a[..., 2] * Jp[..., 0] - a[..., 0] * Jp[..., 2],
+                       a[..., 0] * Jp[..., 1] - a[..., 1] * Jp[..., 0]], axis=-1)
+        J = np.concatenate([Jw, Jp], axis=2) * sw[:, None, None]
         J = J.reshape(-1, 6)
         H = J.T @ J
         H += 1e-9 * np.trace(H) * np.eye(6)
         delta = -np.linalg.solve(H, J.T @ r.reshape(-1))
         R = rodrigues(delta[:3]) @ R
         t = t + delta[3:]
-        if np.abs(delta).max() < 1e-9:
+        if np.abs(delta[:3]).max() < 1e-7 and np.abs(delta[3:]).max() < 1e-5:
             break
     return R, t
 
