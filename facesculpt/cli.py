@@ -14,6 +14,7 @@ import sys
 
 COMMAND_MODULES = [
     "facesculpt.commands",  # master, run, launch, node, topic, bag
+    "facesculpt.demo",      # demo: the main job
     "facesculpt.nodes.fitter.cli",  # model import-eos, model info
     "facesculpt.setup_models",  # setup
 ]

@@ -10,7 +10,8 @@ A launch file is YAML::
         respawn: true                # restart when it dies (with backoff)
         required: false              # when it exits, stop the whole graph
 
-``facesculpt launch FILE name.param=value ...`` overrides params. Children are
+``facesculpt launch FILE name.param=value ...`` overrides params. A string param
+starting with ``./`` is a path relative to the launch file. Children are
 killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
 SIGINT/SIGTERM every child gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``.
 """
@@ -74,6 +75,11 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
         if any(s.name == spec.name for s in specs):
             raise ValueError(f"launch file {path}: two nodes are named {spec.name!r}")
         specs.append(spec)
+    # "./x" in a param is relative to the launch file, so shipped files travel with it.
+    for spec in specs:
+        for key, value in spec.params.items():
+            if isinstance(value, str) and value.startswith("./"):
+                spec.params[key] = str((path.parent / value).resolve())
     by_name = {s.name: s for s in specs}
     for key, value in parse_assignments(overrides or []).items():
         node_name, dot, param = key.partition(".")

@@ -19,7 +19,7 @@ class CameraNode(Node):
 
     NAME = "camera"
     PARAMS = {
-        "source": "0",        # webcam index, video file, image file, or bag:FILE
+        "source": "0",        # webcam index, video file, image file, bag:FILE, or embedded
         "width": 0,           # resize to this width (0: keep; aspect kept if height is 0)
         "height": 0,
         "fps": 0.0,           # pacing; 0: the source's own rate; -1: as fast as possible

@@ -149,9 +149,28 @@ class BagImageSource(FrameSource):
                 return
 
 
+# The head-and-shoulders part of astronaut.png (x0, y0, x1, y1), shown at 640x480.
+EMBEDDED_CROP = (100, 0, 420, 240)
+
+
+def embedded_source(fps: float = 30.0) -> ImageSource:
+    """The main job's default input: a real face photo shipped with the install
+    (scikit-image's astronaut.png), framed on the head, seen by a moving virtual camera."""
+    from facesculpt.paths import embedded_face_image
+
+    source = ImageSource(str(embedded_face_image()), motion=True, fps=fps)
+    x0, y0, x1, y1 = EMBEDDED_CROP
+    source.image = cv2.resize(source.image[y0:y1, x0:x1], (640, 480), interpolation=cv2.INTER_CUBIC)
+    source.description = "embedded face photo (astronaut.png, virtual camera)"
+    return source
+
+
 def open_source(spec: str, *, loop: bool = False, motion: bool = False, fps: float = 30.0) -> FrameSource:
-    """``"0"`` (webcam index), a video file, an image file, or ``bag:FILE``."""
+    """``"0"`` (webcam index), a video file, an image file, ``bag:FILE``, or ``embedded``
+    (a face photo shipped with the install, seen by a moving virtual camera)."""
     spec = str(spec).strip()
+    if spec == "embedded":
+        return embedded_source(fps if fps > 0 else 30.0)
     if spec.startswith("bag:"):
         return BagImageSource(spec[4:], loop=loop)
     if spec.lstrip("-").isdigit():

@@ -26,6 +26,9 @@ from .merge import merge_deformation
 from .picking import pick_vertex, project
 
 
+MAX_PENDING_WITHOUT_MODEL = 10000
+
+
 class DeformerNode(Node):
     NAME = "deformer"
     PARAMS = {
@@ -86,9 +89,14 @@ class DeformerNode(Node):
                 stack.apply_preset(self.stack.to_preset())
             except DeformerError as exc:
                 self._bad("edits_dropped_on_model_change", exc)
+        same_topology = (self.model is not None and self.model.vertices.shape == msg.vertices.shape
+                         and np.array_equal(self.model.triangles, msg.triangles))
         self.model, self.stack = msg, stack
-        self.pointers.clear()
-        self.selected = None
+        if not same_topology:
+            # Vertex indices mean nothing on another mesh; on the same one (the face-mesh
+            # neutral being refined) a drag in progress keeps its handle.
+            self.pointers.clear()
+            self.selected = None
         self.dirty = True
 
     def on_state(self, msg: FaceState):
@@ -100,11 +108,13 @@ class DeformerNode(Node):
     # -- rounds --------------------------------------------------------------------------
 
     def on_round(self):
-        events, self.pending = self.pending, []
         if self.stack is None:
-            if events:
-                self.count("events_without_model", len(events))
+            # Events wait (bounded) for the first face/model instead of being lost.
+            if len(self.pending) > MAX_PENDING_WITHOUT_MODEL:
+                self.count("events_without_model", len(self.pending) - MAX_PENDING_WITHOUT_MODEL)
+                del self.pending[:-MAX_PENDING_WITHOUT_MODEL]
             return
+        events, self.pending = self.pending, []
         if not events and not self.dirty and not np.any(self.velocity):
             return  # an idle round: nothing to apply, nothing to solve
         snapshot = (copy.deepcopy(self.stack.edits), set(self.stack.static))
