@@ -1,0 +1,39 @@
+"""The main job, as README's first command runs it: `facesculpt demo` on the embedded input."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+
+from conftest import REPO_ROOT, free_port
+
+
+def test_demo_writes_an_edited_video_a_before_after_picture_and_timings(models_dir, tmp_path):
+    out = tmp_path / "demo"
+    env = dict(os.environ, FACESCULPT_MASTER=f"tcp://127.0.0.1:{free_port()}", FACESCULPT_RUN_DIR=str(tmp_path))
+    result = subprocess.run([sys.executable, "-m", "facesculpt.cli", "demo", "--out", str(out), "--frames", "120"],
+                            env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    cap = cv2.VideoCapture(str(out / "demo.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) >= 90   # nearly every camera frame was rendered
+    pair = cv2.imread(str(out / "before_after.png"))
+    assert pair.shape == (480, 1280, 3)
+    before, after = pair[:, :640].astype(int), pair[:, 640:].astype(int)
+    changed = np.abs(after - before).max(axis=2) > 40
+    changed[:40, :] = False                                # the labels
+    ys, xs = np.nonzero(changed)
+    # The scripted edits changed the face (a region of real size) and nothing near the borders.
+    assert changed.sum() > 1000
+    assert 150 < xs.mean() < 490 and 100 < ys.mean() < 420
+    assert not changed[:, :60].any() and not changed[:, -60:].any()
+
+    timing = json.loads((out / "timing.json").read_text())
+    assert {"landmarks", "fitter", "deformer", "renderer"} <= set(timing["stages_ms"])
+    assert all(v >= 0 for stages in timing["stages_ms"].values() for v in stages.values())
+    assert timing["rates_hz"]["renderer"]["camera/image"] > 5
