@@ -402,16 +402,18 @@ class Node:
         self.running = False
         with contextlib.suppress(Exception):
             self.teardown()
-        self.link.stopping = True
-        self.link.wake.set()
         self.receiver.stop()
-        if self.link.is_alive():
-            self.link.join(2.0)
         if self.receiver.is_alive():
             self.receiver.join(1.0)
+        # Flush what the publishers still hold (bounded by their linger) while we are still
+        # registered: unregistering first would make subscribers disconnect and lose it.
         for pub in self.publishers.values():
             pub.close()
         self.ctx.term()
+        self.link.stopping = True
+        self.link.wake.set()
+        if self.link.is_alive():
+            self.link.join(2.0)
 
     def run(self) -> int:
         """setup + spin + teardown, with SIGINT/SIGTERM handled; returns an exit code."""

@@ -34,6 +34,7 @@ SMALL_TYPES = {"InputEvent", "Diagnostics", "Deformation", "FaceModel"}
 DEFAULT_HWM_SMALL = 10000
 DEFAULT_HWM_LARGE = 4
 QUEUE_LIMIT = 10000
+DISCONNECT_GRACE_S = 2.0
 
 _endpoint_counter = 0
 _endpoint_lock = threading.Lock()
@@ -185,6 +186,7 @@ class Receiver(threading.Thread):
         self.subs: list[Subscription] = []
         self.sockets: dict[int, zmq.Socket] = {}   # id(sub) -> socket
         self.running = True
+        self.disconnect_at: dict[tuple[int, str], float] = {}
 
     # -- called from other threads --------------------------------------------------
     def add(self, sub: Subscription) -> None:
@@ -219,12 +221,12 @@ class Receiver(threading.Thread):
             elif op == "endpoints":
                 sock = self.sockets[id(sub)]
                 for ep in sub.endpoints - arg:
-                    try:
-                        sock.disconnect(ep)
-                    except zmq.ZMQError:
-                        pass
+                    # Disconnecting drops what is still in the pipe: give a publisher that
+                    # just left DISCONNECT_GRACE_S to deliver its last messages.
+                    self.disconnect_at[(id(sub), ep)] = time.monotonic() + DISCONNECT_GRACE_S
                 for ep in arg - sub.endpoints:
-                    sock.connect(ep)
+                    if self.disconnect_at.pop((id(sub), ep), None) is None:
+                        sock.connect(ep)
                 if sub.endpoints and not arg:
                     sub.publisher_lost_at = time.monotonic()
                 elif arg:
@@ -232,6 +234,17 @@ class Receiver(threading.Thread):
                 sub.endpoints = arg
             elif op == "inject":
                 self._deliver(sub, arg, latched=True)
+
+    def _disconnect_due(self) -> None:
+        now = time.monotonic()
+        for key, due in list(self.disconnect_at.items()):
+            if now >= due:
+                del self.disconnect_at[key]
+                sub_id, ep = key
+                try:
+                    self.sockets[sub_id].disconnect(ep)
+                except (zmq.ZMQError, KeyError):
+                    pass
 
     def _deliver(self, sub: Subscription, frames: list, latched: bool = False) -> bool:
         try:
@@ -265,6 +278,8 @@ class Receiver(threading.Thread):
         poller = zmq.Poller()
         while self.running:
             self._apply(poller)
+            if self.disconnect_at:
+                self._disconnect_due()
             try:
                 ready = dict(poller.poll(50))
             except zmq.ZMQError:

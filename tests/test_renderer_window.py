@@ -125,10 +125,11 @@ def test_window_shows_the_frame_and_reports_input_in_frame_pixels(display, data_
         assert abs(events[0]["x"] - start[0]) <= 1 and abs(events[0]["y"] - start[1]) <= 1
         assert abs(events[-1]["x"] - end[0]) <= 1 and abs(events[-1]["y"] - end[1]) <= 1
 
-        # Keys: R resets, U undoes.
-        xtool(display, "xdotool", "key", "--window", wid, "r", "u")
-        events = poll_until(window, lambda ev: len(ev) >= 2)
-        assert [e.get("command") for e in events] == ["reset", "undo"]
+        # Keys: R resets, U undoes, S saves the edits as a preset.
+        xtool(display, "xdotool", "key", "--window", wid, "r", "u", "s")
+        events = poll_until(window, lambda ev: len(ev) >= 3)
+        assert [e.get("command") for e in events] == ["reset", "undo", "save_preset"]
+        assert events[2]["argument"].endswith(".json")
 
         # A window twice the frame's size still reports frame pixels.
         import glfw

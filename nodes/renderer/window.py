@@ -8,13 +8,16 @@ events come back from :meth:`Window.poll` as plain dicts holding the fields of a
 * left button: ``press`` / ``drag`` (motion while held) / ``release``, handle 0;
 * right button: ``command`` ``toggle_static`` at the pointer;
 * wheel: ``depth``, +1 mm per notch toward the camera (handle 0);
-* keys: R ``reset``, U or Ctrl+Z ``undo``; Escape and Q close the window.
+* keys: R ``reset``, U or Ctrl+Z ``undo``, S ``save_preset`` (a timestamped JSON);
+  Escape and Q close the window.
 
 glfw wants its calls on the main thread: create, show and poll from the thread
 that runs the node.
 """
 
 from __future__ import annotations
+
+import time
 
 import cv2
 import glfw
@@ -151,6 +154,10 @@ class Window:
             self._events.append({"kind": "command", "command": "reset"})
         elif key == glfw.KEY_U or (key == glfw.KEY_Z and mods & glfw.MOD_CONTROL):
             self._events.append({"kind": "command", "command": "undo"})
+        elif key == glfw.KEY_S:
+            # The deformer writes the edits as a JSON preset (in its preset_dir), named by the time.
+            self._events.append({"kind": "command", "command": "save_preset",
+                                 "argument": time.strftime("facesculpt-edits-%Y%m%d-%H%M%S.json")})
 
     def poll(self) -> list[dict]:
         """Process pending window-system events; return the input events since the last poll."""
