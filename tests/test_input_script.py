@@ -226,6 +226,14 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
         dx, dy = bx - 10, by - 10
         assert best > 0.7, f"the nose patch is not in the output (match {best:.2f})"
         assert 0.8 * mesh_shift[in_patch, 0].mean() <= dx <= 1.2 * tip[0] and abs(dy) <= 3, (dx, dy, tip)
+        # No background distortion: outside the original and the deformed face regions (their
+        # outlines' hulls, which include the closed eyes and mouth), dilated by 2 px, nothing changed.
+        face = np.zeros(frames[stamp].image.shape[:2], np.uint8)
+        for pts in (st.projected, drawn):
+            cv2.fillConvexPoly(face, cv2.convexHull(np.round(pts).astype(np.int32)), 1)
+        outside = cv2.dilate(face, np.ones((5, 5), np.uint8)) == 0
+        assert np.array_equal(renders[stamp].image[outside], frames[stamp].image[outside])
+        assert (renders[stamp].image[~outside] != frames[stamp].image[~outside]).any()
         checked += 1
     assert checked >= 5
 
