@@ -129,6 +129,17 @@ def test_depth_move_axes_and_commands(node, sfm, tmp_path):
     saved = node.last.displacement.copy()
     doc = json.loads((tmp_path / "two.json").read_text())
     assert [h["landmark"] for e in doc["edits"] for h in e["handles"]] == ["chin", "nose_tip"]
+    # select_edit: a move with no pointer now acts on edit 0 (the chin), not on the nose just pressed
+    node.on_event(ev("release"))
+    node.on_event(ev("command", command="select_edit", argument="0"))
+    node.on_event(ev("move", vector=np.array([0.0, -2.0, 0.0], np.float32)))
+    node.on_round()
+    assert np.isclose(node.last.displacement[chin][1] - saved[chin][1], -2.0, atol=1e-4)
+    assert np.isclose(node.last.displacement[lm["nose_tip"]][2], saved[lm["nose_tip"]][2], atol=1e-4)
+    bad_before = node.counters.get("bad_input", 0)
+    node.on_event(ev("command", command="select_edit", argument="7"))
+    node.on_round()
+    assert node.counters["bad_input"] == bad_before + 1 and "select_edit needs an edit number" in node.last_diagnostic
     node.on_event(ev("command", command="undo"))
     node.on_round()
     assert abs(node.last.displacement[lm["nose_tip"]][2]) < 1.0  # the nose edit is gone

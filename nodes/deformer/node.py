@@ -313,6 +313,17 @@ class DeformerNode(Node):
             self.pointers.clear()
             self.selected = None
             self.count("preset_loaded")
+        elif cmd == "select_edit":
+            # Later depth / move / axes events without a pointer act on this edit's first handle.
+            try:
+                k = int(ev.argument)
+                edit = self.stack.edits[k]
+            except (ValueError, IndexError):
+                raise DeformerError(f"select_edit needs an edit number in 0..{len(self.stack.edits) - 1} "
+                                    f"(or negative from the end), got {ev.argument!r}") from None
+            self.selected = min(edit.offsets)
+            self.count("edit_selected")
+            return
         elif cmd == "toggle_static":
             v = self._pick(ev)
             if v < 0:
