@@ -17,6 +17,9 @@ COMMAND_MODULES = [
     "facesculpt.demo",      # demo: the main job
     "facesculpt.nodes.fitter.cli",  # model import-eos, model info
     "facesculpt.setup_models",  # setup
+    "facesculpt.process_command",  # process
+    "facesculpt.bench_command",  # bench
+    "facesculpt.security",  # keys generate
 ]
 
 

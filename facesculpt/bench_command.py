@@ -1,0 +1,467 @@
+"""`facesculpt bench`: the paper's Table 2 on this machine, per stage and for the whole graph.
+
+    facesculpt bench [--video FILE] [--model facemesh|sfm|both] [--frames N] [--window S] [--json FILE]
+
+Input: the shared ``s18.mp4`` (1280x720) when the shared data is present, else the embedded face
+photo under a moving virtual camera; frames resized to 856x480, the paper's size. Per model:
+
+* **stages, in-process** (:class:`facesculpt.pipeline.Pipeline`, the graph's stage code called in
+  sequence on one frame): landmark detection, model fitting (frontal |yaw| < 20 deg / oblique),
+  merging (Eq. 5), inpainting (uncovered mask + fill) and texture + texcoord update + rendering
+  (the compositor's other stages), mean ms over N frames with the paper's Fig. 6e edit (nose
+  longer, chin, cheeks slimmer) solved on the fitted neutral; mesh deformation: a scripted drag
+  of the nose tip (the deformer node's ROI radius, iterations and tolerance), ms per drag update
+  (pointer step -> model-space handle move -> ARAP solve). The sequential total is the frame
+  time plus one drag update, as in the paper's sum.
+* **pipelined**: the graph as separate processes (camera -> landmarks -> fitter -> deformer ->
+  renderer, ``facesculpt launch`` of a generated launch file, sync pairing, the same edit sent
+  as a ``load_preset`` command); an in-process subscriber counts ``render/image`` messages over a
+  fixed window (frames out per second) and takes each one's age at arrival (camera stamp ->
+  composited frame: end-to-end latency p50/p99). Each node's stage times and rate come from
+  the ``diagnostics`` topic, and its CPU use from the OS, to show where the time goes.
+
+The machine is what it is (2 cores, no GPU here): the load average is reported with the figures.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+SIZE = (856, 480)
+FRONTAL_YAW_DEG = 20.0
+PRESETS = ("nose_longer.json", "chin.json", "cheeks.json")  # the paper's Fig. 6e, in order
+
+#: The paper's Table 2 (i7-3770 + GTX TITAN, 856x480, 3448 vertices), ms.
+PAPER_MS = {
+    "landmark_detection": 36.28,
+    "model_fitting_frontal": 20.63,
+    "model_fitting_oblique": 30.58,
+    "mesh_deformation": 7.14,
+    "merging": 5.34,
+    "inpainting": 31.16,
+    "texture_update_rendering": 10.55,
+    "sequential_total": 112.68,
+}
+PAPER_PIPELINED_FPS = 15.0
+
+ROWS = [  # (key, label)
+    ("landmark_detection", "landmark detection"),
+    ("model_fitting", "model fitting (all frames)"),
+    ("model_fitting_frontal", f"  frontal (|yaw| < {FRONTAL_YAW_DEG:.0f} deg)"),
+    ("model_fitting_oblique", "  oblique"),
+    ("mesh_deformation", "mesh deformation (ARAP per drag update)"),
+    ("merging", "merging fitted and deformed models"),
+    ("inpainting", "inpainting"),
+    ("texture_update_rendering", "texture + texcoord update + rendering"),
+    ("sequential_total", "sequential total"),
+]
+
+# The compositor's stages in the paper's two rendering rows.
+INPAINT_PARTS = ("masks", "inpaint")
+RENDER_PARTS = ("camera", "texture", "draw", "readback", "composite")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("bench", help="per-stage times (the paper's Table 2), pipelined rate and latency",
+                       description="The paper's Table 2 on this machine: per-stage times in-process, and the "
+                                   "whole graph's frame rate and end-to-end latency as separate processes.")
+    p.add_argument("--video", default="", help="input video (default: shared s18.mp4, else the embedded face photo)")
+    p.add_argument("--model", default="both", choices=["facemesh", "sfm", "both"],
+                   help="face model(s) to measure (default both; sfm needs the shared data)")
+    p.add_argument("--frames", type=int, default=200, help="frames timed per model in-process (default 200)")
+    p.add_argument("--drags", type=int, default=60, help="drag updates of the scripted nose drag (default 60)")
+    p.add_argument("--window", type=float, default=10.0, help="seconds the pipelined graph is measured (default 10)")
+    p.add_argument("--warmup", type=float, default=2.0, help="seconds of graph output before the window (default 2)")
+    p.add_argument("--camera-fps", type=float, default=60.0,
+                   help="camera rate in the graph (default 60; -1: as fast as it reads)")
+    p.add_argument("--blas-threads", type=int, default=1,
+                   help="OpenBLAS threads per process, in-process and in the graph's nodes (default 1; "
+                        "0: OpenBLAS's own default, one per core)")
+    p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
+    p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
+    p.set_defaults(func=cmd_bench)
+
+
+# -- input --------------------------------------------------------------------------------------
+def bench_source(video: str) -> tuple[str, str]:
+    """(camera source spec, description): the given video, else shared s18.mp4, else embedded."""
+    from facesculpt.paths import shared_data_dir
+
+    if video:
+        if not Path(video).is_file():
+            raise FileNotFoundError(f"cannot read {video}: no such file")
+        return str(Path(video).resolve()), Path(video).name
+    data = shared_data_dir()
+    if data is not None and (data / "video" / "s18.mp4").is_file():
+        return str(data / "video" / "s18.mp4"), "s18.mp4 (shared data)"
+    return "embedded", "embedded face photo (astronaut.png) under a moving virtual camera"
+
+
+def read_frames(spec: str, count: int) -> tuple[list[np.ndarray], float]:
+    """The first ``count`` frames of a camera source, resized to 856x480 (a video loops), and its fps."""
+    from facesculpt.nodes.camera.sources import open_source, resize_frame
+
+    source = open_source(spec, loop=True)
+    try:
+        frames = []
+        for frame, _ in source.frames():
+            frames.append(resize_frame(frame, *SIZE))
+            if len(frames) >= count:
+                break
+    finally:
+        source.close()
+    if not frames:
+        raise ValueError(f"cannot read frames from {spec}")
+    return frames, source.native_fps or 30.0
+
+
+def preset_paths() -> list[Path]:
+    root = Path(__file__).resolve().parent.parent / "examples" / "presets"
+    paths = [root / name for name in PRESETS]
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"example presets missing: {', '.join(missing)}")
+    return paths
+
+
+# -- in-process stages ----------------------------------------------------------------------------
+def drag_updates(pipeline, fit, drags: int) -> tuple[list[float], float]:
+    """A scripted drag of the nose tip on the fitted neutral, as the deformer node does it: press,
+    then ``drags`` pointer steps of 1 px (right and up) each turned into a model-space handle move
+    and an ARAP solve. Returns the ms of each drag update and of the press (anchor set factorised)."""
+    from facesculpt.nodes.deformer.dragging import drag_delta
+    from facesculpt.nodes.deformer.node import DeformerNode
+
+    params = DeformerNode.PARAMS
+    stack = pipeline.edit_stack(roi_radius=params["roi_radius"], roi_metric=params["roi_metric"],
+                                iterations=params["iterations"], tolerance=params["tolerance"],
+                                clamp_weights=params["clamp_weights"])
+    nose = stack.landmark_vertex("nose_tip")
+    t0 = time.perf_counter()
+    stack.begin([nose])
+    stack.solve()
+    press_ms = (time.perf_counter() - t0) * 1e3
+    x, y = (float(v) for v in fit.projected[nose])
+    times = []
+    for _ in range(drags):
+        t0 = time.perf_counter()
+        handle_cam = fit.vertices[nose].astype(np.float64) + fit.scale * (fit.R @ (stack.handle_position(nose) - stack.rest[nose]))
+        delta = drag_delta(handle_cam, (x, y), (x + 1.0, y - 0.5), fit.K, fit.R, fit.scale, fit.projection)
+        stack.move_handle(nose, delta)
+        stack.solve()
+        times.append((time.perf_counter() - t0) * 1e3)
+        x, y = x + 1.0, y - 0.5
+    return times, press_ms
+
+
+def _mean(values) -> float | None:
+    return round(float(np.mean(values)), 3) if len(values) else None
+
+
+def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dict, drags: int) -> dict:
+    """Per-stage ms of the in-process pipeline over ``frames`` (see the module doc)."""
+    from facesculpt.pipeline import Pipeline
+
+    skip = 3  # the first frames create the GL context and warm the caches
+    with Pipeline(model) as pipeline:
+        pipeline.calibrate(iter(frames), fps)
+        if pipeline.fitted_frames == 0:
+            raise RuntimeError(f"no face found in the bench input with the {model} model")
+        pipeline.set_edits(preset)
+        per: dict[str, list[float]] = {k: [] for k, _ in ROWS}
+        parts: dict[str, list[float]] = {}
+        wall: list[float] = []
+        last_fit = None
+        faces = 0
+        for i, frame in enumerate(frames):
+            t0 = time.perf_counter()
+            result = pipeline.process(frame, i / fps)
+            elapsed = (time.perf_counter() - t0) * 1e3
+            if result.fit is None:
+                continue
+            faces += 1
+            last_fit = result.fit
+            if i < skip:
+                continue
+            wall.append(elapsed)
+            t = result.timings_ms
+            per["landmark_detection"].append(t["landmarks"])
+            per["model_fitting"].append(t["fit"])
+            yaw = abs(result.fit.yaw_pitch_roll[0])
+            per["model_fitting_frontal" if yaw < FRONTAL_YAW_DEG else "model_fitting_oblique"].append(t["fit"])
+            per["merging"].append(t["merge"])
+            per["inpainting"].append(sum(result.render_ms.get(k, 0.0) for k in INPAINT_PARTS))
+            per["texture_update_rendering"].append(sum(result.render_ms.get(k, 0.0) for k in RENDER_PARTS))
+            for k, v in result.render_ms.items():
+                parts.setdefault(k, []).append(v)
+        if last_fit is None or not wall:
+            raise RuntimeError(f"too few frames with a face to time ({faces} of {len(frames)})")
+        drag_ms, press_ms = drag_updates(pipeline, last_fit, drags)
+        per["mesh_deformation"] = drag_ms
+        stages = {k: _mean(v) for k, v in per.items() if len(v)}
+        stages_p50 = {k: round(float(np.median(v)), 3) for k, v in per.items() if len(v)}
+        frame_ms = float(np.mean(wall))
+        total = frame_ms + stages["mesh_deformation"]
+        stages["sequential_total"] = round(total, 3)
+        return {
+            "model_id": pipeline.model.model_id,
+            "vertices": int(pipeline.model.num_vertices),
+            "stages_ms": stages,
+            "stages_p50_ms": stages_p50,
+            "render_parts_ms": {k: _mean(v) for k, v in parts.items()},
+            "frames_timed": len(wall),
+            "frames_with_face": faces,
+            "fit_frames": {"frontal": len(per["model_fitting_frontal"]), "oblique": len(per["model_fitting_oblique"])},
+            "frame_ms": round(frame_ms, 3),
+            "press_ms": round(press_ms, 3),
+            "sequential_fps": round(1000.0 / total, 2),
+        }
+
+
+# -- the pipelined graph ----------------------------------------------------------------------------
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def launch_spec(source: str, model: str, camera_fps: float) -> dict:
+    """The launch file of the measured graph."""
+    return {"nodes": [
+        {"name": "camera", "node": "camera", "required": True,
+         "params": {"source": source, "width": SIZE[0], "height": SIZE[1], "fps": camera_fps, "loop": True}},
+        {"name": "landmarks", "node": "landmarks"},
+        {"name": "fitter", "node": "fitter", "params": {"model": model}},
+        {"name": "deformer", "node": "deformer"},
+        {"name": "renderer", "node": "renderer", "params": {"pairing": "sync", "publish": True}},
+    ]}
+
+
+def _node_processes(launch_pid: int) -> dict:
+    """Node name -> psutil.Process of the graph started by the launcher ``launch_pid``."""
+    import psutil
+
+    out = {}
+    try:
+        children = psutil.Process(launch_pid).children(recursive=True)
+    except psutil.Error:
+        return out
+    for child in children:
+        try:
+            cmd = child.cmdline()
+        except psutil.Error:
+            continue
+        if "--config-json" in cmd:
+            out[json.loads(cmd[cmd.index("--config-json") + 1]).get("name", "?")] = child
+        elif "master" in cmd:
+            out["master"] = child
+    return out
+
+
+def _cpu_seconds(procs: dict) -> dict:
+    import psutil
+
+    out = {}
+    for name, proc in procs.items():
+        try:
+            t = proc.cpu_times()
+            out[name] = t.user + t.system
+        except psutil.Error:
+            pass
+    return out
+
+
+def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
+                  warmup_s: float, start_timeout_s: float = 90.0) -> dict:
+    """Frames out per second and end-to-end latency of the graph as separate processes."""
+    import yaml
+
+    from facesculpt.master import master_alive
+    from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
+    from facesculpt.node import Node
+
+    workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    spec_file = workdir / "bench.yaml"
+    spec_file.write_text(yaml.safe_dump(launch_spec(source, model, camera_fps)))
+    env = dict(os.environ, FACESCULPT_MASTER=address, FACESCULPT_RUN_DIR=str(workdir), PYTHONUNBUFFERED="1")
+    log_path = workdir / "launch.log"
+    log = open(log_path, "w")
+    proc = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", "launch", str(spec_file)], env=env,
+                            stdout=log, stderr=subprocess.STDOUT)
+    listener = None
+    try:
+        deadline = time.monotonic() + 20
+        while not master_alive(address, 0.2):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the graph did not start (see {log_path})")
+        arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns)
+        diagnostics: dict[str, list[dict]] = {}
+        deformed = []
+        listener = Node(name=f"_bench_{os.getpid()}", master=address)
+        listener.subscribe("render/image", Image, lambda m: arrivals.append((time.time_ns(), m.stamp)), queued=True)
+        listener.subscribe("diagnostics", Diagnostics,
+                           lambda m: diagnostics.setdefault(m.node, []).append(m.values), queued=True)
+        listener.subscribe("face/deformation", Deformation,
+                           lambda m: deformed.append(float(np.abs(m.displacement).max()) if m.displacement.size else 0.0))
+        events = listener.advertise("input/events", InputEvent)
+        listener.start()
+
+        def spin_for(seconds: float, until=lambda: False):
+            end = time.monotonic() + seconds
+            while time.monotonic() < end and not until():
+                listener.spin_once(0.02)
+                if proc.poll() is not None:
+                    raise RuntimeError(f"the graph stopped (exit code {proc.returncode}; see {log_path})")
+
+        # Up: frames come out and the edit is in place (the command is repeated until it lands).
+        def edited() -> bool:
+            return bool(deformed) and max(deformed) > 0
+
+        deadline = time.monotonic() + start_timeout_s
+        while not (arrivals and edited()):
+            if time.monotonic() > deadline:
+                heard = ", ".join(sorted(n for n in diagnostics if not n.startswith("_"))) or "no node"
+                raise RuntimeError(f"the graph gave {len(arrivals)} frames and no edit within {start_timeout_s:.0f} s; "
+                                   f"diagnostics heard from {heard} (see {log_path})")
+            if not edited():
+                events.publish(InputEvent(stamp=time.time_ns(), kind="command", command="load_preset",
+                                          argument=str(preset_file), source="bench"))
+            spin_for(1.0, lambda: bool(arrivals) and edited())
+        spin_for(warmup_s)
+        procs = _node_processes(proc.pid)
+        cpu0 = _cpu_seconds(procs)
+        arrivals.clear()
+        diagnostics.clear()
+        t0 = time.monotonic()
+        spin_for(window_s)
+        elapsed = time.monotonic() - t0
+        cpu1 = _cpu_seconds(procs)
+        window = list(arrivals)
+    finally:
+        if listener is not None:
+            listener.close()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
+    if len(window) < 2:
+        raise RuntimeError(f"the graph gave {len(window)} frames in {window_s} s (see {log_path})")
+    latency = np.array([(a - s) / 1e6 for a, s in window])
+    nodes = {}
+    for name, values in diagnostics.items():
+        if name.startswith("_"):
+            continue
+        stages: dict[str, list[float]] = {}
+        for v in values:
+            for k, ms in (v.get("stages_ms") or {}).items():
+                stages.setdefault(k, []).append(float(ms))
+        last = values[-1]
+        nodes[name] = {
+            "stages_ms": {k: round(float(np.mean(v)), 3) for k, v in stages.items()},
+            "rate_hz": last.get("rate_hz", {}),
+            "dropped": last.get("dropped", {}),
+            "errors": last.get("errors", 0),
+        }
+    for name in cpu1:
+        if name in cpu0:
+            nodes.setdefault(name, {})["cpu_percent"] = round(100.0 * (cpu1[name] - cpu0[name]) / elapsed, 1)
+    return {
+        "pipelined_fps": round((len(window) - 1) / max(1e-9, (window[-1][0] - window[0][0]) / 1e9), 2),
+        "frames_out": len(window),
+        "window_s": round(elapsed, 2),
+        "latency_ms": {"p50": round(float(np.percentile(latency, 50)), 2),
+                       "p99": round(float(np.percentile(latency, 99)), 2),
+                       "mean": round(float(latency.mean()), 2)},
+        "nodes": nodes,
+    }
+
+
+# -- report -------------------------------------------------------------------------------------------
+def _fmt(value, digits=2) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def table(result: dict) -> str:
+    models = list(result["models"])
+    head = f"{'stage (ms)':<42}{'paper':>9}" + "".join(f"{m:>12}" for m in models)
+    lines = [head, "-" * len(head)]
+    for key, label in ROWS:
+        paper = PAPER_MS.get(key)
+        row = f"{label:<42}{_fmt(paper):>9}"
+        for m in models:
+            row += f"{_fmt(result['models'][m]['stages_ms'].get(key)):>12}"
+        lines.append(row)
+    extra = [("sequential rate (fps)", None, lambda r: r.get("sequential_fps")),
+             ("pipelined rate (fps)", PAPER_PIPELINED_FPS, lambda r: r.get("pipelined_fps")),
+             ("end-to-end latency p50 (ms)", None, lambda r: r.get("latency_ms", {}).get("p50")),
+             ("end-to-end latency p99 (ms)", None, lambda r: r.get("latency_ms", {}).get("p99"))]
+    for label, paper, get in extra:
+        lines.append(f"{label:<42}{_fmt(paper):>9}" + "".join(f"{_fmt(get(result['models'][m])):>12}" for m in models))
+    for m in models:
+        nodes = result["models"][m].get("nodes")
+        if not nodes:
+            continue
+        lines.append(f"\n{m}: graph nodes over the window (cpu %, stage mean ms, input rate Hz)")
+        for name, info in sorted(nodes.items()):
+            stages = ", ".join(f"{k} {v:.1f}" for k, v in info.get("stages_ms", {}).items())
+            rates = ", ".join(f"{k} {v:.1f}" for k, v in info.get("rate_hz", {}).items() if k != "diagnostics")
+            lines.append(f"  {name:<10} cpu {info.get('cpu_percent', 0):5.1f}%   {stages}   {rates}")
+    return "\n".join(lines)
+
+
+def cmd_bench(args) -> int:
+    from facesculpt.pipeline import combine_presets, limit_blas_threads, load_face_model, read_preset
+
+    if args.blas_threads > 0:
+        limit_blas_threads(args.blas_threads)  # also in the environment the graph's processes inherit
+    if args.frames < 5 or args.drags < 1 or args.window <= 0:
+        raise ValueError("--frames must be >= 5, --drags >= 1 and --window > 0")
+    models = ["facemesh", "sfm"] if args.model == "both" else [args.model]
+    if "sfm" in models:
+        load_face_model("sfm")  # a clear error now when the shared data is missing
+    source, description = bench_source(args.video)
+    paths = preset_paths()
+    preset = combine_presets([read_preset(p) for p in paths])
+    preset_file = Path(tempfile.mkdtemp(prefix="fs-bench-preset-")) / "fig6e.json"
+    preset_file.write_text(json.dumps(preset))
+    frames, fps = read_frames(source, args.frames)
+    load_start = os.getloadavg()
+    print(f"facesculpt bench: {description}, {SIZE[0]}x{SIZE[1]}, {len(frames)} frames; "
+          f"{os.cpu_count()} CPUs, load average {load_start[0]:.2f}", file=sys.stderr, flush=True)
+    result = {
+        "input": description, "size": list(SIZE), "frames": len(frames),
+        "edit": [p.stem for p in paths], "camera_fps": args.camera_fps, "pairing": "sync",
+        "blas_threads": args.blas_threads or os.environ.get("OPENBLAS_NUM_THREADS", "default"),
+        "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
+        "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {},
+    }
+    for model in models:
+        print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
+        entry = measure_stages(model, frames, fps, preset, args.drags)
+        if not args.no_graph:
+            print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
+                  file=sys.stderr, flush=True)
+            entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup))
+        result["models"][model] = entry
+    result["machine"]["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]
+    print(table(result))
+    print(f"load average {result['machine']['load_avg_start'][0]:.2f} -> {result['machine']['load_avg_end'][0]:.2f} "
+          f"on {os.cpu_count()} CPUs")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+    return 0

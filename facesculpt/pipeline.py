@@ -1,0 +1,274 @@
+"""The in-process pipeline: one frame in -> landmarks -> fit -> merge the edit -> composite -> frame out.
+
+The graph's stages called one after the other on the same frame, in one process, with no
+sockets: the renderer's ``sync`` pairing by construction (the state fitted on a frame is
+rendered on that frame). ``facesculpt process`` runs it over a video; ``facesculpt bench`` times
+it stage by stage. Each stage is the room's own code: :class:`LandmarkDetector`,
+:class:`Fitter`, :func:`merge_deformation`, :class:`Compositor`; the edit is an
+:class:`EditStack` (ARAP) solved on the fitted person's neutral model.
+
+Edits and the neutral. An edit (a deformer preset: handles by landmark name, model-space
+offsets in mm, ROI radii) is solved once, on the neutral model of the person in the video, and
+the same displacement (V, 3) mm is merged into every frame (paper Eq. 5). The neutral is learned
+from the frames (facemesh: the reference averaged over the first ``neutral_frames`` frames;
+SFM: the accumulated identity), so :meth:`Pipeline.calibrate` first runs landmarks + fitting over
+the first frames until that neutral is complete, then :meth:`Pipeline.set_edits` solves the edit
+on it. The fitter keeps what it learned (neutral, identity) for the pass that renders; its pose
+filters and the landmark tracker start afresh. Same input, same options: same output, bit for bit
+(frame times come from the frame index, never from the clock).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
+from facesculpt.nodes.deformer import EditStack, merge_deformation
+from facesculpt.nodes.fitter import FitError, Fitter, MorphableModel, load_model
+from facesculpt.nodes.landmarks import LandmarkDetector, to_ibug68
+
+#: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
+STAGES = ("landmarks", "fit", "merge", "render")
+
+
+def limit_blas_threads(threads: int = 1) -> list[str]:
+    """Make OpenBLAS (numpy's and scipy's) use ``threads`` threads in this process and in the
+    processes it starts. The fitter's least squares are small (68 landmarks x 69 coefficients):
+    a second BLAS thread only spins, and beside the graph's other processes on two cores it made the
+    SFM fit about 4x slower (87 ms against 23 ms per frame). Sets ``OPENBLAS_NUM_THREADS`` (read by
+    libraries loaded later and by child processes) and calls ``*openblas_set_num_threads*`` of the
+    libraries already loaded (Linux: found in /proc/self/maps). Returns the libraries changed."""
+    os.environ["OPENBLAS_NUM_THREADS"] = str(int(threads))
+    changed = []
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "openblas" in line.lower() and ".so" in line}
+    except OSError:
+        return changed
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                     "openblas_set_num_threads64_", "openblas_set_num_threads"):
+            setter = getattr(lib, name, None)
+            if setter is not None:
+                setter(int(threads))
+                changed.append(path)
+                break
+    return changed
+
+
+def load_face_model(name_or_path: str) -> MorphableModel:
+    """:func:`load_model` with a clear error for the Surrey Face Model, which is not shipped: it is
+    read from the shared data folder (free for non-commercial use only)."""
+    try:
+        return load_model(name_or_path)
+    except FileNotFoundError as exc:
+        if str(name_or_path) != "sfm":
+            raise
+        raise FileNotFoundError(
+            "the 'sfm' model (the Surrey Face Model, free for non-commercial use) is read from the shared data "
+            f"folder, which is missing or incomplete ({exc}); set FACESCULPT_DATA, or use --model facemesh "
+            "or a MODEL.npz made by `facesculpt model import-eos`") from None
+
+
+def read_preset(path: str | Path) -> dict:
+    """A deformer preset file (JSON, as :meth:`EditStack.save_preset` writes) as a dict;
+    ValueError naming the file when it cannot be read or is not JSON."""
+    import json
+
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"preset {path} not found") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"cannot read preset {path}: {exc}") from None
+
+
+def combine_presets(presets: list[dict]) -> dict:
+    """One preset holding the edits (in order) and pins of several, e.g. nose, then chin, then
+    cheeks (the paper's Fig. 6e). Later edits of the same handle win, as in an :class:`EditStack`."""
+    if not presets:
+        raise ValueError("no preset to combine")
+    first = presets[0]
+    combined = dict(first)
+    combined["edits"] = [e for p in presets for e in p.get("edits", [])]
+    combined["static"] = [s for p in presets for s in p.get("static", [])]
+    if any(p.get("topology") != first.get("topology") for p in presets):
+        combined.pop("topology", None)  # mixed origins: handles resolve by landmark name only
+    return combined
+
+
+@dataclass
+class FrameResult:
+    """One processed frame.
+
+    image: (H, W, 3) uint8 BGR, the composited frame (the input itself, unchanged, without a
+    face); fit: the frame's :class:`FitResult` or None (no face, or the fit was refused);
+    timings_ms: stage -> ms for the stages that ran (:data:`STAGES`); render_ms: the
+    compositor's own stages (camera, texture, draw, readback, masks, inpaint, composite)."""
+
+    image: np.ndarray
+    fit: object | None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    render_ms: dict[str, float] = field(default_factory=dict)
+
+
+class Pipeline:
+    """Landmarks, fitting, the edit and compositing of one video, frame by frame, in-process.
+
+    model: "facemesh", "sfm" or a .npz path (or a :class:`MorphableModel`); threads: onnxruntime
+    intra-op threads of each network; fov_deg: horizontal field of view of the pinhole K given to
+    the fitter (as the camera node does; the fitter then fits in perspective); neutral_frames:
+    frames the fitter averages into the dense neutral (and that :meth:`calibrate` runs);
+    inpaint, feather_px, dilate_px: the compositor's. The detector and the GL context are made
+    here; call :meth:`close` (or use ``with``) to free them.
+    """
+
+    def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
+                 neutral_frames: int = 30, iterations: int = 5, inpaint: str = "pushpull",
+                 feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None):
+        self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
+        self.detector = LandmarkDetector(models_dir=models_dir, threads=threads)
+        self.fov_deg = float(fov_deg)
+        self.neutral_frames = int(neutral_frames)
+        self.iterations = int(iterations)
+        self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px}
+        self.fitter: Fitter | None = None
+        self.compositor = None
+        self.size: tuple[int, int] | None = None
+        self.K: np.ndarray | None = None
+        self.displacement: np.ndarray | None = None  # (V, 3) model space, mm; None: no edit
+        self.fitted_frames = 0
+
+    # -- set-up per frame size --------------------------------------------------------------------
+    def _prepare(self, width: int, height: int) -> None:
+        if self.size == (width, height):
+            return
+        if self.size is not None:
+            raise ValueError(f"frame size changed from {self.size[0]}x{self.size[1]} to {width}x{height}")
+        self.size = (width, height)
+        self.K = intrinsics_from_fov(width, height, self.fov_deg)
+        self.fitter = Fitter(self.model, image_size=self.size, K=self.K, iterations=self.iterations,
+                             neutral_frames=self.neutral_frames)
+
+    def _compositor(self):
+        if self.compositor is None:
+            from facesculpt.nodes.renderer import Compositor
+
+            self.compositor = Compositor(self.size[0], self.size[1], **self.compositor_options)
+        return self.compositor
+
+    # -- the stages -------------------------------------------------------------------------------
+    def fit_frame(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None):
+        """Landmarks and fit of one frame (H, W, 3) uint8 BGR at time ``stamp_s`` (s). Returns the
+        :class:`FitResult`, or None without a face (or when the fit is refused)."""
+        h, w = frame_bgr.shape[:2]
+        self._prepare(w, h)
+        timings = {} if timings is None else timings
+        t0 = time.perf_counter()
+        faces = self.detector.track(frame_bgr)
+        timings["landmarks"] = (time.perf_counter() - t0) * 1e3
+        if not faces:
+            return None
+        points = faces[0].points  # the largest face
+        t0 = time.perf_counter()
+        try:
+            if self.model.dense:
+                fit = self.fitter.fit(points, stamp=stamp_s)
+            else:
+                fit = self.fitter.fit(to_ibug68(points), stamp=stamp_s)  # ids 1..68 by default
+        except FitError:
+            fit = None
+        timings["fit"] = (time.perf_counter() - t0) * 1e3
+        if fit is not None:
+            self.fitted_frames += 1
+        return fit
+
+    def process(self, frame_bgr: np.ndarray, stamp_s: float) -> FrameResult:
+        """One frame through every stage; the edit (if any) merged into the fitted face."""
+        if not (isinstance(frame_bgr, np.ndarray) and frame_bgr.dtype == np.uint8 and frame_bgr.ndim == 3
+                and frame_bgr.shape[2] == 3):
+            raise ValueError("frames must be (H, W, 3) uint8 BGR")
+        timings: dict[str, float] = {}
+        fit = self.fit_frame(frame_bgr, stamp_s, timings)
+        if fit is None:
+            return FrameResult(frame_bgr, None, timings)
+        t0 = time.perf_counter()
+        deformed = fit.vertices
+        if self.displacement is not None:
+            deformed = merge_deformation(fit.vertices, fit.R, fit.scale, self.displacement)
+        timings["merge"] = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        compositor = self._compositor()
+        out = compositor.render(frame_bgr, fit.vertices, fit.projected, self.model.triangles, deformed)
+        timings["render"] = (time.perf_counter() - t0) * 1e3
+        render_ms = {k: v for k, v in compositor.timings.items() if k != "total"}
+        return FrameResult(out, fit, timings, render_ms)
+
+    # -- the neutral and the edit -----------------------------------------------------------------
+    @property
+    def neutral(self) -> np.ndarray:
+        """(V, 3) float32 the fitted person's neutral model, model space (mm)."""
+        return self.fitter.neutral if self.fitter is not None else self.model.mean
+
+    @property
+    def neutral_complete(self) -> bool:
+        """The neutral will not change much more: the dense reference is frozen, or (sparse) the
+        identity has seen ``neutral_frames`` fitted frames."""
+        if self.fitter is None:
+            return False
+        return self.fitter.neutral_ready and self.fitted_frames >= self.neutral_frames
+
+    def calibrate(self, frames: Iterable[np.ndarray], fps: float, progress=None) -> int:
+        """Landmarks + fitting over ``frames`` (the video's first frames, in order) until the neutral
+        is complete or the frames run out; returns the frames read. The tracker is then reset (the
+        frames that follow start from the video's first frame again); the fitter keeps the neutral."""
+        read = 0
+        for frame in frames:
+            self.fit_frame(frame, read / fps)
+            read += 1
+            if progress is not None:
+                progress(read)
+            if self.neutral_complete:
+                break
+        self.detector.reset()
+        return read
+
+    def edit_stack(self, **options) -> EditStack:
+        """An :class:`EditStack` on the current neutral, with the model's landmark names; ``options``
+        go to it (roi_radius, iterations, tolerance, ...)."""
+        m = self.fitter.model if self.fitter is not None else self.model
+        return EditStack(self.neutral, m.triangles, list(m.landmark_names), m.landmark_vertices, **options)
+
+    def set_edits(self, preset: dict | None) -> np.ndarray | None:
+        """Solve a deformer preset (dict) on the current neutral; its displacement is merged into
+        every frame from now on (None: no edit). Returns the displacement (V, 3) mm."""
+        if preset is None:
+            self.displacement = None
+            return None
+        stack = self.edit_stack()
+        stack.apply_preset(preset)
+        self.displacement = stack.solve().astype(np.float32)
+        return self.displacement
+
+    def close(self) -> None:
+        if self.compositor is not None:
+            self.compositor.release()
+            self.compositor = None
+
+    def __enter__(self) -> "Pipeline":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

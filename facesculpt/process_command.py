@@ -1,0 +1,207 @@
+"""`facesculpt process IN -o OUT`: a video through the whole pipeline, in one process, every frame.
+
+    facesculpt process in.mp4 -o out.mp4 --edits examples/presets/nose_longer.json
+    facesculpt process in.mp4 -o frames/%05d.png --model sfm --side-by-side --width 856
+
+Every frame is rendered with the face fitted on that very frame (the renderer's ``sync``
+pairing); a frame without a face is written unchanged. The output is a video (by its suffix:
+.mp4, .mov, .m4v, .avi, .mkv) or, when OUT holds a printf pattern (``out/%05d.png``), a lossless
+image sequence numbered from 0 like the input's frames. Edits are deformer presets (JSON; several
+accumulate in order); they are solved once on the person's neutral model, which a first pass over
+the first frames learns (see :mod:`facesculpt.pipeline`), and applied to every frame. The result
+is deterministic: the same input and options give the same output, bit for bit (PNG; a video
+codec is deterministic too, but lossy). Ctrl-C or SIGTERM stops after the current frame and keeps
+what was written, a playable file.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+LOSSLESS_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("process", help="run a video file through the pipeline (landmarks, fit, edits, render)",
+                       description="A video through the whole pipeline in one process, every frame: the face "
+                                   "fitted on a frame is rendered on that frame; a frame without a face is "
+                                   "written unchanged.",
+                       epilog="Examples: facesculpt process in.mp4 -o out.mp4 --edits examples/presets/nose_longer.json; "
+                              "facesculpt process in.mp4 -o frames/%%05d.png --side-by-side")
+    p.add_argument("input", metavar="IN", help="input video file")
+    p.add_argument("-o", "--output", metavar="OUT", required=True,
+                   help="output video (.mp4, .mov, .m4v, .avi, .mkv) or image pattern such as out/%%05d.png "
+                        "(lossless: png, bmp, tif)")
+    p.add_argument("--edits", action="append", default=[], metavar="PRESET.json",
+                   help="a deformer preset to apply (repeat to stack several, in order)")
+    p.add_argument("--model", default="facemesh", metavar="facemesh|sfm|MODEL.npz",
+                   help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
+                        "non-commercial) or a .npz from `facesculpt model import-eos`")
+    p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
+    p.add_argument("--width", type=int, default=0, metavar="W", help="resize frames to this width first (aspect kept)")
+    p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N frames (0: all)")
+    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
+                   help="frames the first pass learns the neutral face from, before the edits are solved (default 30)")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads per network (default 1)")
+    p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
+                   help="horizontal field of view assumed for the camera (default 60)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_process)
+
+
+class ImageSequenceOutput:
+    """Writes frames as numbered lossless images: ``pattern % index`` with index from 0."""
+
+    def __init__(self, pattern: str):
+        try:
+            first = pattern % 0
+        except (TypeError, ValueError):
+            raise ValueError(f"output pattern {pattern!r} must hold one integer field such as %05d") from None
+        if first == pattern % 1:
+            raise ValueError(f"output pattern {pattern!r} gives every frame the same name")
+        if Path(first).suffix.lower() not in LOSSLESS_SUFFIXES:
+            raise ValueError(f"output pattern {pattern!r}: image sequences are written losslessly, as "
+                             f"{', '.join(LOSSLESS_SUFFIXES)}")
+        self.pattern = pattern
+        self.path = pattern
+        self.frames = 0
+
+    def write(self, frame_bgr: np.ndarray) -> None:
+        path = Path(self.pattern % self.frames)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(path), frame_bgr):
+            raise RuntimeError(f"cannot write {path}")
+        self.frames += 1
+
+    def close(self) -> None:
+        pass
+
+
+def open_output(spec: str, fps: float):
+    """An image-sequence writer when ``spec`` holds a ``%`` field, else a video writer (by suffix)."""
+    if "%" in spec:
+        return ImageSequenceOutput(spec)
+    from facesculpt.nodes.renderer.video_out import VideoOutput
+
+    return VideoOutput(spec, fps)
+
+
+def open_input(path: str):
+    """The input video as a frame source; one clear sentence when it cannot be read."""
+    from facesculpt.nodes.camera.sources import SourceError, VideoSource
+
+    if not Path(path).exists():
+        raise FileNotFoundError(f"cannot read {path}: no such file")
+    if Path(path).is_dir():
+        raise ValueError(f"cannot read {path}: it is a directory, not a video file")
+    try:
+        source = VideoSource(path)
+    except SourceError:
+        raise ValueError(f"cannot read {path}: not a video file OpenCV can decode") from None
+    return source
+
+
+class _Stop:
+    """SIGINT/SIGTERM set a flag; the frame loop stops after the current frame."""
+
+    def __init__(self):
+        self.signal: str | None = None
+        self.previous = {}
+
+    def __enter__(self):
+        def on_signal(signum, frame):
+            self.signal = signal.Signals(signum).name
+        for s in (signal.SIGINT, signal.SIGTERM):
+            self.previous[s] = signal.signal(s, on_signal)
+        return self
+
+    def __exit__(self, *exc):
+        for s, handler in self.previous.items():
+            signal.signal(s, handler)
+
+
+def _frames(source, width: int, limit: int):
+    from facesculpt.nodes.camera.sources import resize_frame
+
+    for i, (frame, _) in enumerate(source.frames()):  # the clock stamps are not used: time = index / fps
+        if limit and i >= limit:
+            return
+        yield resize_frame(frame, width, 0)
+
+
+def _progress(total: int | None, desc: str, quiet: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, disable=quiet, dynamic_ncols=True,
+                leave=True)
+
+
+def cmd_process(args) -> int:
+    from facesculpt.pipeline import Pipeline, combine_presets, limit_blas_threads, read_preset
+
+    limit_blas_threads(1)  # one thread per stage is faster here (see limit_blas_threads)
+    if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:
+        raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
+    source = open_input(args.input)
+    fps = source.native_fps
+    total = source.frame_count or None
+    if total and args.max_frames:
+        total = min(total, args.max_frames)
+    output = open_output(args.output, fps)
+    preset = combine_presets([read_preset(p) for p in args.edits]) if args.edits else None
+    pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames)
+    if preset is not None:
+        from facesculpt.nodes.deformer import DeformerError
+
+        try:  # a preset that does not fit the model fails now, not after the first pass
+            pipeline.edit_stack().apply_preset(preset)
+        except DeformerError as exc:
+            raise ValueError(f"the edits do not fit the {args.model} model: {exc}") from None
+    faces = 0
+    try:
+        with _Stop() as stop:
+            if preset is not None:
+                # First pass: the person's neutral, then the edit solved on it once.
+                calib = open_input(args.input)
+                try:
+                    with _progress(min(args.neutral_frames, total or args.neutral_frames), "neutral",
+                                   args.quiet) as bar:
+                        def tick(_read):
+                            bar.update(1)
+                            if stop.signal:
+                                raise KeyboardInterrupt
+                        pipeline.calibrate(_frames(calib, args.width, args.max_frames), fps, progress=tick)
+                finally:
+                    calib.close()
+                if pipeline.fitter is None or pipeline.fitted_frames == 0:
+                    print(f"facesculpt: no face found in the first frames of {args.input}: the edits are not applied",
+                          file=sys.stderr)
+                else:
+                    pipeline.set_edits(preset)
+            with _progress(total, "process", args.quiet) as bar:
+                for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
+                    result = pipeline.process(frame, i / fps)
+                    faces += result.fit is not None
+                    image = np.hstack([frame, result.image]) if args.side_by_side else result.image
+                    output.write(image)
+                    bar.update(1)
+                    if stop.signal:
+                        raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        output.close()
+        print(f"interrupted: kept {output.frames} frames in {output.path!s}", file=sys.stderr, flush=True)
+        return 130
+    finally:
+        output.close()
+        source.close()
+        pipeline.close()
+    if output.frames == 0:
+        raise ValueError(f"cannot read {args.input}: it holds no frames")
+    print(f"wrote {output.frames} frames to {output.path!s} ({faces} with a face"
+          + (f", edits from {', '.join(args.edits)})" if args.edits else ")"), file=sys.stderr)
+    return 0
