@@ -104,7 +104,7 @@ def bench_source(video: str) -> tuple[str, str]:
     data = shared_data_dir()
     if data is not None and (data / "video" / "s18.mp4").is_file():
         return str(data / "video" / "s18.mp4"), "s18.mp4 (shared data)"
-    return "embedded", "embedded face photo (astronaut.png) under a moving virtual camera"
+    return "embedded", "embedded face photo (astronaut.png, 512x512 stretched) under a moving virtual camera"
 
 
 def read_frames(spec: str, count: int) -> tuple[list[np.ndarray], float]:
@@ -432,8 +432,16 @@ def cmd_bench(args) -> int:
     if args.frames < 5 or args.drags < 1 or args.window <= 0:
         raise ValueError("--frames must be >= 5, --drags >= 1 and --window > 0")
     models = ["facemesh", "sfm"] if args.model == "both" else [args.model]
+    skipped = {}
     if "sfm" in models:
-        load_face_model("sfm")  # a clear error now when the shared data is missing
+        try:
+            load_face_model("sfm")  # a clear error now when the shared data is missing
+        except FileNotFoundError as exc:
+            if args.model == "sfm":
+                raise
+            models.remove("sfm")
+            skipped["sfm"] = str(exc)
+            print(f"facesculpt bench: sfm skipped: {exc}", file=sys.stderr)
     source, description = bench_source(args.video)
     paths = preset_paths()
     preset = combine_presets([read_preset(p) for p in paths])
@@ -448,7 +456,7 @@ def cmd_bench(args) -> int:
         "edit": [p.stem for p in paths], "camera_fps": args.camera_fps, "pairing": "sync",
         "blas_threads": args.blas_threads or os.environ.get("OPENBLAS_NUM_THREADS", "default"),
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
-        "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {},
+        "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
     }
     for model in models:
         print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)

@@ -193,3 +193,22 @@ def test_interrupt_keeps_partial_output(data_dir, models_dir, tmp_path):
     assert 0 < kept < total
     readable, _ = read_video(output, keep=set())
     assert readable == kept  # a finished, playable file with every frame it reported
+
+
+@pytest.mark.parametrize("name", ["nose_longer", "chin", "cheeks"])
+def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, models_dir):
+    from facesculpt.nodes.deformer import EditStack
+    from facesculpt.nodes.fitter import load_model
+    from facesculpt.pipeline import read_preset
+
+    preset = read_preset(PRESETS / f"{name}.json")
+    for model in (load_model("facemesh"), load_model("sfm")):
+        stack = EditStack(model.mean, model.triangles, list(model.landmark_names), model.landmark_vertices)
+        stack.apply_preset(preset)
+        disp = stack.solve()
+        for edit in preset["edits"]:
+            for handle in edit["handles"]:
+                v = stack.landmark_vertex(handle["landmark"])
+                assert np.allclose(disp[v], handle["offset"], atol=1e-6), (model.model_id, handle)
+        moved = np.linalg.norm(disp, axis=1) > 0.5
+        assert 10 < moved.sum() < 0.6 * len(disp), (model.model_id, moved.sum())  # a local edit
