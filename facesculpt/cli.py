@@ -17,6 +17,7 @@ COMMAND_MODULES = [
     "facesculpt.demo",      # demo: the main job
     "facesculpt.nodes.fitter.cli",  # model import-eos, model info
     "facesculpt.setup_models",  # setup
+    "facesculpt.security",  # keys generate
     "facesculpt.process_command",  # process
     "facesculpt.bench_command",  # bench
     "facesculpt.security",  # keys generate

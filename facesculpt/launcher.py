@@ -9,6 +9,16 @@ A launch file is YAML::
         remap: {camera/image: cam0/image}
         respawn: true                # restart when it dies (with backoff)
         required: false              # when it exits, stop the whole graph
+        key: hostb                   # (with security) this node's client keypair name
+
+Optional top-level keys: ``transport: tcp`` (default ipc) with ``host: ADDRESS``
+(what tcp publishers bind to; default 127.0.0.1, loopback), and ``security:``
+(ZeroMQ CURVE, see facesculpt.security and docs/security.md)::
+
+    security:
+      keys: ./keys                   # from `facesculpt keys generate keys`
+      server: graph                  # the graph's server keypair name (default graph)
+      client: graph                  # the nodes' client keypair name (default: the server's)
 
 ``facesculpt launch FILE name.param=value ...`` overrides params. A string param
 starting with ``./`` is a path relative to the launch file. Children are
@@ -47,6 +57,10 @@ class NodeSpec:
     respawn: bool = False
     required: bool = False
     respawn_delay_s: float = 0.2
+    transport: str = "ipc"
+    host: str = "127.0.0.1"
+    graph_env: dict = field(default_factory=dict)   # security for the whole graph (master included)
+    env: dict = field(default_factory=dict)         # this node's own additions (its client key)
 
 
 def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> list[NodeSpec]:
@@ -60,8 +74,15 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
         raise ValueError(f"launch file {path} is not valid YAML: {exc}") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("nodes"), list):
         raise ValueError(f"launch file {path}: expected a mapping with a 'nodes' list")
+    extra = set(doc) - {"nodes", "security", "transport", "host"}
+    if extra:
+        raise ValueError(f"launch file {path}: unknown top-level keys {sorted(extra)}")
+    transport, host = str(doc.get("transport", "ipc")), str(doc.get("host", "127.0.0.1"))
+    if transport not in ("ipc", "tcp"):
+        raise ValueError(f"launch file {path}: transport must be ipc or tcp, not {transport!r}")
+    graph_env = _security_env(path, doc.get("security"))
     specs: list[NodeSpec] = []
-    allowed = {"name", "node", "params", "remap", "respawn", "required", "respawn_delay_s"}
+    allowed = {"name", "node", "params", "remap", "respawn", "required", "respawn_delay_s", "key"}
     for i, entry in enumerate(doc["nodes"]):
         if not isinstance(entry, dict) or "node" not in entry:
             raise ValueError(f"launch file {path}: node #{i + 1} needs at least 'node'")
@@ -71,7 +92,16 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
         spec = NodeSpec(name=str(entry.get("name", entry["node"])), node=str(entry["node"]),
                         params=dict(entry.get("params") or {}), remap=dict(entry.get("remap") or {}),
                         respawn=bool(entry.get("respawn", False)), required=bool(entry.get("required", False)),
-                        respawn_delay_s=float(entry.get("respawn_delay_s", 0.2)))
+                        respawn_delay_s=float(entry.get("respawn_delay_s", 0.2)),
+                        transport=transport, host=host, graph_env=graph_env)
+        if "key" in entry:
+            if not graph_env:
+                raise ValueError(f"launch file {path}: node {spec.name} names a key but there is no security block")
+            from facesculpt.security import ENV_CLIENT, Security
+
+            Security.from_dir(graph_env["FACESCULPT_KEYS"], graph_env.get("FACESCULPT_SERVER_KEY", "graph"),
+                              str(entry["key"]))  # fail now, with the file's name, not in the child
+            spec.env = {ENV_CLIENT: str(entry["key"])}
         if any(s.name == spec.name for s in specs):
             raise ValueError(f"launch file {path}: two nodes are named {spec.name!r}")
         specs.append(spec)
@@ -90,6 +120,25 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
     return specs
 
 
+def _security_env(path: Path, block) -> dict:
+    """The launch file's ``security:`` block as environment variables for every process."""
+    if block is None:
+        return {}
+    from facesculpt.security import Security, SecurityError, env_for
+
+    if not isinstance(block, dict) or "keys" not in block or set(block) - {"keys", "server", "client"}:
+        raise ValueError(f"launch file {path}: security needs 'keys' (a directory) and optionally "
+                         f"'server' and 'client' key names")
+    keys = Path(str(block["keys"]))
+    keys = keys if keys.is_absolute() else (path.parent / keys).resolve()
+    server, client = block.get("server"), block.get("client")
+    try:
+        Security.from_dir(keys, str(server or "graph"), str(client) if client else None)
+    except SecurityError as exc:
+        raise ValueError(f"launch file {path}: {exc}") from None
+    return env_for(keys, str(server) if server else None, str(client) if client else None)
+
+
 def _die_with_parent() -> None:
     # Linux: the child gets SIGTERM when the launcher dies, even by SIGKILL: no orphans.
     try:
@@ -105,6 +154,8 @@ def _spawn(argv: list[str], env: dict) -> subprocess.Popen:
 
 def node_argv(spec: NodeSpec) -> list[str]:
     config = {"name": spec.name, "params": spec.params, "remap": spec.remap}
+    if spec.transport != "ipc" or spec.host != "127.0.0.1":
+        config.update(transport=spec.transport, host=spec.host)
     return [sys.executable, "-m", "facesculpt.cli", "run", spec.node, "--config-json", json.dumps(config)]
 
 
@@ -129,20 +180,25 @@ class Launcher:
         self.master_proc: subprocess.Popen | None = None
         self.stopping = False
         self.env = dict(os.environ, FACESCULPT_MASTER=self.master, PYTHONUNBUFFERED="1")
+        if specs:
+            self.env.update(specs[0].graph_env)
+        from facesculpt.security import Security
+
+        self.security = Security.from_env(self.env)
 
     def start_master(self) -> None:
-        if master_alive(self.master):
+        if master_alive(self.master, security=self.security):
             self.status(f"using the master already running at {self.master}")
             return
         self.master_proc = _spawn([sys.executable, "-m", "facesculpt.cli", "master"], self.env)
         deadline = time.monotonic() + 10
-        while not master_alive(self.master, 0.2):
+        while not master_alive(self.master, 0.2, security=self.security):
             if self.master_proc.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"the master did not start at {self.master}")
             time.sleep(0.05)
 
     def _start(self, child: Child) -> None:
-        child.proc = _spawn(node_argv(child.spec), self.env)
+        child.proc = _spawn(node_argv(child.spec), dict(self.env, **child.spec.env))
         child.state = "running"
         self.status(f"[{child.spec.name}] running (pid {child.proc.pid}"
                     + (f", restart {child.restarts}" if child.restarts else "") + ")")

@@ -163,12 +163,21 @@ class Registry:
         return {"ok": True, "topics": out}, []
 
 
-def serve(address: str | None = None, *, ready=None, stop=None) -> None:
-    """Run the master until SIGINT/SIGTERM (or until ``stop`` (an Event) is set)."""
+def serve(address: str | None = None, *, ready=None, stop=None, security=None) -> None:
+    """Run the master until SIGINT/SIGTERM (or until ``stop`` (an Event) is set).
+
+    With ``security`` (or ``$FACESCULPT_KEYS``) the socket is a CURVE server that only
+    authorised clients reach: a stranger cannot register nodes or fake publishers."""
+    from facesculpt.security import Security
+
     address = address or master_address()
+    security = security if security is not None else Security.from_env()
     ctx = zmq.Context.instance()
+    auth = security.start_authenticator(ctx) if security else None
     sock = ctx.socket(zmq.ROUTER)
     sock.setsockopt(zmq.LINGER, 0)
+    if security:
+        security.server_socket(sock)
     try:
         sock.bind(address)
     except zmq.ZMQError as exc:
@@ -200,6 +209,8 @@ def serve(address: str | None = None, *, ready=None, stop=None) -> None:
             registry.prune()
             last_prune = time.monotonic()
     sock.close(0)
+    if auth is not None:
+        auth.stop()
 
 
 def _answer(registry: Registry, parts: list[bytes]) -> list[bytes] | None:
@@ -221,8 +232,12 @@ class MasterClient:
     """Request/reply to the master with a timeout; a lost reply recreates the socket
     (the "lazy pirate" pattern), so a dead or restarted master never wedges a node."""
 
-    def __init__(self, address: str | None = None, timeout_s: float = 1.0, context=None):
+    def __init__(self, address: str | None = None, timeout_s: float = 1.0, context=None, security=None):
+        from facesculpt.security import Security
+
         self.address = address or master_address()
+        # CURVE client keys: given, or from $FACESCULPT_KEYS (None: plain).
+        self.security = security if security is not None else Security.from_env()
         self.timeout_ms = int(timeout_s * 1000)
         self.ctx = context or zmq.Context.instance()
         self.sock = None
@@ -231,6 +246,8 @@ class MasterClient:
         if self.sock is None:
             self.sock = self.ctx.socket(zmq.REQ)
             self.sock.setsockopt(zmq.LINGER, 0)
+            if self.security is not None:
+                self.security.client_socket(self.sock)
             self.sock.connect(self.address)
         return self.sock
 
@@ -259,8 +276,8 @@ class MasterClient:
             self.sock = None
 
 
-def master_alive(address: str | None = None, timeout_s: float = 0.5) -> bool:
-    client = MasterClient(address, timeout_s)
+def master_alive(address: str | None = None, timeout_s: float = 0.5, security=None) -> bool:
+    client = MasterClient(address, timeout_s, security=security)
     try:
         return client.request("ping") is not None
     finally:

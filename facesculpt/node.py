@@ -114,7 +114,7 @@ class MasterLink(threading.Thread):
     def __init__(self, node: "Node"):
         super().__init__(name="facesculpt-master-link", daemon=True)
         self.node = node
-        self.client = MasterClient(node.master, timeout_s=1.0)
+        self.client = MasterClient(node.master, timeout_s=1.0, security=node.security)
         self.registered = False
         self.generation = -1
         self.latched_versions: dict[str, int] = {}
@@ -225,16 +225,24 @@ class Node:
     DIAGNOSTICS_PERIOD_S = 1.0
 
     def __init__(self, name: str | None = None, params: dict | None = None, remap: dict | None = None,
-                 master: str | None = None, transport: str = "ipc"):
+                 master: str | None = None, transport: str = "ipc", host: str = "127.0.0.1",
+                 security=None):
         self.name = name or self.NAME
         self.log = logging.getLogger(f"facesculpt.{self.name}")
         self.params = Params(**self._apply_params(params or {}))
         self.remap = dict(remap or {})
         self.master = master or master_address()
         self.transport = transport
+        self.host = host              # the address tcp publishers bind to (loopback unless told)
+        # CURVE keys from the argument or $FACESCULPT_KEYS (facesculpt.security); None: no security.
+        from facesculpt.security import Security
+
+        self.security = security if security is not None else Security.from_env()
         self.ctx = zmq.Context()
+        # The ZAP handler must run before the first bind, or CURVE servers would admit anyone.
+        self._authenticator = self.security.start_authenticator(self.ctx) if self.security else None
         self.cond = threading.Condition()
-        self.receiver = Receiver(self.ctx, self.cond)
+        self.receiver = Receiver(self.ctx, self.cond, self.security)
         self.publishers: dict[str, Publisher] = {}
         self.subscriptions: list[Subscription] = []
         self.timers: list[Timer] = []
@@ -269,8 +277,8 @@ class Node:
         """Publish ``msg_type`` on ``topic`` (remapped). ``latch``: the master keeps the last
         message for nodes that join later. ``reliable``: block instead of dropping."""
         topic = self.resolve(topic)
-        pub = Publisher(self.ctx, topic, msg_type, endpoint=new_endpoint(self.transport), hwm=hwm,
-                        reliable=reliable, latch=latch)
+        pub = Publisher(self.ctx, topic, msg_type, endpoint=new_endpoint(self.transport, self.host), hwm=hwm,
+                        reliable=reliable, latch=latch, security=self.security)
         self.publishers[topic] = pub
         if latch:
             original = pub.publish_frames
@@ -409,6 +417,8 @@ class Node:
         # registered: unregistering first would make subscribers disconnect and lose it.
         for pub in self.publishers.values():
             pub.close()
+        if self._authenticator is not None:
+            self._authenticator.stop()
         self.ctx.term()
         self.link.stopping = True
         self.link.wake.set()
@@ -517,5 +527,5 @@ def run_node(cls: type[Node], argv: list[str]) -> int:
     remap = dict(config.get("remap", {}))
     remap.update(parse_assignments(args.remap))
     node = cls(name=args.name or config.get("name"), params=params, remap=remap,
-               transport=config.get("transport", "ipc"))
+               transport=config.get("transport", "ipc"), host=config.get("host", "127.0.0.1"))
     return node.run()

@@ -60,7 +60,7 @@ class Publisher:
 
     def __init__(self, ctx: zmq.Context, topic: str, msg_type: type[Message] | None, *,
                  endpoint: str | None = None, hwm: int | None = None, reliable: bool = False,
-                 latch: bool = False):
+                 latch: bool = False, security=None):
         self.topic = topic
         self.msg_type = msg_type
         self.type_name = msg_type.TYPE if msg_type else "*"
@@ -79,6 +79,8 @@ class Publisher:
         self.sock.setsockopt(zmq.XPUB_VERBOSER, 1)
         if reliable:
             self.sock.setsockopt(zmq.XPUB_NODROP, 1)
+        if security is not None:
+            security.server_socket(self.sock)  # CURVE server: only authorised subscribers get in
         self.sock.bind(endpoint or new_endpoint())
         self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self._lock = threading.Lock()
@@ -177,9 +179,10 @@ class Subscription:
 class Receiver(threading.Thread):
     """The one thread that owns every SUB socket of a node."""
 
-    def __init__(self, ctx: zmq.Context, wakeup: threading.Condition):
+    def __init__(self, ctx: zmq.Context, wakeup: threading.Condition, security=None):
         super().__init__(name="facesculpt-receiver", daemon=True)
         self.ctx = ctx
+        self.security = security      # facesculpt.security.Security: connect as CURVE clients
         self.wakeup = wakeup          # notified whenever something is ready to deliver
         self.lock = wakeup            # guards Subscription.latest/pending
         self.commands: queue.Queue = queue.Queue()
@@ -212,6 +215,9 @@ class Receiver(threading.Thread):
             if op == "add":
                 sock = self.ctx.socket(zmq.SUB)
                 sock.setsockopt(zmq.LINGER, 0)
+                if self.security is not None:
+                    # CURVE client: a publisher that cannot prove the graph's key is never heard.
+                    self.security.client_socket(sock)
                 sock.setsockopt(zmq.RCVHWM, QUEUE_LIMIT if sub.queued else DEFAULT_HWM_LARGE)
                 # Exact-topic filter: zmq matches prefixes, so we also check the topic frame.
                 sock.setsockopt(zmq.SUBSCRIBE, sub.topic.encode())
