@@ -45,6 +45,10 @@ from facesculpt.master import master_address, master_alive
 from facesculpt.node import parse_assignments
 
 STOP_GRACE_S = 2.5
+# A node that ran this long before dying was healthy: its next respawn starts without backoff
+# (otherwise occasional crashes over hours would end at the 5 s cap).
+HEALTHY_RUN_S = 5.0
+MAX_RESPAWN_DELAY_S = 5.0
 log = logging.getLogger("facesculpt.launch")
 
 
@@ -164,6 +168,8 @@ class Child:
     spec: NodeSpec
     proc: subprocess.Popen | None = None
     restarts: int = 0
+    failures: int = 0        # consecutive quick deaths: the respawn backoff exponent
+    started_at: float = 0.0
     state: str = "starting"
     next_start: float = 0.0
     exit_code: int | None = None
@@ -199,6 +205,7 @@ class Launcher:
 
     def _start(self, child: Child) -> None:
         child.proc = _spawn(node_argv(child.spec), dict(self.env, **child.spec.env))
+        child.started_at = time.monotonic()
         child.state = "running"
         self.status(f"[{child.spec.name}] running (pid {child.proc.pid}"
                     + (f", restart {child.restarts}" if child.restarts else "") + ")")
@@ -223,7 +230,11 @@ class Launcher:
                     child.state = "done"
                     return False
                 if child.spec.respawn and not self.stopping:
-                    delay = min(5.0, child.spec.respawn_delay_s * (2 ** min(child.restarts, 5)))
+                    # A node that ran healthily comes back at once (the graph waits on it); back off
+                    # only while it keeps dying quickly (a crash loop): delay, 2 x delay, ... capped.
+                    child.failures = 0 if now - child.started_at >= HEALTHY_RUN_S else child.failures + 1
+                    delay = 0.0 if child.failures == 0 else min(
+                        MAX_RESPAWN_DELAY_S, child.spec.respawn_delay_s * 2 ** min(child.failures - 1, 5))
                     child.state, child.next_start = "waiting", now + delay
                     self.status(f"[{child.spec.name}] died ({how}); respawning in {delay:.1f} s")
                     alive = True

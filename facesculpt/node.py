@@ -109,13 +109,15 @@ class Params(SimpleNamespace):
 class MasterLink(threading.Thread):
     """Keeps this node registered with the master and its subscriptions connected."""
 
-    PERIOD_S = 0.25
+    # Heartbeat and lookup period: also how late a subscriber may notice a respawned publisher.
+    PERIOD_S = 0.1
 
     def __init__(self, node: "Node"):
         super().__init__(name="facesculpt-master-link", daemon=True)
         self.node = node
         self.client = MasterClient(node.master, timeout_s=1.0, security=node.security)
         self.registered = False
+        self.dirty = False          # a publisher/subscription was added while registering
         self.generation = -1
         self.latched_versions: dict[str, int] = {}
         self.latch_pending: dict[str, list] = {}
@@ -141,8 +143,17 @@ class MasterLink(threading.Thread):
             self.connected.clear()
         return answer
 
+    def invalidate(self) -> None:
+        """Register again (a publisher or subscription was added); safe from any thread."""
+        with self.lock:
+            self.dirty = True
+            self.registered = False
+        self.wake.set()
+
     def _register(self) -> bool:
         node = self.node
+        with self.lock:
+            self.dirty = False
         if self._request("register_node", node=node.name, pid=os.getpid(), host=socket.gethostname()) is None:
             return False
         for pub in list(node.publishers.values()):
@@ -151,7 +162,10 @@ class MasterLink(threading.Thread):
                 self.push_latched(pub.topic, pub.last_frames)
         for sub in list(node.subscriptions):
             self._request("subscribe", node=node.name, topic=sub.topic)
-        self.registered = True
+        with self.lock:
+            if self.dirty:  # something was added meanwhile: go round again
+                return False
+            self.registered = True
         self.generation = -1
         self.warned = False
         self.connected.set()
@@ -288,9 +302,7 @@ class Node:
                 self.link.push_latched(_topic, pub.last_frames)
                 return ok
             pub.publish_frames = publish_and_latch
-        if self.link.registered:
-            self.link.registered = False  # re-register everything, including this publisher
-            self.link.wake.set()
+        self.link.invalidate()  # re-register everything, including this publisher
         return pub
 
     def subscribe(self, topic: str, msg_type: type[Message] | None, callback: Callable, *,
@@ -305,9 +317,7 @@ class Node:
         sub = Subscription(self.resolve(topic), msg_type, callback, queued=queued, raw=raw)
         self.subscriptions.append(sub)
         self.receiver.add(sub)
-        if self.link.registered:
-            self.link.registered = False
-            self.link.wake.set()
+        self.link.invalidate()
         return sub
 
     def timer(self, period_s: float, callback: Callable[[], Any]) -> Timer:
