@@ -64,6 +64,7 @@ class BagWriter:
         self.jpeg_quality = int(jpeg_quality)
         self.count = 0
         self.bytes = 0
+        self.failed = False
         try:
             self.file: BinaryIO = open(self.path, "wb")
             self.file.write(MAGIC)
@@ -91,12 +92,22 @@ class BagWriter:
             self.file.write(payload)
             self.file.flush()
         except OSError as exc:
+            self.failed = True
             raise BagError(f"writing bag {self.path} failed after {self.count} records: {exc.strerror}") from None
         self.count += 1
         self.bytes += len(payload) + _HEAD.size
 
     def close(self) -> None:
-        self.file.close()
+        """Close the file; after a failed write (disk full), cut it back to the last whole record."""
+        try:
+            self.file.close()
+        except OSError:
+            self.failed = True
+        if self.failed:
+            try:
+                os.truncate(self.path, len(MAGIC) + self.bytes)
+            except OSError:
+                pass  # the reader stops at the incomplete record anyway
 
     def __enter__(self):
         return self

@@ -65,7 +65,9 @@ class CameraNode(Node):
             self.wait_until = 0.0
         try:
             frame, stamp = next(self.frames)
+            self._report_problems()
         except StopIteration:
+            self._report_problems()
             self.log.info("end of %s after %d frames", self.source.description, self.sent)
             self.shutdown()
             return
@@ -81,6 +83,12 @@ class CameraNode(Node):
                                image=np.ascontiguousarray(frame), K=self.intrinsics(w, h)))
         if self.params.max_frames and self.sent >= self.params.max_frames:
             self.shutdown()
+
+    def _report_problems(self) -> None:
+        problems = getattr(self.source, "problems", None)
+        while problems:
+            self.count("source_errors")
+            self.log.warning("%s", problems.pop(0))
 
     def teardown(self):
         if hasattr(self, "source"):

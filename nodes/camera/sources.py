@@ -74,6 +74,7 @@ class VideoSource(FrameSource):
         self.native_fps = fps if fps and math.isfinite(fps) and 0 < fps < 1000 else 30.0
         self.frame_count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) if not self.is_webcam else 0
         self.description = f"webcam {spec}" if self.is_webcam else f"video {spec}"
+        self.problems: list[str] = []   # what went wrong while reading; the node reports it
 
     def _open(self) -> cv2.VideoCapture:
         cap = cv2.VideoCapture(self.spec)
@@ -83,14 +84,22 @@ class VideoSource(FrameSource):
         return cap
 
     def frames(self):
+        read = 0
         while True:
             ok, frame = self.cap.read()
             stamp = time.time_ns()
             if ok and frame is not None and frame.ndim == 3:
+                read += 1
                 yield frame, stamp
                 continue
             if self.is_webcam:
-                raise SourceError(f"webcam {self.spec} stopped delivering frames")
+                raise SourceError(f"webcam {self.spec} stopped delivering frames (unplugged?)")
+            # The container announced more frames than decoded: the file is corrupt or cut short.
+            # A few frames of slack: the announced count is an estimate for some containers.
+            if self.frame_count and read < self.frame_count - 2:
+                self.problems.append(f"video {self.spec}: decoding stopped at frame {read} of "
+                                     f"{self.frame_count} (corrupt or truncated file)")
+            read = 0
             if not self.loop:
                 return
             self.cap.release()
