@@ -32,7 +32,7 @@ def register(sub) -> None:
                                    "fitted on a frame is rendered on that frame; a frame without a face is "
                                    "written unchanged.",
                        epilog="Examples: facesculpt process in.mp4 -o out.mp4 --edits examples/presets/nose_longer.json; "
-                              "facesculpt process in.mp4 -o frames/%%05d.png --side-by-side")
+                              "facesculpt process in.mp4 -o frames/%05d.png --side-by-side")
     p.add_argument("input", metavar="IN", help="input video file")
     p.add_argument("-o", "--output", metavar="OUT", required=True,
                    help="output video (.mp4, .mov, .m4v, .avi, .mkv) or image pattern such as out/%%05d.png "
