@@ -20,7 +20,6 @@ COMMAND_MODULES = [
     "facesculpt.security",  # keys generate
     "facesculpt.process_command",  # process
     "facesculpt.bench_command",  # bench
-    "facesculpt.security",  # keys generate
 ]
 
 
