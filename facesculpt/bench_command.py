@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -361,6 +362,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         log.close()
     if len(window) < 2:
         raise RuntimeError(f"the graph gave {len(window)} frames in {window_s} s (see {log_path})")
+    shutil.rmtree(workdir, ignore_errors=True)  # kept when something failed: its launch.log says why
     latency = np.array([(a - s) / 1e6 for a, s in window])
     nodes = {}
     for name, values in diagnostics.items():
@@ -458,14 +460,17 @@ def cmd_bench(args) -> int:
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
     }
-    for model in models:
-        print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
-        entry = measure_stages(model, frames, fps, preset, args.drags)
-        if not args.no_graph:
-            print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
-                  file=sys.stderr, flush=True)
-            entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup))
-        result["models"][model] = entry
+    try:
+        for model in models:
+            print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
+            entry = measure_stages(model, frames, fps, preset, args.drags)
+            if not args.no_graph:
+                print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
+                      file=sys.stderr, flush=True)
+                entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup))
+            result["models"][model] = entry
+    finally:
+        shutil.rmtree(preset_file.parent, ignore_errors=True)
     result["machine"]["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]
     print(table(result))
     print(f"load average {result['machine']['load_avg_start'][0]:.2f} -> {result['machine']['load_avg_end'][0]:.2f} "
