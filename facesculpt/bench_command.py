@@ -427,7 +427,8 @@ def table(result: dict) -> str:
 
 
 def cmd_bench(args) -> int:
-    from facesculpt.pipeline import combine_presets, limit_blas_threads, load_face_model, read_preset
+    from facesculpt.pipeline import combine_presets, load_face_model, read_preset
+    from facesculpt.process_limits import limit_blas_threads
 
     if args.blas_threads > 0:
         limit_blas_threads(args.blas_threads)  # also in the environment the graph's processes inherit

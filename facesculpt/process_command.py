@@ -142,7 +142,8 @@ def _progress(total: int | None, desc: str, quiet: bool):
 
 
 def cmd_process(args) -> int:
-    from facesculpt.pipeline import Pipeline, combine_presets, limit_blas_threads, read_preset
+    from facesculpt.pipeline import Pipeline, combine_presets, read_preset
+    from facesculpt.process_limits import limit_blas_threads
 
     limit_blas_threads(1)  # one thread per stage is faster here (see limit_blas_threads)
     if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:

@@ -286,6 +286,14 @@ class Receiver(threading.Thread):
             self._apply(poller)
             if self.disconnect_at:
                 self._disconnect_due()
+            if not self.sockets:
+                # zmq_poll returns at once with nothing to poll: wait for a command instead
+                # (a publish-only node would otherwise spin a core).
+                try:
+                    self.commands.put(self.commands.get(timeout=0.05))
+                except queue.Empty:
+                    pass
+                continue
             try:
                 ready = dict(poller.poll(50))
             except zmq.ZMQError:
