@@ -22,24 +22,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.nodes.camera.sources import read_frames
 from facesculpt.nodes.landmarks.detector import LandmarkDetector
 from facesculpt.paths import model_home, shared_data_dir
 
 PAPER_MS = 36.28
 BACKENDS = ("onnxruntime", "litert")
-
-
-def load_frames(video: Path, count: int, size=(856, 480)) -> list[np.ndarray]:
-    cap = cv2.VideoCapture(str(video))
-    frames = []
-    while len(frames) < count:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        frames.append(cv2.resize(frame, size, interpolation=cv2.INTER_AREA))
-    if not frames:
-        raise SystemExit(f"cannot read frames from {video}")
-    return frames
 
 
 def timed(fn, *args) -> float:
@@ -62,7 +50,7 @@ def main(argv=None) -> int:
         print("shared data not found (set FACESCULPT_DATA)", file=sys.stderr)
         return 2
     models = args.models or model_home()
-    frames = load_frames(data / "video" / f"{args.video}.mp4", args.frames)
+    frames = read_frames(data / "video" / f"{args.video}.mp4", args.frames, 856, 480)
     trackers = {b: LandmarkDetector(models, threads=args.threads, backend=b) for b in BACKENDS}
     detectors = {b: LandmarkDetector(models, threads=args.threads, backend=b) for b in BACKENDS}
 

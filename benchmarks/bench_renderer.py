@@ -36,6 +36,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from renderer_scene import issue_edit, place_fitted, place_marked  # noqa: E402
 
+from facesculpt.nodes.camera.sources import read_frames  # noqa: E402
 from facesculpt.nodes.deformer import merge_deformation  # noqa: E402
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
 from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
@@ -43,19 +44,6 @@ from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
 SIZE = (856, 480)
-
-
-def load_frames(video: Path, count: int) -> list[np.ndarray]:
-    cap = cv2.VideoCapture(str(video))
-    frames = []
-    while len(frames) < count:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        frames.append(cv2.resize(frame, SIZE, interpolation=cv2.INTER_AREA))
-    if not frames:
-        raise SystemExit(f"no frames in {video}")
-    return frames
 
 
 def geometry(frames, model_name: str, data_dir: Path):
@@ -143,7 +131,7 @@ def main(argv=None) -> int:
     data = shared_data_dir()
     if data is None:
         raise SystemExit("shared data not found: set FACESCULPT_DATA")
-    frames = load_frames(data / "video" / f"{args.video}.mp4", args.frames)
+    frames = read_frames(data / "video" / f"{args.video}.mp4", args.frames, 856, 480)
     geo, source, model_id = geometry(frames, args.model, data)
     W, H = SIZE
     comps = {m: Compositor(W, H, inpaint=m) for m in ("pushpull", "telea")}
