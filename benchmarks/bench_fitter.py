@@ -54,6 +54,18 @@ def timed(fn, *args):
     return out, (time.perf_counter() - t0) * 1e3
 
 
+def fit_all(fitter, faces, model):
+    """Fit each synthetic face from scratch: (3D errors mm, reprojection errors px, times ms)."""
+    errs, reps, times = [], [], []
+    for f in faces:
+        fitter.reset()
+        r, ms = timed(fitter.fit, f.noisy, f.ids)
+        errs.append(similarity_aligned_error(r.model_vertices, f.vertices))
+        reps.append(landmark_reprojection_error(r.projected, model, f.ids, f.noisy))
+        times.append(ms)
+    return errs, reps, times
+
+
 def compare_with_eos(model, files, n_faces: int, seed: int = 0, iterations: int = 5):
     rng = np.random.default_rng(seed)
     faces = [make_face(model, rng) for _ in range(n_faces)]
@@ -101,13 +113,7 @@ def table1(model, n: int = 40, seed: int = 7) -> str:
         faces = [make_face(model, rng, yaw=yaw * (1 if i % 2 else -1), pitch=0.0, roll=0.0) for i in range(n)]
         for mode in ("ray", "nearest", "off"):
             fitter = Fitter(model, (640, 480), outline=mode, smoothing=False, accumulate_identity=False)
-            errs, reps, times = [], [], []
-            for f in faces:
-                fitter.reset()
-                r, ms = timed(fitter.fit, f.noisy, f.ids)
-                errs.append(similarity_aligned_error(r.model_vertices, f.vertices))
-                reps.append(landmark_reprojection_error(r.projected, model, f.ids, f.noisy))
-                times.append(ms)
+            errs, reps, times = fit_all(fitter, faces, model)
             lines.append(f"| {mode} | {yaw:.0f}° | {np.mean(errs):.2f} | {np.mean(reps):.2f} | {np.median(times):.1f} |")
     return "\n".join(lines)
 
@@ -126,13 +132,7 @@ def perspective_table(model, files, n: int = 60, seed: int = 5) -> str:
         peer = None
     lines = ["| fitter | 3D err (mm) | reproj (px) | ms per fit |", "|---|---|---|---|"]
     for name, fitter in fitters.items():
-        errs, reps, times = [], [], []
-        for f in faces:
-            fitter.reset()
-            r, ms = timed(fitter.fit, f.noisy, f.ids)
-            errs.append(similarity_aligned_error(r.model_vertices, f.vertices))
-            reps.append(landmark_reprojection_error(r.projected, model, f.ids, f.noisy))
-            times.append(ms)
+        errs, reps, times = fit_all(fitter, faces, model)
         lines.append(f"| {name} | {np.mean(errs):.2f} | {np.mean(reps):.2f} | {np.median(times):.1f} |")
     if peer is not None:
         errs, reps, times = [], [], []
