@@ -148,26 +148,25 @@ class EditStack:
         except (IndexError, TypeError):
             raise DeformerError(f"no edit {edit!r} (there are {len(self.edits)})") from None
 
-    def move_handle(self, vertex: int, delta, edit: int = -1) -> None:
-        """Add a model-space displacement (3,) mm to one handle of an edit."""
-        d = np.asarray(delta, dtype=np.float64)
+    def _handle_vector(self, vertex: int, value, edit: int, what: str) -> tuple[Edit, int, np.ndarray]:
+        """Validate a (3,) mm vector for one handle of an edit; returns (edit, vertex, vector)."""
+        d = np.asarray(value, dtype=np.float64)
         if d.shape != (3,) or not np.all(np.isfinite(d)):
-            raise DeformerError(f"a handle displacement must be 3 finite numbers, got {delta!r}")
+            raise DeformerError(f"a handle {what} must be 3 finite numbers, got {value!r}")
         e = self._edit(edit)
         v = self._vertex(vertex)
         if v not in e.offsets:
             raise DeformerError(f"vertex {v} is not a handle of that edit")
+        return e, v, d
+
+    def move_handle(self, vertex: int, delta, edit: int = -1) -> None:
+        """Add a model-space displacement (3,) mm to one handle of an edit."""
+        e, v, d = self._handle_vector(vertex, delta, edit, "displacement")
         e.offsets[v] = e.offsets[v] + d
 
     def set_offset(self, vertex: int, offset, edit: int = -1) -> None:
         """Place one handle of an edit at rest + ``offset`` (3,) mm."""
-        d = np.asarray(offset, dtype=np.float64)
-        if d.shape != (3,) or not np.all(np.isfinite(d)):
-            raise DeformerError(f"a handle offset must be 3 finite numbers, got {offset!r}")
-        e = self._edit(edit)
-        v = self._vertex(vertex)
-        if v not in e.offsets:
-            raise DeformerError(f"vertex {v} is not a handle of that edit")
+        e, v, d = self._handle_vector(vertex, offset, edit, "offset")
         e.offsets[v] = d
 
     def edit_of(self, vertex: int) -> int | None:
