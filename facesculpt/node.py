@@ -293,16 +293,8 @@ class Node:
         message for nodes that join later. ``reliable``: block instead of dropping."""
         topic = self.resolve(topic)
         pub = Publisher(self.ctx, topic, msg_type, endpoint=new_endpoint(self.transport, self.host), hwm=hwm,
-                        reliable=reliable, latch=latch, security=self.security)
+                        reliable=reliable, latch=latch, on_latch=self.link.push_latched, security=self.security)
         self.publishers[topic] = pub
-        if latch:
-            original = pub.publish_frames
-
-            def publish_and_latch(frames, timeout_s=5.0, _original=original, _topic=topic):
-                ok = _original(frames, timeout_s)
-                self.link.push_latched(_topic, pub.last_frames)
-                return ok
-            pub.publish_frames = publish_and_latch
         self.link.invalidate()  # re-register everything, including this publisher
         return pub
 

@@ -60,8 +60,9 @@ class Publisher:
 
     def __init__(self, ctx: zmq.Context, topic: str, msg_type: type[Message] | None, *,
                  endpoint: str | None = None, hwm: int | None = None, reliable: bool = False,
-                 latch: bool = False, security=None):
+                 latch: bool = False, on_latch: Callable[[str, list], None] | None = None, security=None):
         self.topic = topic
+        self.on_latch = on_latch  # told of every latched message (the node forwards it to the master)
         self.msg_type = msg_type
         self.type_name = msg_type.TYPE if msg_type else "*"
         self.latch = latch
@@ -145,6 +146,8 @@ class Publisher:
             self.count += 1
         if self.latch:
             self.last_frames = [bytes(f) for f in frames]
+            if self.on_latch is not None:
+                self.on_latch(self.topic, self.last_frames)
         return True
 
     def close(self) -> None:
