@@ -189,6 +189,7 @@ class Receiver(threading.Thread):
         self.wakeup = wakeup          # notified whenever something is ready to deliver
         self.lock = wakeup            # guards Subscription.latest/pending
         self.commands: queue.Queue = queue.Queue()
+        self.command_posted = threading.Event()  # wakes the thread while it has no socket to poll
         self.subs: list[Subscription] = []
         self.sockets: dict[int, zmq.Socket] = {}   # id(sub) -> socket
         self.running = True
@@ -197,13 +198,16 @@ class Receiver(threading.Thread):
     # -- called from other threads --------------------------------------------------
     def add(self, sub: Subscription) -> None:
         self.commands.put(("add", sub, None))
+        self.command_posted.set()
 
     def set_endpoints(self, sub: Subscription, endpoints: set) -> None:
         self.commands.put(("endpoints", sub, set(endpoints)))
+        self.command_posted.set()
 
     def inject(self, sub: Subscription, frames: list) -> None:
         """Deliver frames that did not come through the socket (latched messages from the master)."""
         self.commands.put(("inject", sub, frames))
+        self.command_posted.set()
 
     def stop(self) -> None:
         self.running = False
@@ -292,10 +296,8 @@ class Receiver(threading.Thread):
             if not self.sockets:
                 # zmq_poll returns at once with nothing to poll: wait for a command instead
                 # (a publish-only node would otherwise spin a core).
-                try:
-                    self.commands.put(self.commands.get(timeout=0.05))
-                except queue.Empty:
-                    pass
+                self.command_posted.wait(0.05)
+                self.command_posted.clear()  # _apply at the top of the loop takes what was posted, in order
                 continue
             try:
                 ready = dict(poller.poll(50))
