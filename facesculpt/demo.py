@@ -43,8 +43,7 @@ class DemoListener(Node):
 
     def setup(self):
         self.frames: collections.OrderedDict[int, np.ndarray] = collections.OrderedDict()
-        self.pairs: list[tuple[np.ndarray, np.ndarray]] = []
-        self.first_pair: tuple[np.ndarray, np.ndarray] | None = None
+        self.last_pair: tuple[np.ndarray, np.ndarray] | None = None  # (camera frame, its rendering)
         self.rendered = 0
         self.stages: dict[str, dict[str, list[float]]] = collections.defaultdict(lambda: collections.defaultdict(list))
         self.rates: dict[str, dict[str, float]] = {}
@@ -61,9 +60,7 @@ class DemoListener(Node):
         self.rendered += 1
         before = self.frames.get(msg.stamp)
         if before is not None and before.shape == msg.image.shape:
-            pair = (before, np.array(msg.image))
-            self.first_pair = self.first_pair or pair
-            self.pairs = [pair]
+            self.last_pair = (before, np.array(msg.image))
 
     def on_diagnostics(self, msg: Diagnostics):
         if msg.node.startswith("_"):
@@ -131,10 +128,10 @@ def cmd_demo(args) -> int:
         if master_proc is not None:
             master_proc.terminate()
             master_proc.wait(5)
-    if not listener.pairs:
+    if listener.last_pair is None:
         raise RuntimeError(f"no rendered frame came out of the graph ({listener.rendered} rendered); "
                            "run `facesculpt setup` if the networks are missing, or see the log above")
-    before, after = listener.pairs[-1]
+    before, after = listener.last_pair
     cv2.imwrite(str(out / "before_after.png"), before_after(before, after))
     table, data = timing_table(listener)
     (out / "timing.md").write_text(table)
