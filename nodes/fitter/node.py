@@ -30,7 +30,8 @@ class FitterNode(Node):
     NAME = "fitter"
     PARAMS = {
         "model": "facemesh",  # "facemesh", or a .npz model file (facesculpt model import-eos)
-        "iterations": 5,  # pose / correspondence / coefficient iterations per frame
+        "iterations": 5,  # pose / correspondence / coefficient iterations per frame (cold start)
+        "tracking_iterations": 2,  # iterations when warm-started from the previous frame
         "projection": "auto",  # "perspective" (with the frame's K), "orthographic", or auto: K if valid
         "shape_lambda": 3.0,  # Eq. 2 regularisation, mm²
         "expression_lambda": 4.0,
@@ -95,7 +96,8 @@ class FitterNode(Node):
             projection = "perspective" if K is not None else "orthographic"
         return Fitter(
             self.model, image_size=image_size, K=K if projection == "perspective" else None, projection=projection,
-            iterations=self.params.iterations, shape_lambda=self.params.shape_lambda,
+            iterations=self.params.iterations, tracking_iterations=self.params.tracking_iterations,
+            shape_lambda=self.params.shape_lambda,
             expression_lambda=self.params.expression_lambda, outline=self.params.outline,
             smoothing=self.params.smoothing, smooth_min_cutoff=self.params.min_cutoff,
             neutral_frames=self.params.neutral_frames,

@@ -177,8 +177,9 @@ def visible_candidates(
     visible = facing & ~hidden
     if rim_only:
         if perspective:
-            centroids = vertices_cam[geometry.cand_tris].mean(axis=1)
-            face_facing = (fn * centroids).sum(axis=1) < 0
+            # The normal is perpendicular to its triangle: any of its corners gives the centroid's dot product.
+            corner = vertices_cam[geometry.cand_tris[:, 0]]
+            face_facing = (fn * corner).sum(axis=1) < 0
         else:
             face_facing = fn[:, 2] < 0
         visible &= geometry.rim(face_facing)
