@@ -127,12 +127,9 @@ def read_frames(spec: str, count: int) -> tuple[list[np.ndarray], float]:
 
 
 def preset_paths() -> list[Path]:
-    root = Path(__file__).resolve().parent.parent / "examples" / "presets"
-    paths = [root / name for name in PRESETS]
-    missing = [str(p) for p in paths if not p.is_file()]
-    if missing:
-        raise FileNotFoundError(f"example presets missing: {', '.join(missing)}")
-    return paths
+    from facesculpt.paths import preset_file
+
+    return [preset_file(name) for name in PRESETS]
 
 
 # -- in-process stages ----------------------------------------------------------------------------

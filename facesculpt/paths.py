@@ -58,19 +58,31 @@ def shared_data_dir() -> Path | None:
     return None
 
 
-def launch_file(name_or_path: str) -> Path:
-    """Resolve a launch file given as a path, or as the name of one shipped in launch/."""
+def _shipped_file(name_or_path: str, folder: Path, suffix: str, what: str) -> Path:
+    """A file given as a path, or as the name (with or without ``suffix``) of one shipped in ``folder``."""
     path = Path(name_or_path)
     if path.is_file():
         return path
-    from facesculpt import launch as launch_pkg
-
-    shipped = Path(launch_pkg.__file__).parent
-    for candidate in (shipped / name_or_path, shipped / f"{name_or_path}.yaml"):
+    for candidate in (folder / name_or_path, folder / f"{name_or_path}{suffix}"):
         if candidate.is_file():
             return candidate
-    known = ", ".join(sorted(p.stem for p in shipped.glob("*.yaml"))) or "none"
-    raise FileNotFoundError(f"launch file {name_or_path!r} not found (shipped launch files: {known})")
+    known = ", ".join(sorted(p.stem for p in folder.glob(f"*{suffix}"))) or "none"
+    raise FileNotFoundError(f"{what} {name_or_path!r} not found (shipped: {known})")
+
+
+def launch_file(name_or_path: str) -> Path:
+    """Resolve a launch file given as a path, or as the name of one shipped in launch/."""
+    from facesculpt import launch as launch_pkg
+
+    return _shipped_file(name_or_path, Path(launch_pkg.__file__).parent, ".yaml", "launch file")
+
+
+def preset_file(name_or_path: str) -> Path:
+    """Resolve a deformer preset given as a path, or as the name of one shipped with the deformer
+    (``nose_longer``, ``chin``, ``cheeks``: the paper's Fig. 6e edits)."""
+    from facesculpt.nodes import deformer
+
+    return _shipped_file(name_or_path, Path(deformer.__file__).parent / "presets", ".json", "preset")
 
 
 def embedded_face_image() -> Path:

@@ -51,11 +51,14 @@ def load_face_model(name_or_path: str) -> MorphableModel:
 
 
 def read_preset(path: str | Path) -> dict:
-    """A deformer preset file (JSON, as :meth:`EditStack.save_preset` writes) as a dict;
-    ValueError naming the file when it cannot be read or is not JSON."""
+    """A deformer preset file (JSON, as :meth:`EditStack.save_preset` writes), or the name of a
+    shipped one (:func:`facesculpt.paths.preset_file`), as a dict; FileNotFoundError or ValueError
+    naming the file when it is missing, cannot be read or is not JSON."""
     import json
 
-    path = Path(path)
+    from facesculpt.paths import preset_file
+
+    path = preset_file(str(path))
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:

@@ -1,6 +1,6 @@
 """`facesculpt process IN -o OUT`: a video through the whole pipeline, in one process, every frame.
 
-    facesculpt process in.mp4 -o out.mp4 --edits examples/presets/nose_longer.json
+    facesculpt process in.mp4 -o out.mp4 --edits nose_longer
     facesculpt process in.mp4 -o frames/%05d.png --model sfm --side-by-side --width 856
 
 Every frame is rendered with the face fitted on that very frame (the renderer's ``sync``
@@ -31,14 +31,15 @@ def register(sub) -> None:
                        description="A video through the whole pipeline in one process, every frame: the face "
                                    "fitted on a frame is rendered on that frame; a frame without a face is "
                                    "written unchanged.",
-                       epilog="Examples: facesculpt process in.mp4 -o out.mp4 --edits examples/presets/nose_longer.json; "
+                       epilog="Examples: facesculpt process in.mp4 -o out.mp4 --edits nose_longer; "
                               "facesculpt process in.mp4 -o frames/%05d.png --side-by-side")
     p.add_argument("input", metavar="IN", help="input video file")
     p.add_argument("-o", "--output", metavar="OUT", required=True,
                    help="output video (.mp4, .mov, .m4v, .avi, .mkv) or image pattern such as out/%%05d.png "
                         "(lossless: png, bmp, tif)")
     p.add_argument("--edits", action="append", default=[], metavar="PRESET.json",
-                   help="a deformer preset to apply (repeat to stack several, in order)")
+                   help="a deformer preset file, or the name of a shipped one (nose_longer, chin, cheeks); "
+                        "repeat to stack several, in order")
     p.add_argument("--model", default="facemesh", metavar="facemesh|sfm|MODEL.npz",
                    help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
                         "non-commercial) or a .npz from `facesculpt model import-eos`")

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-PRESETS = REPO / "examples" / "presets"
+PRESETS = REPO / "nodes" / "deformer" / "presets"
 NOSE_TIP, RIGHT_EYE_OUTER, LEFT_EYE_OUTER = 1, 33, 263  # face-mesh points
 
 
@@ -47,7 +47,7 @@ def nose_run(data_dir, models_dir, tmp_path_factory):
     """d12.mp4 with the nose preset, written as a PNG sequence."""
     out = tmp_path_factory.mktemp("nose")
     pattern = out / "%05d.png"
-    result = process(data_dir / "video" / "d12.mp4", "-o", pattern, "--edits", PRESETS / "nose_longer.json")
+    result = process(data_dir / "video" / "d12.mp4", "-o", pattern, "--edits", "nose_longer")  # a shipped preset by name
     assert result.returncode == 0, result.stderr
     return out, pattern, result
 
@@ -212,3 +212,15 @@ def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, mo
                 assert np.allclose(disp[v], handle["offset"], atol=1e-6), (model.model_id, handle)
         moved = np.linalg.norm(disp, axis=1) > 0.5
         assert 10 < moved.sum() < 0.6 * len(disp), (model.model_id, moved.sum())  # a local edit
+
+
+def test_shipped_presets_resolve_by_name_and_a_missing_one_lists_them(tmp_path):
+    from facesculpt.paths import preset_file
+    from facesculpt.pipeline import read_preset
+
+    assert preset_file("chin") == preset_file("chin.json") == (PRESETS / "chin.json").resolve()
+    own = tmp_path / "chin.json"  # a file the user names wins over the shipped preset
+    own.write_text('{"edits": []}')
+    assert read_preset(own) == {"edits": []}
+    with pytest.raises(FileNotFoundError, match="nose_longer"):
+        read_preset("no_such_preset")

@@ -18,6 +18,7 @@ import numpy as np
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
 from facesculpt.node import Node
+from facesculpt.paths import preset_file
 
 from .arap import DeformerError
 from .dragging import axes_velocity, depth_delta, drag_delta
@@ -309,7 +310,13 @@ class DeformerNode(Node):
             self.count("preset_saved")
             return
         elif cmd == "load_preset":
-            self.stack.load_preset(self._preset_path(ev.argument))
+            path = self._preset_path(ev.argument)
+            if not path.is_file():
+                try:
+                    path = preset_file(ev.argument)  # the name of a shipped preset, e.g. "nose_longer"
+                except FileNotFoundError:
+                    pass  # load_preset names the missing path
+            self.stack.load_preset(path)
             self.pointers.clear()
             self.selected = None
             self.count("preset_loaded")
