@@ -40,6 +40,7 @@ from facesculpt.nodes.camera.sources import read_frames  # noqa: E402
 from facesculpt.nodes.deformer import merge_deformation  # noqa: E402
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
 from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
+from facesculpt.process_limits import limit_threads  # noqa: E402
 
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
@@ -127,7 +128,10 @@ def main(argv=None) -> int:
     ap.add_argument("--model", default="sfm", choices=("sfm", "facemesh"))
     ap.add_argument("--rounds", type=int, default=2, help="passes over the frames (the first warms up)")
     ap.add_argument("--json", help="write the figures here")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="OpenBLAS and OpenCV threads, as in the renderer node (default 1; 0: the libraries' defaults)")
     args = ap.parse_args(argv)
+    limit_threads(args.threads)  # the renderer node runs with one thread (facesculpt.process_limits)
     data = shared_data_dir()
     if data is None:
         raise SystemExit("shared data not found: set FACESCULPT_DATA")

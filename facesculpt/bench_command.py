@@ -85,9 +85,9 @@ def register(sub) -> None:
     p.add_argument("--warmup", type=float, default=2.0, help="seconds of graph output before the window (default 2)")
     p.add_argument("--camera-fps", type=float, default=60.0,
                    help="camera rate in the graph (default 60; -1: as fast as it reads)")
-    p.add_argument("--blas-threads", type=int, default=1,
-                   help="OpenBLAS threads per process, in-process and in the graph's nodes (default 1; "
-                        "0: OpenBLAS's own default, one per core)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="OpenBLAS and OpenCV threads per process, in-process and in the graph's nodes "
+                        "(default 1; 0: the libraries' own defaults, one per core)")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)
@@ -425,10 +425,9 @@ def table(result: dict) -> str:
 
 def cmd_bench(args) -> int:
     from facesculpt.pipeline import combine_presets, load_face_model, read_preset
-    from facesculpt.process_limits import limit_blas_threads
+    from facesculpt.process_limits import limit_threads
 
-    if args.blas_threads > 0:
-        limit_blas_threads(args.blas_threads)  # also in the environment the graph's processes inherit
+    limit_threads(args.threads)  # also in the environment the graph's processes inherit
     if args.frames < 5 or args.drags < 1 or args.window <= 0:
         raise ValueError("--frames must be >= 5, --drags >= 1 and --window > 0")
     models = ["facemesh", "sfm"] if args.model == "both" else [args.model]
@@ -454,7 +453,7 @@ def cmd_bench(args) -> int:
     result = {
         "input": description, "size": list(SIZE), "frames": len(frames),
         "edit": [p.stem for p in paths], "camera_fps": args.camera_fps, "pairing": "sync",
-        "blas_threads": args.blas_threads or os.environ.get("OPENBLAS_NUM_THREADS", "default"),
+        "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
     }

@@ -53,7 +53,7 @@ import yaml
 import zmq
 
 from facesculpt.master import MasterClient, master_address
-from facesculpt.process_limits import limit_blas_threads
+from facesculpt.process_limits import limit_threads
 from facesculpt.msgs import Diagnostics, Message
 from facesculpt.pubsub import Publisher, Receiver, Subscription, new_endpoint
 
@@ -529,8 +529,8 @@ def run_node(cls: type[Node], argv: list[str]) -> int:
     params.update(parse_assignments(args.params))
     remap = dict(config.get("remap", {}))
     remap.update(parse_assignments(args.remap))
-    # Many processes share few cores: one BLAS thread per node unless told otherwise.
-    limit_blas_threads(int(os.environ.get("FACESCULPT_BLAS_THREADS", "1")))
+    # Many processes share few cores: one BLAS and OpenCV thread per node unless told otherwise.
+    limit_threads(int(os.environ.get("FACESCULPT_THREADS", "1")))
     node = cls(name=args.name or config.get("name"), params=params, remap=remap,
                transport=config.get("transport", "ipc"), host=config.get("host", "127.0.0.1"))
     return node.run()

@@ -144,9 +144,9 @@ def _progress(total: int | None, desc: str, quiet: bool):
 
 def cmd_process(args) -> int:
     from facesculpt.pipeline import Pipeline, combine_presets, read_preset
-    from facesculpt.process_limits import limit_blas_threads
+    from facesculpt.process_limits import limit_threads
 
-    limit_blas_threads(1)  # one thread per stage is faster here (see limit_blas_threads)
+    limit_threads(1)  # one thread per stage is faster here (see facesculpt.process_limits)
     if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:
         raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
     source = open_input(args.input)

@@ -8,7 +8,7 @@ import pytest
 from renderer_scene import read_frames
 
 from facesculpt.nodes.renderer.camera import estimate_projection, project
-from facesculpt.nodes.renderer.inpaint import fill_pushpull, fill_telea, inpaint_region, uncovered_mask
+from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
 from facesculpt.nodes.renderer.mesh import boundary_loops, close_holes
 from facesculpt.nodes.renderer.video_out import VideoOutput
 
@@ -65,20 +65,32 @@ def test_fills_need_a_source():
     with pytest.raises(ValueError, match="no source"):
         fill_telea(img, hole, np.zeros_like(hole))
     with pytest.raises(ValueError, match="unknown inpaint"):
-        inpaint_region(img, hole, ~hole, method="ns")
+        fill_by_parts(img, hole, ~hole, method="ns")
 
 
-def test_inpaint_region_works_on_the_bounding_box_only(background_patch):
+@pytest.mark.parametrize("method", ["pushpull", "telea"])
+def test_fill_by_parts_fills_each_part_on_its_own_box(background_patch, method):
+    """Two bands far apart (one per cheek): each is filled on its own box plus the margin, exactly
+    as the fill of that box alone; nothing else changes; in place writes into the given frame."""
     frame = np.zeros((400, 600, 3), np.uint8)
-    frame[100:260, 200:360] = background_patch
+    frame[100:260, 40:200] = background_patch
+    frame[180:340, 400:560] = background_patch[::-1]
     hole = np.zeros((400, 600), bool)
-    hole[100:260, 200:360] = band_hole(background_patch.shape[:2], 8)
-    out = inpaint_region(frame, hole, ~hole, method="pushpull", margin=12)
-    x, y, w, h = cv2.boundingRect(hole.astype(np.uint8))
-    crop = (slice(y - 12, y + h + 12), slice(x - 12, x + w + 12))
-    direct = fill_pushpull(frame[crop], hole[crop], ~hole[crop])
-    assert np.array_equal(out[crop], direct)
+    hole[100:260, 40:200] = band_hole(background_patch.shape[:2], 8)
+    hole[180:340, 400:560] = band_hole(background_patch.shape[:2], 12)
+    out = fill_by_parts(frame, hole, ~hole, method=method, margin=8)
     assert np.array_equal(out[~hole], frame[~hole])
+    for part in (slice(0, 300), slice(300, 600)):
+        part_hole = np.zeros_like(hole)
+        part_hole[:, part] = hole[:, part]
+        x, y, w, h = cv2.boundingRect(part_hole.astype(np.uint8))
+        crop = (slice(y - 8, y + h + 8), slice(x - 8, x + w + 8))
+        fill = fill_pushpull if method == "pushpull" else fill_telea
+        direct = fill(np.ascontiguousarray(frame[crop]), hole[crop], ~hole[crop])
+        assert np.array_equal(out[crop], direct)
+    same = frame.copy()
+    assert fill_by_parts(same, hole, ~hole, method=method, margin=8, in_place=True) is same
+    assert np.array_equal(same, out)
 
 
 def test_uncovered_mask_is_the_dilated_difference_without_slivers():

@@ -305,9 +305,8 @@ class Compositor:
             has_fill = bool(source.any())
         t_masks = time.perf_counter() - t0
         t0 = time.perf_counter()
-        background = crop
-        if has_fill:
-            background = fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius)
+        if has_fill:  # in place: the crop becomes the background (the face is blended over it below)
+            fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius, in_place=True)
         t_inpaint = time.perf_counter() - t0
 
         # Blend the face over the background with a feathered outline; write the region only.
@@ -319,7 +318,7 @@ class Compositor:
         else:
             alpha = def_mask.astype(np.float32)
         face = cv2.cvtColor(rgba, cv2.COLOR_BGRA2BGR)  # a contiguous copy of the colour
-        blended = cv2.blendLinear(face, background, alpha, 1.0 - alpha)
+        blended = cv2.blendLinear(face, crop, alpha, 1.0 - alpha)
         write = (def_mask | fill).astype(bool)
         np.copyto(crop, blended, where=write[..., None])
         t_composite = time.perf_counter() - t0

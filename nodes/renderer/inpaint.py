@@ -5,7 +5,8 @@ slightly dilated (:func:`uncovered_mask`). It is filled from the surrounding
 *background* — pixels outside the original face — inwards, never from the old
 face texture, so nothing of the face is smeared into the place it left.
 
-Two fills, both working on a crop (the region's bounding box plus a margin):
+Two fills, both working on a crop (:func:`fill_by_parts`: each connected part of the region
+on its own bounding box plus a margin):
 
 * :func:`fill_pushpull` (default, fast): a pull-push pyramid (Gortler et al.
   1996, the "Lumigraph" hole filler): known pixels are averaged down a
@@ -59,15 +60,6 @@ def uncovered_mask(original: np.ndarray, deformed: np.ndarray, dilate_px: int = 
     return dilate(diff, dilate_px)
 
 
-def _bounds(mask: np.ndarray) -> tuple[int, int, int, int] | None:
-    """(x0, y0, x1, y1), exclusive ends, of the non-zero pixels; None when there are none."""
-    pts = cv2.findNonZero(mask.astype(np.uint8, copy=False))
-    if pts is None:
-        return None
-    x, y, w, h = cv2.boundingRect(pts)
-    return x, y, x + w, y + h
-
-
 def fill_pushpull(image: np.ndarray, fill: np.ndarray, source: np.ndarray) -> np.ndarray:
     """Fill the ``fill`` pixels of ``image`` from the ``source`` pixels by pull-push.
 
@@ -80,11 +72,22 @@ def fill_pushpull(image: np.ndarray, fill: np.ndarray, source: np.ndarray) -> np
     known = source.astype(bool, copy=False) & ~fill
     if not known.any():
         raise ValueError("push-pull fill: no source pixel to fill from")
+    out = image.copy()
+    _pushpull_into(out, np.ascontiguousarray(image), fill, known)
+    return out
+
+
+def _pushpull_into(out: np.ndarray, image: np.ndarray, fill: np.ndarray, known: np.ndarray) -> None:
+    """The pull-push fill of :func:`fill_pushpull`, written into the ``fill`` pixels of ``out``.
+
+    out, image (h, w, 3) uint8 (``out`` may be a view into a larger image); fill, known (h, w)
+    bool, disjoint, ``known`` not empty. Written for small crops, where each numpy or OpenCV call
+    costs microseconds: no boolean indexing, few temporaries."""
     h, w = fill.shape
+    known_u8 = known.view(np.uint8)
     # Premultiplied colour and weight pyramids (contiguous arrays: numpy is fast on those).
-    weight = known.astype(np.float32)
-    colour = image.astype(np.float32)
-    colour *= weight[..., None]
+    weight = known_u8.astype(np.float32)
+    colour = cv2.copyTo(image, known_u8, np.zeros_like(image)).astype(np.float32)
     colours, weights = [colour], [weight]
     # Push: average down until every coarse pixel has some known sample (or 1x1).
     while max(weight.shape) > 1:
@@ -96,42 +99,43 @@ def fill_pushpull(image: np.ndarray, fill: np.ndarray, source: np.ndarray) -> np
         weights.append(weight)
         if weight.min() > 1e-6:
             break
-    # Pull: from the coarsest level, blend each finer level's own colour over the upsampled
-    # coarse fill by its confidence min(1, 4 w): it saturates where a level has enough known
-    # samples, so coarse levels only fill the gaps of finer ones. Level 0 needs no blend:
-    # its known pixels stay, its fill pixels take the pulled value.
+    # Pull: from the coarsest level, lay each finer level over the upsampled coarse fill with the
+    # confidence conf = min(1, 4 w) as its alpha. The level's colour is c / w (c premultiplied),
+    # so its share is c * conf / w = c * min(4, 1 / w) = c / max(w, 1/4). The confidence saturates
+    # where a level has enough known samples, so coarse levels only fill the gaps of finer ones.
+    # Level 0 needs no blend: its known pixels stay, its fill pixels take the pulled value.
     filled = colours[-1] / np.maximum(weights[-1], 1e-12)[..., None]
     for k in range(len(colours) - 2, 0, -1):
         lh, lw = weights[k].shape
         up = cv2.pyrUp(filled, dstsize=(lw, lh)).reshape(lh, lw, 3)
-        wk = weights[k]
-        conf = np.minimum(wk * 4.0, 1.0)
-        # colour * conf / w + up * (1 - conf), in place on the arrays this level owns
-        scale = conf / np.maximum(wk, 1e-12)
+        scale = np.maximum(weights[k], 0.25)
+        np.divide(1.0, scale, out=scale)  # min(4, 1 / w)
+        transparency = 1.0 - weights[k] * scale  # 1 - conf
         filled = colours[k]
         filled *= scale[..., None]
-        up *= (1.0 - conf)[..., None]
+        up *= transparency[..., None]
         filled += up
     up = cv2.pyrUp(filled, dstsize=(w, h)).reshape(h, w, 3)
-    out = image.copy()
-    out[fill] = (up[fill] + 0.5).astype(np.uint8)  # averages of uint8 values: in range
-    return out
+    # Averages of uint8 values are in range; convertScaleAbs rounds and saturates to uint8.
+    cv2.copyTo(cv2.convertScaleAbs(up), fill.view(np.uint8), out)
 
 
 def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, method: str = "pushpull",
-                  margin: int = 8, radius: float = 3.0) -> np.ndarray:
+                  margin: int = 8, radius: float = 3.0, in_place: bool = False) -> np.ndarray:
     """Fill each connected part of ``fill`` separately, on its bounding box plus ``margin``.
 
     The uncovered region is usually a few thin bands far apart (one per cheek): their own
     boxes hold a fraction of the pixels of one box around all of them. Same arguments and
     return as :func:`fill_pushpull` (method "pushpull" or "telea"); a part whose box holds no
-    source pixel is filled from the whole image instead.
+    source pixel is filled from the whole image instead. ``in_place``: write into ``image``
+    and return it (the parts never read each other's fill pixels: those are no source).
     """
     if method not in INPAINT_METHODS:
         raise ValueError(f"unknown inpaint method {method!r} (known: {', '.join(INPAINT_METHODS)})")
     fill_u8 = fill.astype(np.uint8, copy=False)
+    source = source.astype(bool, copy=False)
     contours, _ = cv2.findContours(fill_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    out = image.copy()
+    out = image if in_place else image.copy()
     h, w = fill.shape
     for contour in contours:
         x, y, bw, bh = cv2.boundingRect(contour)
@@ -139,14 +143,17 @@ def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, metho
         x1, y1 = min(w, x + bw + margin), min(h, y + bh + margin)
         crop = (slice(y0, y1), slice(x0, x1))
         part_fill = fill_u8[crop] != 0
-        part_source = source[crop]
-        if not (part_source.astype(bool, copy=False) & ~part_fill).any():
-            crop, part_fill, part_source = (slice(0, h), slice(0, w)), fill_u8 != 0, source
+        known = source[crop] & ~part_fill
+        if not known.any():
+            crop, part_fill = (slice(0, h), slice(0, w)), fill_u8 != 0
+            known = source & ~part_fill
+            if not known.any():
+                raise ValueError(f"{method} fill: no source pixel to fill from")
         if method == "pushpull":
-            done = fill_pushpull(image[crop], part_fill, part_source)
+            _pushpull_into(out[crop], image[crop].copy(), part_fill, known)
         else:
-            done = fill_telea(np.ascontiguousarray(image[crop]), part_fill, part_source, radius)
-        np.copyto(out[crop], done, where=part_fill[..., None])
+            done = fill_telea(np.ascontiguousarray(image[crop]), part_fill, known, radius)
+            np.copyto(out[crop], done, where=part_fill[..., None])
     return out
 
 
@@ -164,32 +171,4 @@ def fill_telea(image: np.ndarray, fill: np.ndarray, source: np.ndarray, radius: 
     painted = cv2.inpaint(image, unknown, float(radius), cv2.INPAINT_TELEA)
     out = image.copy()
     out[fill] = painted[fill]
-    return out
-
-
-def inpaint_region(image: np.ndarray, fill: np.ndarray, source: np.ndarray, method: str = "pushpull",
-                   margin: int = 12, radius: float = 3.0) -> np.ndarray:
-    """Fill ``fill`` pixels of a whole frame, working only on their bounding box plus ``margin``.
-
-    image: (H, W, 3) uint8 frame; fill, source: (H, W) masks (see :func:`fill_pushpull`).
-    method: "pushpull" or "telea". Returns a new frame equal to ``image`` outside ``fill``.
-    When the crop holds no source pixel it grows to the whole frame before giving up.
-    """
-    if method not in INPAINT_METHODS:
-        raise ValueError(f"unknown inpaint method {method!r} (known: {', '.join(INPAINT_METHODS)})")
-    box = _bounds(fill)
-    if box is None:
-        return image.copy()
-    H, W = fill.shape
-    x0, y0, x1, y1 = box
-    x0, y0 = max(0, x0 - margin), max(0, y0 - margin)
-    x1, y1 = min(W, x1 + margin), min(H, y1 + margin)
-    crop = (slice(y0, y1), slice(x0, x1))
-    fill_c, source_c = fill[crop] != 0, source[crop] != 0
-    if not (source_c & ~fill_c).any():
-        crop = (slice(0, H), slice(0, W))
-        fill_c, source_c = fill != 0, source != 0
-    fn = fill_pushpull if method == "pushpull" else (lambda i, f, s: fill_telea(i, f, s, radius))
-    out = image.copy()
-    out[crop] = fn(np.ascontiguousarray(image[crop]), fill_c, source_c)
     return out
