@@ -363,9 +363,15 @@ class Node:
         if self.timers:
             wait = max(0.0, min(wait, min(t.next_at for t in self.timers) - now))
         ready = []
+        # While it waits, this thread polls the sockets itself (no thread switch between a
+        # message's arrival and its callback); the receiver thread drains them the rest of the time.
+        rx = self.receiver
+        rx.take_sockets()
+        try:
+            rx.receive(0.0 if self._has_ready() else wait)
+        finally:
+            rx.return_sockets()
         with self.cond:
-            if not self._has_ready():
-                self.cond.wait(wait)
             for sub in self.subscriptions:
                 if sub.queued:
                     while sub.pending:
@@ -416,6 +422,8 @@ class Node:
         self.receiver.stop()
         if self.receiver.is_alive():
             self.receiver.join(1.0)
+        if not self.receiver.is_alive():
+            self.receiver.close_sockets()  # never started: its sockets are still open
         # Flush what the publishers still hold (bounded by their linger) while we are still
         # registered: unregistering first would make subscribers disconnect and lose it.
         for pub in self.publishers.values():

@@ -15,6 +15,7 @@ counts such messages.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Sequence
 
@@ -220,7 +221,7 @@ def decode(frames: Sequence, expected: type[Message] | None = None) -> tuple[str
                 isinstance(d, int) and 0 <= d < 1 << 31 for d in shape):
             raise DecodeError(f"{cls.TYPE}.{name}: bad descriptor {dtype} {shape}")
         buf = _buffer(frame)
-        nbytes = np.dtype(dtype).itemsize * int(np.prod(shape, dtype=np.int64))
+        nbytes = np.dtype(dtype).itemsize * math.prod(shape)
         if len(buf) != nbytes:
             raise DecodeError(f"{cls.TYPE}.{name}: {len(buf)} bytes for {nbytes} declared")
         kwargs[name] = np.frombuffer(buf, dtype=dtype).reshape(shape) if nbytes else np.zeros(shape, dtype)
