@@ -143,7 +143,7 @@ def drag_updates(pipeline, fit, drags: int) -> tuple[list[float], float]:
     params = DeformerNode.PARAMS
     stack = pipeline.edit_stack(roi_radius=params["roi_radius"], roi_metric=params["roi_metric"],
                                 iterations=params["iterations"], tolerance=params["tolerance"],
-                                clamp_weights=params["clamp_weights"])
+                                acceleration=params["acceleration"], clamp_weights=params["clamp_weights"])
     nose = stack.landmark_vertex("nose_tip")
     t0 = time.perf_counter()
     stack.begin([nose])

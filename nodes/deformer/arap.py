@@ -11,6 +11,13 @@ alternates that local step with a global step, a sparse linear solve over the fr
 vertices whose matrix only depends on the anchor set: it is factorised once per anchor set
 and reused while only the handle positions move.
 
+The local/global alternation converges slowly (linearly) on its long, smooth modes. By default
+each solve is Anderson-accelerated (Peng et al., "Anderson Acceleration for Geometry Optimization
+and Physics Simulation", SIGGRAPH 2018): each step extrapolates from the last few local/global
+steps, and a step that would raise the energy is replaced by the plain local/global step, so the
+energy still never increases. On a nose drag of the Surrey Face Model five accelerated iterations
+land closer to the converged mesh than ten plain ones.
+
 Anchor sets (vertex indices into the rest mesh):
 
 * ``static``  - fixed at their rest positions;
@@ -274,8 +281,77 @@ class _System:
     rot_to_rhs: sp.csr_matrix  # (n_f, 3 n_a): rhs part from rotations
     L_fh: sp.csr_matrix  # (n_f, H): coupling to the handles
     rhs_fixed: np.ndarray  # (n_f, 3): coupling to the vertices fixed at rest (negated, moved to rhs)
+    spokes: sp.csr_matrix  # (V, V): sum over active cells of w_ij |p'_i - p'_j|^2 = sum(P' * (spokes @ P'))
+    rest_spokes: float  # the same sum for the rest mesh: sum over active cells of w_ij |p_i - p_j|^2
     solve: object  # callable: (n_f, 3) -> (n_f, 3)
     factor_ms: float
+
+
+class _Anderson:
+    """Anderson acceleration (type II, Walker & Ni 2011) of a fixed-point iteration x <- G(x) over
+    the last ``depth`` steps: x_next = G(x) - dG gamma with gamma minimising |f - dF gamma|, where
+    f = G(x) - x and the rows of dF, dG are differences of consecutive f and G(x). The differences
+    live in a ring buffer and their Gram matrix is updated one row per step: a step costs a few
+    vector operations on top of G."""
+
+    # Extrapolations need weights well above 1, but a combination whose weights sum (in absolute
+    # value) past this comes from a nearly degenerate history and lands far from the solution
+    # (seen on the nose-drag benchmark: 2e-3 of the diagonal off after two such steps).
+    MAX_WEIGHT = 20.0
+
+    def __init__(self, depth: int):
+        self.depth = depth
+        self.dF: np.ndarray | None = None  # (depth, N) ring buffers
+        self.dG: np.ndarray | None = None
+        self.gram = np.zeros((depth, depth))
+        self.size = 0
+        self.head = 0
+        self.f_prev: np.ndarray | None = None
+        self.g_prev: np.ndarray | None = None
+
+    def restart(self) -> None:
+        """Forget the history."""
+        self.size = self.head = 0
+        self.f_prev = self.g_prev = None
+
+    def begin_solve(self) -> None:
+        """A new solve of the same map shifted (new handle positions): keep the history, but form
+        no difference with the previous solve's last step."""
+        self.f_prev = self.g_prev = None
+
+    def step(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The next iterate from the current one ``x`` and its image ``g`` = G(x) (same shapes;
+        ``g`` is kept, not copied: do not modify it afterwards)."""
+        gf = g.reshape(-1)
+        f = gf - x.reshape(-1)
+        if self.f_prev is not None:
+            if self.dF is None or self.dF.shape[1] != f.size:
+                self.dF = np.empty((self.depth, f.size))
+                self.dG = np.empty((self.depth, f.size))
+            k = self.head
+            np.subtract(f, self.f_prev, out=self.dF[k])
+            np.subtract(gf, self.g_prev, out=self.dG[k])
+            self.head = (k + 1) % self.depth
+            self.size = min(self.size + 1, self.depth)
+            column = self.dF[: self.size] @ self.dF[k]
+            self.gram[k, : self.size] = column
+            self.gram[: self.size, k] = column
+        self.f_prev, self.g_prev = f, gf
+        m = self.size
+        if m == 0:
+            return g
+        A = self.gram[:m, :m].copy()
+        # A tiny ridge keeps nearly collinear histories solvable.
+        A[np.diag_indices_from(A)] += 1e-12 * max(float(np.trace(A)), 1e-300)
+        try:
+            gamma = np.linalg.solve(A, self.dF[:m] @ f)
+        except np.linalg.LinAlgError:
+            self.restart()
+            return g
+        if np.abs(gamma).sum() > self.MAX_WEIGHT:  # an ill-conditioned history: start it again
+            self.restart()
+            return g
+        return (gf - gamma @ self.dG[:m]).reshape(g.shape)
 
 
 class ArapDeformer:
@@ -288,7 +364,9 @@ class ArapDeformer:
     Parameters: ``iterations`` local/global iterations per solve (default 10, libigl's);
     ``tolerance`` stop early when no vertex moved more than ``tolerance`` x the bounding-box
     diagonal in one iteration (0 disables); ``clamp_weights`` see :func:`cotangent_weights`;
-    ``rotation_method`` see :func:`fit_rotations`; ``solver`` ``"splu"`` (sparse LU of the
+    ``acceleration`` ``"anderson"`` (default: Anderson acceleration over the last ``history``
+    steps, energy-safeguarded) or ``"none"`` (the plain local/global iteration, step for step
+    libigl's); ``rotation_method`` see :func:`fit_rotations`; ``solver`` ``"splu"`` (sparse LU of the
     reduced system) or ``"dense"`` (Cholesky of the free block); ``cache_size`` anchor-set
     factorisations kept (undo returns to a cached one).
 
@@ -307,6 +385,8 @@ class ArapDeformer:
         rotation_method: str = "fast",
         solver: str = "splu",
         cache_size: int = 8,
+        acceleration: str = "anderson",
+        history: int = 5,
     ):
         V = np.asarray(vertices, dtype=np.float64)
         T = np.asarray(triangles)
@@ -320,6 +400,10 @@ class ArapDeformer:
             raise DeformerError("triangles index vertices out of range")
         if solver not in ("splu", "dense"):
             raise DeformerError(f"unknown solver {solver!r} (use 'splu' or 'dense')")
+        if acceleration not in ("anderson", "none"):
+            raise DeformerError(f"unknown acceleration {acceleration!r} (use 'anderson' or 'none')")
+        if int(history) < 1:
+            raise DeformerError(f"history must be >= 1, got {history}")
         fit_rotations(np.eye(3)[None], rotation_method)  # validates the name
         self.rest = V
         self.triangles = T.astype(np.int64)
@@ -328,6 +412,13 @@ class ArapDeformer:
         self.tolerance = float(tolerance)
         self.rotation_method = rotation_method
         self.solver = solver
+        self.acceleration = acceleration
+        self.history = int(history)
+        # Accelerated solves: the energy (units^2) of each accepted iterate, over the cells of the free
+        # vertices and their neighbours (the other cells do not change during a solve).
+        self.last_energies: list[float] = []
+        self.last_restarts = 0  # accelerated solves: extrapolations rejected for raising the energy
+        self._anderson: tuple[_System, _Anderson] | None = None  # history of the current anchor set
         self.clamp_weights = clamp_weights
         self.diagonal = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
         self.weights = cotangent_weights(V, self.triangles, clamp=clamp_weights)
@@ -412,6 +503,11 @@ class ArapDeformer:
         jj = Wa.col.astype(np.int64)
         w = Wa.data
         e = P[ii] - P[jj]
+        # energy of the active cells' spokes: sum_ij w_ij |d_ij|^2 as a quadratic form (both ends of each spoke)
+        spokes = sp.csr_matrix(
+            (np.concatenate([w, w, -w, -w]), (np.concatenate([ii, jj, ii, jj]), np.concatenate([ii, jj, jj, ii]))),
+            shape=(n, n),
+        )
         rows = (3 * Wa.row[:, None] + np.arange(3)[None, :]).ravel()  # row 3*i_local + a
         diag_vals = (w[:, None] * e).ravel()
         cov = sp.csr_matrix(
@@ -468,6 +564,8 @@ class ArapDeformer:
             rot_to_rhs=rot_to_rhs,
             L_fh=L_fh,
             rhs_fixed=rhs_fixed,
+            spokes=spokes,
+            rest_spokes=float(np.sum(P * (spokes @ P))),
             solve=solve,
             factor_ms=(time.perf_counter() - t0) * 1e3,
         )
@@ -475,8 +573,9 @@ class ArapDeformer:
     # -- solving -------------------------------------------------------------------------
 
     def reset(self) -> None:
-        """Forget the warm start: the next solve starts from the rest mesh."""
+        """Forget the warm start: the next solve starts from the rest mesh, with no acceleration history."""
         self.current = self.rest.copy()
+        self._anderson = None
 
     def solve(self, handle_positions=None, iterations: int | None = None) -> np.ndarray:
         """Deform: handles to ``handle_positions`` (H, 3) (model space, mm), static and
@@ -508,19 +607,50 @@ class ArapDeformer:
         free = sys_.free
         n_a = sys_.active.size
         tol = self.tolerance * self.diagonal
-        done = 0
-        for _ in range(iters):
+        accelerate = self.acceleration == "anderson"
+        anderson = None
+        if accelerate:
+            # The history outlives the solve while the anchor set stays: its secant pairs describe
+            # the local/global map, which a handle move only shifts. No pair spans two solves.
+            if self._anderson is None or self._anderson[0] is not sys_:
+                self._anderson = (sys_, _Anderson(self.history))
+            anderson = self._anderson[1]
+            anderson.begin_solve()
+        energies: list[float] = []
+        x = Q[free]
+        x_extrapolated = False
+        plain = x  # the last plain local/global iterate
+        done = restarts = 0
+        while done < iters:
+            Q[free] = x
             S = (sys_.cov @ Q).reshape(n_a, 3, 3)
             R = fit_rotations(S, self.rotation_method)
+            if accelerate:
+                # The energy of x's cells with their optimal rotations, nearly free from the local
+                # step: sum w |e'|^2 + sum w |e|^2 - 2 sum_i tr(R_i S_i) (e rest, e' deformed spokes).
+                energy = float(np.sum(Q * (sys_.spokes @ Q)) + sys_.rest_spokes - 2.0 * np.einsum("nab,nba->", R, S))
+                if x_extrapolated and energy > energies[-1]:
+                    # The extrapolation overshot: take the plain step from the last accepted iterate.
+                    restarts += 1
+                    anderson.restart()
+                    x, x_extrapolated = plain, False
+                    continue
+                energies.append(energy)
             Xr = np.ascontiguousarray(np.swapaxes(R, 1, 2)).reshape(3 * n_a, 3)
-            b = sys_.rot_to_rhs @ Xr + rhs_const
-            new = sys_.solve(b)
-            step = np.max(np.abs(new - Q[free])) if tol > 0 else np.inf
-            Q[free] = new
+            plain = sys_.solve(sys_.rot_to_rhs @ Xr + rhs_const)
             done += 1
-            if step <= tol:
+            step = np.max(np.abs(plain - x)) if tol > 0 else np.inf
+            if step <= tol or done == iters:
                 break
+            if accelerate:
+                x = anderson.step(x, plain)
+                x_extrapolated = anderson.size > 0
+            else:
+                x = plain
+        Q[free] = plain
         self.last_iterations = done
+        self.last_energies = energies
+        self.last_restarts = restarts
         self.current = Q
         return Q.copy()
 

@@ -35,8 +35,9 @@ class DeformerNode(Node):
     PARAMS = {
         "roi_radius": 40.0,  # mm on the neutral mesh, default ROI of a new handle
         "roi_metric": "geodesic",  # or "euclidean"
-        "iterations": 10,  # ARAP local/global iterations per solve (libigl's default)
-        "tolerance": 1e-4,  # stop early below this per-iteration motion, x bounding-box diagonal
+        "iterations": 4,  # ARAP local/global iterations per solve (Anderson-accelerated: closer than libigl's 10 plain)
+        "tolerance": 1e-5,  # stop early below this per-iteration motion, x bounding-box diagonal
+        "acceleration": "anderson",  # or "none": the plain local/global iteration
         "clamp_weights": True,  # clamp obtuse-angle cotangents at 0
         "round_s": 0.005,  # how often queued events are applied and solved
         "joystick_speed": 40.0,  # mm/s at full axis deflection
@@ -79,6 +80,7 @@ class DeformerNode(Node):
                 roi_metric=self.params.roi_metric,
                 iterations=self.params.iterations,
                 tolerance=self.params.tolerance,
+                acceleration=self.params.acceleration,
                 clamp_weights=self.params.clamp_weights,
             )
         except DeformerError as exc:
