@@ -98,6 +98,40 @@ def test_press_drags_coalesce_into_one_solve_that_follows_the_cursor(node, sfm):
     assert counters["press"] == 1 and counters["drag"] == 6
 
 
+def test_after_a_drag_idle_rounds_settle_the_edit_on_the_converged_solution(node, sfm):
+    """A drag gets a few (accelerated) iterations per round; when the events stop, idle rounds go
+    on solving until the mesh has converged, then stop: the last deformation is the ARAP solution
+    of the edit, whatever path the drag took."""
+    from facesculpt.nodes.deformer import ArapDeformer
+
+    st = face_state(sfm)
+    node.on_model(face_model(sfm))
+    node.on_state(st)
+    node.on_round()
+    nose = sfm.landmark_index()["nose_tip"]
+    x0, y0 = st.projected[nose]
+    node.on_event(ev("press", x=float(x0), y=float(y0)))
+    node.on_event(ev("drag", x=float(x0 + 40), y=float(y0 - 10), stamp=101))  # a fast flick: one round
+    node.on_round()
+    dragged = node.last.displacement.copy()
+    rounds = 0
+    while node.settle_rounds and rounds < 500:
+        node.on_round()
+        rounds += 1
+    settled = node.last
+    assert 0 < rounds < 100 and node.diagnostics()["counters"]["settle_rounds"] == rounds
+    node.on_round()  # converged: idle rounds solve nothing more
+    assert node.last is settled
+    ref = ArapDeformer(sfm.mean, sfm.triangles, acceleration="none")
+    ref.set_anchors(static=settled.static, handles=settled.handles, roi=settled.roi)
+    rest = sfm.mean.astype(np.float64)
+    ref.current = rest + settled.displacement
+    converged = ref.solve(rest[settled.handles] + settled.displacement[settled.handles], iterations=1000) - rest
+    diag = np.linalg.norm(np.ptp(rest, axis=0))
+    assert np.abs(settled.displacement - converged).max() < 1e-3 * diag
+    assert np.abs(dragged - converged).max() > np.abs(settled.displacement - converged).max()
+
+
 def test_depth_move_axes_and_commands(node, sfm, tmp_path):
     st = face_state(sfm, yaw=0.0)
     node.on_model(face_model(sfm))
@@ -158,6 +192,8 @@ def test_bad_input_is_counted_and_last_good_deformation_stays(node, sfm, tmp_pat
     node.on_event(ev("press", landmark="nose_tip"))  # no state needed for a landmark press
     node.on_event(ev("move", vector=np.array([0.0, 0.0, 5.0], np.float32)))
     node.on_round()
+    while node.settle_rounds:  # let the edit converge: idle rounds then solve nothing more
+        node.on_round()
     good = node.last
     node.on_event(ev("drag", x=100.0, y=100.0, handle=3))  # no press for pointer 3
     node.on_event(ev("press", x=1.0, y=1.0))  # no face/state yet

@@ -418,6 +418,7 @@ class ArapDeformer:
         # vertices and their neighbours (the other cells do not change during a solve).
         self.last_energies: list[float] = []
         self.last_restarts = 0  # accelerated solves: extrapolations rejected for raising the energy
+        self.last_converged = False  # the last solve stopped below the tolerance (not at the iteration cap)
         self._anderson: tuple[_System, _Anderson] | None = None  # history of the current anchor set
         self.clamp_weights = clamp_weights
         self.diagonal = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
@@ -621,6 +622,7 @@ class ArapDeformer:
         x_extrapolated = False
         plain = x  # the last plain local/global iterate
         done = restarts = 0
+        step = np.inf
         while done < iters:
             Q[free] = x
             S = (sys_.cov @ Q).reshape(n_a, 3, 3)
@@ -649,6 +651,7 @@ class ArapDeformer:
                 x = plain
         Q[free] = plain
         self.last_iterations = done
+        self.last_converged = step <= tol
         self.last_energies = energies
         self.last_restarts = restarts
         self.current = Q

@@ -28,6 +28,7 @@ from .picking import pick_vertex, project
 
 
 MAX_PENDING_WITHOUT_MODEL = 10000
+MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
 
 
 class DeformerNode(Node):
@@ -61,6 +62,7 @@ class DeformerNode(Node):
         self.velocity = np.zeros(3)  # model-space mm/s from joystick axes
         self.last_axes_at = time.monotonic()
         self.dirty = False
+        self.settle_rounds = 0  # idle rounds left to converge the last solve
         self.stamp = 0
         self.last: Deformation | None = None  # last published (the last good deformation)
         self.last_diagnostic = ""
@@ -118,8 +120,8 @@ class DeformerNode(Node):
                 del self.pending[:-MAX_PENDING_WITHOUT_MODEL]
             return
         events, self.pending = self.pending, []
-        if not events and not self.dirty and not np.any(self.velocity):
-            return  # an idle round: nothing to apply, nothing to solve
+        if not events and not self.dirty and not np.any(self.velocity) and not self.settle_rounds:
+            return  # an idle round: nothing to apply, nothing to solve, nothing left to converge
         snapshot = (copy.deepcopy(self.stack.edits), set(self.stack.static))
         for ev in events:
             self.stamp = ev.stamp or self.stamp
@@ -128,8 +130,9 @@ class DeformerNode(Node):
             except DeformerError as exc:
                 self._bad("bad_input", exc)
         self._integrate_axes()
-        if not self.dirty:
+        if not self.dirty and not self.settle_rounds:
             return
+        settling = not self.dirty
         self.dirty = False
         try:
             with self.stage("solve"):
@@ -137,8 +140,19 @@ class DeformerNode(Node):
         except DeformerError as exc:
             # e.g. an edit whose ROI holds no free vertex: roll the round back
             self.stack.edits, self.stack.static = snapshot
+            self.settle_rounds = 0
             self._bad("solve_rejected", exc)
             return
+        # A drag gets a few iterations per round; once it stops, idle rounds go on iterating until
+        # the mesh has converged (a bounded number of rounds), so the edit settles on the ARAP solution.
+        if settling:
+            self.count("settle_rounds")
+        if self.stack.deformer.last_converged or self.params.tolerance <= 0:
+            self.settle_rounds = 0
+        elif settling:
+            self.settle_rounds -= 1
+        else:
+            self.settle_rounds = MAX_SETTLE_ROUNDS
         self.publish(displacement)
 
     def publish(self, displacement: np.ndarray):
