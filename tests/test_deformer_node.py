@@ -132,6 +132,37 @@ def test_after_a_drag_idle_rounds_settle_the_edit_on_the_converged_solution(node
     assert np.abs(dragged - converged).max() > np.abs(settled.displacement - converged).max()
 
 
+def test_a_refined_neutral_keeps_the_edit_and_starts_from_it(node, sfm):
+    """The fitter refines the neutral (same mesh, identity converging): the edit carries over by
+    landmark and the solver starts from its last shape, so it settles in fewer rounds than the
+    same edit solved from the rest mesh."""
+    node.on_model(face_model(sfm))
+    node.on_round()
+    node.on_event(ev("press", landmark="nose_tip"))
+    node.on_event(ev("move", vector=np.array([0.0, 2.0, 12.0], np.float32)))
+    node.on_event(ev("release"))
+    node.on_round()
+    while node.settle_rounds:
+        node.on_round()
+    refined = face_model(sfm, version=2)
+    refined.vertices = (refined.vertices * np.float32(1.02)).astype(np.float32)
+    rounds = {}
+    for start in ("warm", "cold"):
+        if start == "cold":
+            node.stack.deformer.reset()  # the same edit on the refined neutral, solved from rest
+            node.dirty = True
+        else:
+            node.on_model(refined)
+        node.on_round()
+        rounds[start] = 1
+        while node.settle_rounds:
+            node.on_round()
+            rounds[start] += 1
+        nose = sfm.landmark_index()["nose_tip"]
+        assert np.allclose(node.last.displacement[nose], [0.0, 2.0, 12.0], atol=1e-4)
+    assert rounds["warm"] < rounds["cold"], rounds
+
+
 def test_depth_move_axes_and_commands(node, sfm, tmp_path):
     st = face_state(sfm, yaw=0.0)
     node.on_model(face_model(sfm))

@@ -96,6 +96,10 @@ class DeformerNode(Node):
                 self._bad("edits_dropped_on_model_change", exc)
         same_topology = (self.model is not None and self.model.vertices.shape == msg.vertices.shape
                          and np.array_equal(self.model.triangles, msg.triangles))
+        if same_topology and self.stack is not None and self.stack.edits:
+            # A refined neutral of the same mesh: the edit's shape barely changes, so the solver
+            # starts from it (a few iterations) instead of from the rest mesh (many).
+            stack.deformer.current = stack.rest + self.stack.displacement
         self.model, self.stack = msg, stack
         if not same_topology:
             # Vertex indices mean nothing on another mesh; on the same one (the face-mesh

@@ -31,7 +31,7 @@ class FitterNode(Node):
     PARAMS = {
         "model": "facemesh",  # "facemesh", or a .npz model file (facesculpt model import-eos)
         "iterations": 5,  # pose / correspondence / coefficient iterations per frame (cold start)
-        "tracking_iterations": 2,  # iterations when warm-started from the previous frame
+        "tracking_iterations": 1,  # iterations when warm-started from the previous frame
         "projection": "auto",  # "perspective" (with the frame's K), "orthographic", or auto: K if valid
         "shape_lambda": 3.0,  # Eq. 2 regularisation, mm²
         "expression_lambda": 4.0,
