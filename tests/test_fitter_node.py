@@ -122,6 +122,32 @@ def test_sfm_node_fits_the_68_point_mapping(monkeypatch, tmp_path, frames, data_
         node.close()
 
 
+def test_a_learned_sparse_identity_is_republished_only_for_a_real_change(monkeypatch, tmp_path, frames, data_dir):
+    """The SFM identity keeps moving a little with every frame. While it is learned (the first
+    2 x neutral_frames frames) each 0.5 mm is republished; afterwards only a change past
+    model_change_mm is."""
+    from facesculpt.nodes.fitter import save_model, sfm_from_shared
+
+    path = save_model(sfm_from_shared(data_dir), tmp_path / "sfm.npz")
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    late = {}
+    for change_mm in (0.5, 1000.0):
+        node = FitterNode(params={"model": str(path), "projection": "orthographic", "model_period_s": 0.0,
+                                  "neutral_frames": 3, "model_change_mm": change_mm})
+        node.setup()
+        published = []
+        o_model = node.model_pub.publish
+        node.model_pub.publish = lambda m: (published.append(node.fitter.frames_fitted), o_model(m))[1]
+        try:
+            for msg in frames:
+                node.on_landmarks(msg)
+        finally:
+            node.close()
+        assert any(1 <= n < 6 for n in published)  # learning
+        late[change_mm] = [n for n in published if n >= 6]
+    assert late[0.5] and not late[1000.0], late
+
+
 def test_missing_model_keeps_the_node_up(monkeypatch, tmp_path, frames):
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     node = FitterNode(params={"model": str(tmp_path / "nope.npz")})

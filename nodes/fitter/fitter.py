@@ -226,6 +226,11 @@ class Fitter:
         return self.model.instance(self._alpha.astype(np.float32))
 
     @property
+    def frames_fitted(self) -> int:
+        """Frames fitted since the last :meth:`reset`."""
+        return self._frame
+
+    @property
     def neutral_ready(self) -> bool:
         """Dense mode: the learned neutral reference is complete (frozen)."""
         return self._neutral_frozen if self.model.dense else True
