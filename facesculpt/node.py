@@ -375,7 +375,9 @@ class Node:
             # message's arrival and its callback); the receiver thread drains them the rest of the time.
             rx.take_sockets()
             try:
-                rx.receive(wait)
+                # Look again now that the receiver thread can deliver nothing more: it may have
+                # delivered between the first look and the hand-over.
+                rx.receive(0.0 if self._has_ready() else wait)
             finally:
                 rx.return_sockets()
         else:
