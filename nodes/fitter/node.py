@@ -88,14 +88,17 @@ class FitterNode(Node):
         done = f.model.dense and f.neutral_ready
         if done and self.final_published:
             return
-        change = np.abs(neutral - self.published_neutral) if self.published_neutral is not None else None
-        moved = float(change.max()) if change is not None else np.inf
-        threshold = 0.5
-        if not f.model.dense and f.frames_fitted >= 2 * self.params.neutral_frames and change is not None:
-            # Learned: judge the face itself (its landmark vertices, measured per vertex), not the
-            # skull behind it, which the landmarks barely constrain (it swings by 3-5 mm a second).
-            moved = float(np.linalg.norm(change[f.model.landmark_vertices], axis=1).max())
-            threshold = self.params.model_change_mm
+        learned = not f.model.dense and f.frames_fitted >= 2 * self.params.neutral_frames
+        threshold = self.params.model_change_mm if learned else 0.5
+        if self.published_neutral is None:
+            moved = np.inf
+        elif learned:
+            # Judge the face itself (its landmark vertices, measured per vertex), not the skull
+            # behind it, which the landmarks barely constrain (it swings by 3-5 mm a second).
+            change = neutral[f.model.landmark_vertices] - self.published_neutral[f.model.landmark_vertices]
+            moved = float(np.linalg.norm(change, axis=1).max())
+        else:
+            moved = float(np.abs(neutral - self.published_neutral).max())
         if (done and moved > 0) or (moved > threshold and now_s - self.last_model_publish >= self.params.model_period_s):
             self.publish_model(neutral, stamp)
             self.last_model_publish = now_s
