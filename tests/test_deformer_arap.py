@@ -293,6 +293,10 @@ def test_bad_input_raises_deformer_error_and_keeps_state(sfm):
         d.solve(np.zeros((2, 3)))
     with pytest.raises(DeformerError):
         ArapDeformer(V, F, solver="cholmod")
+    with pytest.raises(DeformerError, match="acceleration"):
+        ArapDeformer(V, F, acceleration="nesterov")
+    with pytest.raises(DeformerError, match="history"):
+        ArapDeformer(V, F, history=0)
     # the anchors and warm start from before the errors are intact
     assert list(d.handles) == h
     assert np.array_equal(d.current, good)
