@@ -478,7 +478,7 @@ class Node:
         period = max(1e-3, now_wall - self._diag_window.get("at", now_wall - self.DIAGNOSTICS_PERIOD_S))
         self._diag_window["at"] = now_wall
         values: dict[str, Any] = {"rate_hz": {}, "age_ms": {}, "received": {}, "dropped": {},
-                                  "malformed": {}, "published": {}, "publisher_lost_s": {}}
+                                  "malformed": {}, "published": {}, "subscribers": {}, "publisher_lost_s": {}}
         now = time.monotonic()
         with self.cond:
             for sub in self.subscriptions:
@@ -494,6 +494,7 @@ class Node:
                     values["publisher_lost_s"][sub.topic] = round(now - sub.publisher_lost_at, 1)
         for topic, pub in self.publishers.items():
             values["published"][topic] = pub.count
+            values["subscribers"][topic] = pub.subscriber_count()  # who is connected now, not who registered
         stages = {k: round(sum(v) / len(v), 3) for k, v in self.stage_times.items() if v}
         self.stage_times = {k: [] for k in self.stage_times}
         values.update(errors=self.errors, last_error=self.last_error, stages_ms=stages,

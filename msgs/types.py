@@ -156,7 +156,7 @@ class Diagnostics(Message):
     """Per-node figures, published about once a second on `diagnostics`.
 
     values: {"rate_hz": {topic: Hz}, "age_ms": {topic: ms}, "received", "dropped",
-    "malformed", "published": {topic: n}, "errors": n, "last_error": str,
+    "malformed", "published": {topic: n}, "subscribers": {topic: n connected}, "errors": n, "last_error": str,
     "stages_ms": {stage: mean ms}, "counters": {name: n}}.
     """
 

@@ -150,7 +150,7 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     """The graph: this test plays camera + fitter (real frame, posed SFM); the renderer (window)
     and the deformer run as real processes. A drag sent with xdotool on the nose reaches the
     deformer as input/events, and the window then shows a changed nose."""
-    from facesculpt.msgs import FaceModel, FaceState, Image, InputEvent
+    from facesculpt.msgs import Diagnostics, FaceModel, FaceState, Image, InputEvent
     from facesculpt.node import Node
     from facesculpt.nodes.fitter import sfm_from_shared
 
@@ -168,8 +168,14 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
             self.model_pub = self.advertise("face/model", FaceModel, latch=True)
             self.events = []
             self.subscribe("input/events", InputEvent, self.events.append, queued=True)
+            self.listeners = 0  # the renderer's input/events subscribers, from its diagnostics
+            self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, queued=True)
             self.timer(1 / 15, self.tick)
             self.n = 0
+
+        def on_diagnostics(self, msg):
+            if msg.node == "renderer":
+                self.listeners = msg.values.get("subscribers", {}).get("input/events", 0)
 
         def tick(self):
             self.n += 1
@@ -191,8 +197,9 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
 
     def window_up():
         if not found:
-            r = subprocess.run(["xdotool", "search", "--name", title], env=dict(os.environ, DISPLAY=display),
-                               capture_output=True)
+            # --onlyvisible: the window exists before it is mapped, and xwd fails on an unmapped one.
+            r = subprocess.run(["xdotool", "search", "--onlyvisible", "--name", title],
+                               env=dict(os.environ, DISPLAY=display), capture_output=True)
             found.extend(r.stdout.split())
         return bool(found)
 
@@ -201,13 +208,20 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     shots = []
 
     def shows(predicate):
-        shots.append(screenshot(display, wid))
+        try:
+            shots.append(screenshot(display, wid))
+        except subprocess.CalledProcessError:
+            return False  # the window is being mapped or resized (xwd fails with BadMatch): try again
         return predicate(shots[-1])
 
     # No edit yet: the window shows the frame itself.
     assert graph.spin_until(feeder, lambda: shows(lambda s: s.shape == (H, W, 3) and psnr(s, frame) > 40), 20.0)
     before = shots[-1]
 
+    # A press sent before the deformer has connected to the renderer would be lost (a slow start
+    # under load): wait until the renderer counts both listeners (this feeder and the deformer).
+    assert graph.spin_until(feeder, lambda: feeder.listeners == 2, 30.0), \
+        f"the deformer did not connect to input/events ({feeder.listeners} listeners)"
     x, y = np.round(pose.projected[pose.landmarks["nose_tip"]]).astype(int)
     path = [(x + dx, y) for dx in (0, 8, 16, 24, 32)]
     args = ["mousemove", "--window", wid, str(path[0][0]), str(path[0][1]), "mousedown", "1"]
