@@ -36,6 +36,7 @@ log = logging.getLogger("facesculpt.pubsub")
 SMALL_TYPES = {"InputEvent", "Diagnostics", "Deformation", "FaceModel"}
 DEFAULT_HWM_SMALL = 10000
 DEFAULT_HWM_LARGE = 4
+_SNDMORE, _NOBLOCK = int(zmq.SNDMORE), int(zmq.NOBLOCK)  # plain ints: IntFlag arithmetic is slow
 QUEUE_LIMIT = 10000
 DISCONNECT_GRACE_S = 2.0
 
@@ -132,27 +133,38 @@ class Publisher:
 
     def publish_frames(self, frames: list, timeout_s: float = 5.0) -> bool:
         """Send already-encoded ``[header, *arrays]`` frames verbatim (bag playback)."""
-        parts = [self._topic_bytes] + list(frames)
+        # Subscriptions are read by subscriber_count() (and diagnostics each second), not here:
+        # a publish sits in every message's latency, where each call costs several times its
+        # warm time (the thread wakes with cold caches).
         with self._lock:
-            self._read_subscriptions()
             if self.reliable:
                 deadline = time.monotonic() + timeout_s
                 while True:
                     try:
-                        self.sock.send_multipart(parts, zmq.NOBLOCK, copy=False)
+                        self._send(frames, _NOBLOCK)
                         break
                     except zmq.Again:
                         if time.monotonic() > deadline:
                             return False
                         self.sock.poll(10, zmq.POLLOUT)
             else:
-                self.sock.send_multipart(parts, copy=False)
+                self._send(frames, 0)
             self.count += 1
         if self.latch:
             self.last_frames = [bytes(f) for f in frames]
             if self.on_latch is not None:
                 self.on_latch(self.topic, self.last_frames)
         return True
+
+    def _send(self, frames: list, flags: int) -> None:
+        # Socket.send part by part with int flags: send_multipart's type checks and IntFlag
+        # arithmetic cost more than the sends. Only the first part can raise zmq.Again (a
+        # multipart message is queued whole or not at all). Large arrays go without a copy.
+        send = self.sock.send
+        send(self._topic_bytes, flags | _SNDMORE)
+        last = len(frames) - 1
+        for i, frame in enumerate(frames):
+            send(frame, flags | _SNDMORE if i < last else flags, copy=False)
 
     def close(self) -> None:
         self.sock.close()
@@ -207,8 +219,11 @@ class Receiver(threading.Thread):
         self.disconnect_at: dict[tuple[int, str], float] = {}
         # Socket ownership: whoever holds ``own`` may use the sockets.
         self.own = threading.Lock()
-        self.node_turn = threading.Event()      # the node's thread wants (or has) the sockets
-        self.handed_back = threading.Event()    # the node's thread gave them back
+        # Held by the node's thread from the moment it wants the sockets until it gives them back:
+        # this thread waits on it. Plain locks and a flag, no Event: giving the sockets back sits
+        # between a message's arrival and its callback, where every Python-level call shows.
+        self.node_gate = threading.Lock()
+        self.node_wants = False                 # the node's thread wants (or has) the sockets
         self.node_has_sockets = False
         self.poller = zmq.Poller()              # the SUB sockets (polled by the node's thread)
         self.drain_poller = zmq.Poller()        # the SUB sockets and the yield socket (this thread)
@@ -244,7 +259,8 @@ class Receiver(threading.Thread):
         """Take the sockets from the receiver thread (it lets go within microseconds)."""
         if self.node_has_sockets:
             return
-        self.node_turn.set()
+        self.node_gate.acquire()
+        self.node_wants = True
         try:
             self.yield_out.send(b"", zmq.NOBLOCK)
         except zmq.ZMQError:  # a full pipe already holds a wake-up
@@ -257,9 +273,9 @@ class Receiver(threading.Thread):
         if not self.node_has_sockets:
             return
         self.node_has_sockets = False
-        self.node_turn.clear()
+        self.node_wants = False
         self.own.release()
-        self.handed_back.set()
+        self.node_gate.release()
 
     def receive(self, timeout_s: float) -> bool:
         """Apply pending commands, wait up to ``timeout_s`` for messages and deliver them into the
@@ -386,12 +402,12 @@ class Receiver(threading.Thread):
     # -- the thread -----------------------------------------------------------------------
     def run(self) -> None:
         while self.running:
-            if self.node_turn.is_set():  # the node's thread polls: wait until it gives them back
-                self.handed_back.wait(0.05)
-                self.handed_back.clear()
+            if self.node_wants:  # the node's thread polls: wait until it gives them back
+                if self.node_gate.acquire(timeout=0.05):
+                    self.node_gate.release()
                 continue
             with self.own:
-                while self.running and not self.node_turn.is_set():
+                while self.running and not self.node_wants:
                     self._apply()
                     if self.disconnect_at:
                         self._disconnect_due()

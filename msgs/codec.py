@@ -15,7 +15,6 @@ counts such messages.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Sequence
 
@@ -92,8 +91,24 @@ class Message:
             setattr(cls, "_schema_cache", cached)
         return cached
 
+    @classmethod
+    def _decode_plan(cls):
+        """What :func:`decode` checks, precomputed: ({array name: (dtype str, itemsize, shape)},
+        ((scalar name, accepted types), ...), required array names)."""
+        cached = cls.__dict__.get("_decode_plan_cache")
+        if cached is None:
+            arrays, scalars = cls._schema()
+            cached = ({name: (spec.dtype, np.dtype(spec.dtype).itemsize, spec.shape) for name, spec in arrays},
+                      scalars, tuple(name for name, spec in arrays if not spec.optional))
+            setattr(cls, "_decode_plan_cache", cached)
+        return cached
+
+    def check(self) -> None:
+        """Rules of a message type beyond its fields' types (a value out of its set, ...): raise
+        DecodeError. Override in a subclass; both :meth:`validate` and :func:`decode` call it."""
+
     def validate(self) -> None:
-        """Raise DecodeError if a field does not match the declared type."""
+        """Raise DecodeError if a field does not match the declared type, or :meth:`check` fails."""
         arrays, scalars = self._schema()
         for name, kinds in scalars:
             value = getattr(self, name)
@@ -102,6 +117,7 @@ class Message:
         dims: dict[str, int] = {}
         for name, spec in arrays:
             _check_array(self.TYPE, name, getattr(self, name), spec, dims)
+        self.check()
 
     # -- wire ---------------------------------------------------------------
     def to_frames(self) -> list:
@@ -203,37 +219,52 @@ def decode(frames: Sequence, expected: type[Message] | None = None) -> tuple[str
         raise DecodeError("header lacks fields")
     if len(meta) != len(frames) - 2:
         raise DecodeError(f"header declares {len(meta)} arrays, {len(frames) - 2} frames came")
-    arrays, scalars = cls._schema()
-    specs = dict(arrays)
+    # One pass that checks everything Message.validate() checks, so the message is built valid
+    # and not checked twice: this runs on every message, right before its callback.
+    array_plan, scalar_plan, required = cls._decode_plan()
     kwargs: dict[str, Any] = {}
-    for name, _ in scalars:
+    for name, kinds in scalar_plan:
         if name in scalars_in:
-            kwargs[name] = scalars_in[name]
-    for (entry, frame) in zip(meta, frames[2:]):
+            value = scalars_in[name]
+            if kinds is not None and (not isinstance(value, kinds) or kinds == (int,) and isinstance(value, bool)):
+                raise DecodeError(f"{cls.TYPE}.{name}: expected {kinds[0].__name__}, got {type(value).__name__}")
+            kwargs[name] = value
+    dims: dict[str, int] = {}
+    for entry, frame in zip(meta, frames[2:]):
         if not (isinstance(entry, list) and len(entry) == 3 and isinstance(entry[0], str)
                 and isinstance(entry[1], str) and isinstance(entry[2], list)):
             raise DecodeError("malformed array descriptor")
         name, dtype, shape = entry
-        spec = specs.get(name)
-        if spec is None:
+        plan = array_plan.get(name)
+        if plan is None:
             raise DecodeError(f"{cls.TYPE} has no array {name!r}")
-        if dtype != spec.dtype or len(shape) != len(spec.shape) or not all(
-                isinstance(d, int) and 0 <= d < 1 << 31 for d in shape):
+        want_dtype, itemsize, want_shape = plan
+        if dtype != want_dtype or len(shape) != len(want_shape):
             raise DecodeError(f"{cls.TYPE}.{name}: bad descriptor {dtype} {shape}")
+        nbytes = itemsize
+        for size, want in zip(shape, want_shape):
+            if type(size) is not int or not 0 <= size < 1 << 31:
+                raise DecodeError(f"{cls.TYPE}.{name}: bad descriptor {dtype} {shape}")
+            if want.__class__ is int:
+                if size != want:
+                    raise DecodeError(f"{cls.TYPE}.{name}: shape {tuple(shape)} does not match {want_shape}")
+            elif want is not None and dims.setdefault(want, size) != size:
+                raise DecodeError(f"{cls.TYPE}.{name}: dimension {want}={size} disagrees with {dims[want]}")
+            nbytes *= size
         buf = _buffer(frame)
-        nbytes = np.dtype(dtype).itemsize * math.prod(shape)
         if len(buf) != nbytes:
             raise DecodeError(f"{cls.TYPE}.{name}: {len(buf)} bytes for {nbytes} declared")
         kwargs[name] = np.frombuffer(buf, dtype=dtype).reshape(shape) if nbytes else np.zeros(shape, dtype)
-    for name, spec in arrays:
-        if name not in kwargs and not spec.optional:
+    for name in required:
+        if name not in kwargs:
             raise DecodeError(f"{cls.TYPE}.{name}: missing array")
+    for name in array_plan:
         kwargs.setdefault(name, None)
     try:
         msg = cls(**kwargs)
     except TypeError as exc:
         raise DecodeError(str(exc)) from None
-    msg.validate()
+    msg.check()
     return topic, msg
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .codec import Message, array, register
+from .codec import DecodeError, Message, array, register
 
 
 @register
@@ -124,10 +124,7 @@ class InputEvent(Message):
     argument: str = ""
     source: str = ""
 
-    def validate(self) -> None:
-        super().validate()
-        from .codec import DecodeError
-
+    def check(self) -> None:
         if self.kind not in INPUT_KINDS:
             raise DecodeError(f"InputEvent.kind {self.kind!r} is not one of {', '.join(INPUT_KINDS)}")
 

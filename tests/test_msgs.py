@@ -73,6 +73,25 @@ def test_named_dimensions_must_agree():
         encode(InputEvent(kind="teleport"), "input/events")
 
 
+@pytest.mark.parametrize("msg, match", [
+    (Image(image=np.zeros((4, 4), np.uint8)), "descriptor"),
+    (Image(image=np.zeros((4, 4, 4), np.uint8)), "shape"),
+    (Image(K=np.eye(4)), "shape"),
+    (Image(seq="7"), "seq: expected int"),
+    (Image(stamp=True), "stamp: expected int"),
+    (FaceState(vertices=np.zeros((5, 3), np.float32), projected=np.zeros((4, 2), np.float32)), "disagrees"),
+    (InputEvent(kind="teleport"), "kind"),
+], ids=lambda v: v if isinstance(v, str) else v.TYPE)
+def test_decode_refuses_what_validate_refuses(msg, match):
+    """decode checks in one pass what validate() checks: forged frames (encoded without
+    validation, as a foreign publisher might send them) are refused with the same reasons."""
+    with pytest.raises(DecodeError):
+        msg.validate()
+    frames = [b"topic"] + [bytes(f) for f in msg.to_frames()]
+    with pytest.raises(DecodeError, match=match):
+        decode(frames)
+
+
 def test_decode_refuses_the_wrong_type_for_a_topic():
     frames = [bytes(f) for f in encode(EXAMPLES[0], "camera/image")]
     with pytest.raises(DecodeError, match="Image where InputEvent"):
