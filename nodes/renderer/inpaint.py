@@ -80,14 +80,15 @@ def fill_pushpull(image: np.ndarray, fill: np.ndarray, source: np.ndarray) -> np
 def _pushpull_into(out: np.ndarray, image: np.ndarray, fill: np.ndarray, known: np.ndarray) -> None:
     """The pull-push fill of :func:`fill_pushpull`, written into the ``fill`` pixels of ``out``.
 
-    out, image (h, w, 3) uint8 (``out`` may be a view into a larger image); fill, known (h, w)
-    bool, disjoint, ``known`` not empty. Written for small crops, where each numpy or OpenCV call
+    out, image (h, w, 3) uint8, views into larger images allowed, the same array allowed (only
+    ``known`` pixels are read, only ``fill`` pixels written); fill, known (h, w) bool, disjoint,
+    ``known`` not empty. Written for small crops, where each numpy or OpenCV call
     costs microseconds: no boolean indexing, few temporaries."""
     h, w = fill.shape
     known_u8 = known.view(np.uint8)
     # Premultiplied colour and weight pyramids (contiguous arrays: numpy is fast on those).
     weight = known_u8.astype(np.float32)
-    colour = cv2.copyTo(image, known_u8, np.zeros_like(image)).astype(np.float32)
+    colour = cv2.copyTo(image, known_u8, np.zeros((h, w, 3), np.uint8)).astype(np.float32)
     colours, weights = [colour], [weight]
     # Push: average down until every coarse pixel has some known sample (or 1x1).
     while max(weight.shape) > 1:
@@ -97,7 +98,7 @@ def _pushpull_into(out: np.ndarray, image: np.ndarray, fill: np.ndarray, known: 
         weight = weight.reshape(colour.shape[:2])
         colours.append(colour)
         weights.append(weight)
-        if weight.min() > 1e-6:
+        if cv2.minMaxLoc(weight)[0] > 1e-6:
             break
     # Pull: from the coarsest level, lay each finer level over the upsampled coarse fill with the
     # confidence conf = min(1, 4 w) as its alpha. The level's colour is c / w (c premultiplied),
@@ -143,14 +144,15 @@ def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, metho
         x1, y1 = min(w, x + bw + margin), min(h, y + bh + margin)
         crop = (slice(y0, y1), slice(x0, x1))
         part_fill = fill_u8[crop] != 0
-        known = source[crop] & ~part_fill
+        known = source[crop] > part_fill  # source and not fill, in one operation
         if not known.any():
             crop, part_fill = (slice(0, h), slice(0, w)), fill_u8 != 0
             known = source & ~part_fill
             if not known.any():
                 raise ValueError(f"{method} fill: no source pixel to fill from")
         if method == "pushpull":
-            _pushpull_into(out[crop], image[crop].copy(), part_fill, known)
+            # Reads only known pixels, which no part writes: ``image`` may be ``out``.
+            _pushpull_into(out[crop], image[crop], part_fill, known)
         else:
             done = fill_telea(np.ascontiguousarray(image[crop]), part_fill, known, radius)
             np.copyto(out[crop], done, where=part_fill[..., None])
