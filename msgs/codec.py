@@ -111,9 +111,7 @@ class Message:
         """Raise DecodeError if a field does not match the declared type, or :meth:`check` fails."""
         arrays, scalars = self._schema()
         for name, kinds in scalars:
-            value = getattr(self, name)
-            if kinds is not None and not isinstance(value, kinds) or isinstance(value, bool) and kinds == (int,):
-                raise DecodeError(f"{self.TYPE}.{name}: expected {kinds[0].__name__}, got {type(value).__name__}")
+            _check_scalar(self.TYPE, name, getattr(self, name), kinds)
         dims: dict[str, int] = {}
         for name, spec in arrays:
             _check_array(self.TYPE, name, getattr(self, name), spec, dims)
@@ -157,12 +155,21 @@ def _check_array(type_name: str, name: str, value, spec: ArraySpec, dims: dict) 
         raise DecodeError(f"{type_name}.{name}: dtype {value.dtype} != {np.dtype(spec.dtype)}")
     if value.ndim != len(spec.shape):
         raise DecodeError(f"{type_name}.{name}: {value.ndim} dims, expected {len(spec.shape)}")
-    for size, want in zip(value.shape, spec.shape):
+    _check_shape(type_name, name, value.shape, spec.shape, dims)
+
+
+def _check_scalar(type_name: str, name: str, value, kinds: tuple | None) -> None:
+    if kinds is not None and (not isinstance(value, kinds) or kinds == (int,) and isinstance(value, bool)):
+        raise DecodeError(f"{type_name}.{name}: expected {kinds[0].__name__}, got {type(value).__name__}")
+
+
+def _check_shape(type_name: str, name: str, shape: tuple, want_shape: tuple, dims: dict) -> None:
+    """Fixed sizes match; a named dimension agrees with its earlier value in ``dims`` (recorded)."""
+    for size, want in zip(shape, want_shape):
         if isinstance(want, int) and size != want:
-            raise DecodeError(f"{type_name}.{name}: shape {value.shape} does not match {spec.shape}")
-        if isinstance(want, str):
-            if dims.setdefault(want, size) != size:
-                raise DecodeError(f"{type_name}.{name}: dimension {want}={size} disagrees with {dims[want]}")
+            raise DecodeError(f"{type_name}.{name}: shape {shape} does not match {want_shape}")
+        if isinstance(want, str) and dims.setdefault(want, size) != size:
+            raise DecodeError(f"{type_name}.{name}: dimension {want}={size} disagrees with {dims[want]}")
 
 
 REGISTRY: dict[str, type[Message]] = {}
@@ -226,8 +233,7 @@ def decode(frames: Sequence, expected: type[Message] | None = None) -> tuple[str
     for name, kinds in scalar_plan:
         if name in scalars_in:
             value = scalars_in[name]
-            if kinds is not None and (not isinstance(value, kinds) or kinds == (int,) and isinstance(value, bool)):
-                raise DecodeError(f"{cls.TYPE}.{name}: expected {kinds[0].__name__}, got {type(value).__name__}")
+            _check_scalar(cls.TYPE, name, value, kinds)
             kwargs[name] = value
     dims: dict[str, int] = {}
     for entry, frame in zip(meta, frames[2:]):
@@ -242,15 +248,11 @@ def decode(frames: Sequence, expected: type[Message] | None = None) -> tuple[str
         if dtype != want_dtype or len(shape) != len(want_shape):
             raise DecodeError(f"{cls.TYPE}.{name}: bad descriptor {dtype} {shape}")
         nbytes = itemsize
-        for size, want in zip(shape, want_shape):
+        for size in shape:
             if type(size) is not int or not 0 <= size < 1 << 31:
                 raise DecodeError(f"{cls.TYPE}.{name}: bad descriptor {dtype} {shape}")
-            if want.__class__ is int:
-                if size != want:
-                    raise DecodeError(f"{cls.TYPE}.{name}: shape {tuple(shape)} does not match {want_shape}")
-            elif want is not None and dims.setdefault(want, size) != size:
-                raise DecodeError(f"{cls.TYPE}.{name}: dimension {want}={size} disagrees with {dims[want]}")
             nbytes *= size
+        _check_shape(cls.TYPE, name, tuple(shape), want_shape, dims)
         buf = _buffer(frame)
         if len(buf) != nbytes:
             raise DecodeError(f"{cls.TYPE}.{name}: {len(buf)} bytes for {nbytes} declared")

@@ -147,7 +147,7 @@ def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, metho
         known = source[crop] > part_fill  # source and not fill, in one operation
         if not known.any():
             crop, part_fill = (slice(0, h), slice(0, w)), fill_u8 != 0
-            known = source & ~part_fill
+            known = source > part_fill
             if not known.any():
                 raise ValueError(f"{method} fill: no source pixel to fill from")
         if method == "pushpull":
