@@ -126,10 +126,9 @@ class Publisher:
         modify them afterwards). Returns False when a reliable send timed out."""
         if self.msg_type is not None and not isinstance(msg, self.msg_type):
             raise TypeError(f"{self.topic} carries {self.type_name}, not {type(msg).__name__}")
-        msg.validate()
         if not msg.seq:
             msg.seq = self.count + 1
-        return self.publish_frames(msg.to_frames(), timeout_s)
+        return self.publish_frames(msg.to_frames(), timeout_s)  # validates as it encodes
 
     def publish_frames(self, frames: list, timeout_s: float = 5.0) -> bool:
         """Send already-encoded ``[header, *arrays]`` frames verbatim (bag playback)."""
