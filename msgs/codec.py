@@ -125,8 +125,7 @@ class Message:
         fields = {}
         for name, kinds in scalars:
             value = getattr(self, name)
-            if kinds is not None and type(value) is not kinds[0]:  # exact type: the common case
-                _check_scalar(type_name, name, value, kinds)
+            _check_scalar(type_name, name, value, kinds)
             fields[name] = value
         dims: dict[str, int] = {}
         meta, buffers = [], []
@@ -169,7 +168,9 @@ def _check_array(type_name: str, name: str, value, spec: ArraySpec, dims: dict) 
 
 
 def _check_scalar(type_name: str, name: str, value, kinds: tuple | None) -> None:
-    if kinds is not None and (not isinstance(value, kinds) or kinds == (int,) and isinstance(value, bool)):
+    if kinds is None or type(value) is kinds[0]:  # untyped, or exactly the declared type: the common case
+        return
+    if not isinstance(value, kinds) or kinds == (int,) and isinstance(value, bool):
         raise DecodeError(f"{type_name}.{name}: expected {kinds[0].__name__}, got {type(value).__name__}")
 
 
@@ -242,8 +243,7 @@ def decode(frames: Sequence, expected: type[Message] | None = None) -> tuple[str
     for name, kinds in scalar_plan:
         if name in scalars_in:
             value = scalars_in[name]
-            if kinds is not None and type(value) is not kinds[0]:  # exact type: the common case
-                _check_scalar(cls.TYPE, name, value, kinds)
+            _check_scalar(cls.TYPE, name, value, kinds)
             kwargs[name] = value
     dims: dict[str, int] = {}
     for entry, frame in zip(meta, frames[2:]):
