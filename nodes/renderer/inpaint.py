@@ -69,7 +69,7 @@ def fill_pushpull(image: np.ndarray, fill: np.ndarray, source: np.ndarray) -> np
     Raises ValueError when there is no source pixel at all.
     """
     fill = fill.astype(bool, copy=False)
-    known = source.astype(bool, copy=False) & ~fill
+    known = source.astype(bool, copy=False) > fill  # source and not fill, as fill_by_parts computes it
     if not known.any():
         raise ValueError("push-pull fill: no source pixel to fill from")
     out = image.copy()
