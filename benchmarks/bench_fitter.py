@@ -173,7 +173,8 @@ def real_video(model, max_frames: int = 400) -> str:
     from facesculpt.paths import MissingModelsError
 
     try:
-        from facesculpt.nodes.landmarks import LandmarkDetector, to_ibug68
+        from facesculpt.geometry import to_ibug68
+        from facesculpt.nodes.landmarks import LandmarkDetector
 
         detector = LandmarkDetector()
     except (ImportError, MissingModelsError) as exc:

@@ -37,10 +37,10 @@ sys.path.insert(0, str(REPO / "tests"))
 from renderer_scene import issue_edit, place_fitted, place_marked  # noqa: E402
 
 from facesculpt.nodes.camera.sources import read_frames  # noqa: E402
-from facesculpt.nodes.deformer import merge_deformation  # noqa: E402
+from facesculpt.geometry import merge_deformation  # noqa: E402
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
 from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
-from facesculpt.process_limits import limit_threads  # noqa: E402
+from facesculpt.runtime.process_limits import limit_threads  # noqa: E402
 
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
@@ -54,7 +54,8 @@ def geometry(frames, model_name: str, data_dir: Path):
     model = sfm_from_shared(data_dir) if model_name == "sfm" else facemesh_model()
     out = []
     if (model_home() / "manifest.json").is_file():
-        from facesculpt.nodes.landmarks import LandmarkDetector, to_ibug68
+        from facesculpt.geometry import to_ibug68
+        from facesculpt.nodes.landmarks import LandmarkDetector
 
         detector = LandmarkDetector()
         first = place_fitted(model, frames[0], detector)
@@ -131,7 +132,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1,
                     help="OpenBLAS and OpenCV threads, as in the renderer node (default 1; 0: the libraries' defaults)")
     args = ap.parse_args(argv)
-    limit_threads(args.threads)  # the renderer node runs with one thread (facesculpt.process_limits)
+    limit_threads(args.threads)  # the renderer node runs with one thread (facesculpt.runtime.process_limits)
     data = shared_data_dir()
     if data is None:
         raise SystemExit("shared data not found: set FACESCULPT_DATA")

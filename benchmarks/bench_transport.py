@@ -84,7 +84,7 @@ def run_raw(transport: str, n: int, rate_hz: float) -> dict:
 def _runtime_receiver(n: int, out: mp.Queue, env: dict) -> None:
     os.environ.update(env)
     from facesculpt.msgs import Image
-    from facesculpt.node import Node
+    from facesculpt.runtime.node import Node
 
     node = Node(name=f"bench_rx_{os.getpid()}")
     lat, times = [], []
@@ -105,7 +105,7 @@ def _runtime_receiver(n: int, out: mp.Queue, env: dict) -> None:
 def run_runtime(transport: str, n: int, rate_hz: float, env: dict) -> dict:
     os.environ.update(env)
     from facesculpt.msgs import Image
-    from facesculpt.node import Node
+    from facesculpt.runtime.node import Node
 
     results = {}
     for mode, rate in (("latency", rate_hz), ("throughput", 0.0)):

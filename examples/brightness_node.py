@@ -12,7 +12,7 @@ It finds the running graph through the master (FACESCULPT_MASTER), receives
 import numpy as np
 
 from facesculpt.msgs import Image
-from facesculpt.node import Node
+from facesculpt.runtime import Node
 
 
 class Brightness(Node):

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from facesculpt.msgs import InputEvent
-from facesculpt.node import Node
+from facesculpt.runtime import Node
 
 
 class Wiggle(Node):

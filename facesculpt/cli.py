@@ -13,13 +13,13 @@ import logging
 import sys
 
 COMMAND_MODULES = [
-    "facesculpt.commands",  # master, run, launch, node, topic, bag
-    "facesculpt.demo",      # demo: the main job
-    "facesculpt.nodes.fitter.cli",  # model import-eos, model info
-    "facesculpt.setup_models",  # setup
-    "facesculpt.security",  # keys generate
-    "facesculpt.process_command",  # process
-    "facesculpt.bench_command",  # bench
+    "facesculpt.app.graph_commands",  # master, run, launch, node, topic, bag
+    "facesculpt.app.demo",      # demo: the main job
+    "facesculpt.app.model_commands",  # model import-eos, model info
+    "facesculpt.app.setup_models",  # setup
+    "facesculpt.app.keys_command",  # keys generate
+    "facesculpt.app.process",  # process
+    "facesculpt.app.bench",  # bench
 ]
 
 

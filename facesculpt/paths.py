@@ -80,9 +80,12 @@ def launch_file(name_or_path: str) -> Path:
 def preset_file(name_or_path: str) -> Path:
     """Resolve a deformer preset given as a path, or as the name of one shipped with the deformer
     (``nose_longer``, ``chin``, ``cheeks``: the paper's Fig. 6e edits)."""
-    from facesculpt.nodes import deformer
+    import importlib.util
 
-    return _shipped_file(name_or_path, Path(deformer.__file__).parent / "presets", ".json", "preset")
+    # Found on disk, not imported: paths sits below every layer and imports no node.
+    spec = importlib.util.find_spec("facesculpt.nodes.deformer")
+    folder = Path(list(spec.submodule_search_locations)[0]) / "presets"
+    return _shipped_file(name_or_path, folder, ".json", "preset")
 
 
 def embedded_face_image() -> Path:

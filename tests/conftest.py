@@ -105,7 +105,7 @@ def graph(monkeypatch):
     g = Graph(env)
     g.address = address
     g.master = g.spawn("master")
-    from facesculpt.master import master_alive
+    from facesculpt.runtime.master import master_alive
 
     deadline = time.monotonic() + 10
     while not master_alive(address, 0.2):

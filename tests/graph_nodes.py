@@ -10,7 +10,7 @@ import numpy as np
 import psutil
 
 from facesculpt.msgs import Image, InputEvent
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 
 class ImagePublisher(Node):

@@ -7,7 +7,7 @@ import time
 import psutil
 
 from facesculpt.msgs import REGISTRY
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 
 class AllTypesCounter(Node):

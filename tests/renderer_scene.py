@@ -94,7 +94,7 @@ def place_fitted(model, frame: np.ndarray, detector) -> Placement:
     """The model fitted to ``frame`` by the real pipeline: the landmark detector (468 points;
     their iBUG-68 subset for a sparse model) and the fitter (orthographic by default)."""
     from facesculpt.nodes.fitter import Fitter
-    from facesculpt.nodes.landmarks import to_ibug68
+    from facesculpt.geometry import to_ibug68
 
     faces = detector.detect(frame)
     assert faces, "no face detected in the frame"

@@ -13,9 +13,9 @@ import cv2
 import numpy as np
 import pytest
 
-from facesculpt.bag import MAGIC, BagError, BagReader, BagWriter
+from facesculpt.runtime.bag import MAGIC, BagError, BagReader, BagWriter
 from facesculpt.msgs import Image, decode, encode
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 
 def _video_frames(path) -> list[np.ndarray]:

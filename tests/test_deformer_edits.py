@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from facesculpt.nodes.deformer import DeformerError, EditStack, merge_deformation
+from facesculpt.geometry import merge_deformation
+from facesculpt.nodes.deformer import DeformerError, EditStack
 from facesculpt.nodes.deformer.anchors import distances_from, roi_within_radius
 
 
@@ -210,7 +211,7 @@ def fit_video(model, data_dir, models_dir, name, frames=12):
     cv2 = pytest.importorskip("cv2")
     from facesculpt.nodes.fitter import Fitter
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
-    from facesculpt.nodes.landmarks.ibug68 import to_ibug68
+    from facesculpt.geometry import to_ibug68
 
     detector = LandmarkDetector(models_dir)
     cap = cv2.VideoCapture(str(data_dir / "video" / f"{name}.mp4"))
@@ -232,7 +233,8 @@ def test_preset_from_one_video_applies_to_another(model, data_dir, models_dir, t
     """Edits made on the person fitted in d0.mp4, saved, loaded on the person in d3.mp4: the same
     named landmarks move by the same model-space offsets, and in d3's frame they move on screen by
     that offset in d3's head pose; a click on d3's deformed face picks the moved nose."""
-    from facesculpt.nodes.deformer.picking import pick_vertex, project
+    from facesculpt.geometry import project
+    from facesculpt.nodes.deformer.picking import pick_vertex
 
     fit_a, person_a = fit_video(model, data_dir, models_dir, "d0")
     fit_b, person_b = fit_video(model, data_dir, models_dir, "d3")

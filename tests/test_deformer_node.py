@@ -11,9 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
-from facesculpt.nodes.deformer import merge_deformation
+from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.deformer.node import DeformerNode
-from facesculpt.nodes.deformer.picking import project
+from facesculpt.geometry import project
 
 K = np.array([[900.0, 0.0, 320.0], [0.0, 900.0, 240.0], [0.0, 0.0, 1.0]])
 
@@ -256,7 +256,7 @@ def test_bad_input_is_counted_and_last_good_deformation_stays(node, sfm, tmp_pat
 
 def test_real_process_receives_every_event_and_publishes(graph, sfm):
     """`facesculpt run deformer` in its own process: latched model, state, 40 queued moves."""
-    from facesculpt.node import Node
+    from facesculpt.runtime.node import Node
 
     proc = graph.spawn("run", "deformer", "round_s=0.02")
     client = Node(name="deformer_test_client")

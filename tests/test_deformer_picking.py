@@ -7,10 +7,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from facesculpt.nodes.deformer import ArapDeformer, merge_deformation
+from facesculpt.geometry import merge_deformation
+from facesculpt.nodes.deformer import ArapDeformer
 from facesculpt.nodes.deformer.anchors import roi_within_radius
-from facesculpt.nodes.deformer.dragging import axes_velocity, camera_to_model_vector, depth_delta, drag_delta
-from facesculpt.nodes.deformer.picking import pick_vertex, pixel_ray, project
+from facesculpt.geometry import axes_velocity
+from facesculpt.nodes.deformer.dragging import camera_to_model_vector, depth_delta, drag_delta
+from facesculpt.geometry import pixel_ray, project
+from facesculpt.nodes.deformer.picking import pick_vertex
 
 W, H = 640, 480
 K = np.array([[900.0, 0.0, 322.0], [0.0, 900.0, 236.0], [0.0, 0.0, 1.0]])

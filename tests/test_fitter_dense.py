@@ -74,7 +74,7 @@ def test_dense_fit_reproduces_the_points_and_learns_a_neutral(tracked):
 
 
 def test_dense_and_sfm_fits_agree_on_the_head_pose(tracked, data_dir):
-    from facesculpt.nodes.landmarks import to_ibug68
+    from facesculpt.geometry import to_ibug68
 
     size, frames = tracked
     dense = Fitter("facemesh", size, smoothing=False)

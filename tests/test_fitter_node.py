@@ -161,7 +161,7 @@ def test_missing_model_keeps_the_node_up(monkeypatch, tmp_path, frames):
 
 
 def test_real_process_publishes_state_and_latched_model(graph, frames):
-    from facesculpt.node import Node
+    from facesculpt.runtime.node import Node
 
     proc = graph.spawn("run", "fitter", "model=facemesh", "neutral_frames=3")
     client = Node(name="fitter_test_client")

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
+from facesculpt.geometry.projection import project, project_orthographic
 from facesculpt.nodes.fitter import fitting, pose
 from facesculpt.nodes.fitter.outline import closest_point_barycentric
 from facesculpt.nodes.fitter.smoothing import OneEuroFilter
@@ -19,7 +20,7 @@ def test_scaled_orthographic_pose_is_recovered_exactly_and_from_a_warm_start():
     X = _points()
     R = pose.rotation_from_euler(-35, 12, 4)
     t = np.array([320.0, 240.0, 0.0])
-    x = pose.project_orthographic(X, R, t, 1.7)
+    x = project_orthographic(X, R, t, 1.7)
     R2, t2, s2 = pose.scaled_orthographic(X, x)
     np.testing.assert_allclose(R2, R, atol=1e-9)
     np.testing.assert_allclose(t2, t, atol=1e-7)
@@ -34,7 +35,7 @@ def test_perspective_pose_is_recovered_exactly():
     R = pose.rotation_from_euler(25, -10, -3)
     t = np.array([15.0, -20.0, 700.0])
     K = np.array([[900.0, 0, 330], [0, 880.0, 250], [0, 0, 1]])
-    x = pose.project_perspective(X @ R.T + t, K)
+    x = project(X @ R.T + t, K)
     R2, t2 = pose.perspective(X, x, K)
     np.testing.assert_allclose(R2, R, atol=1e-8)
     np.testing.assert_allclose(t2, t, atol=1e-5)
@@ -43,7 +44,7 @@ def test_perspective_pose_is_recovered_exactly():
     for k in range(3):
         d = np.zeros(3)
         d[k] = eps
-        num = (pose.project_perspective((X @ R.T + t)[:2] + d, K) - pose.project_perspective((X @ R.T + t)[:2] - d, K)) / (2 * eps)
+        num = (project((X @ R.T + t)[:2] + d, K) - project((X @ R.T + t)[:2] - d, K)) / (2 * eps)
         np.testing.assert_allclose(J[:, :, k], num, rtol=1e-6, atol=1e-8)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import yaml
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 from conftest import REPO_ROOT
 from test_input_script import sfm, sfm_model_msg, sfm_state_msg  # noqa: F401  (sfm is a fixture)

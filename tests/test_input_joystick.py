@@ -12,8 +12,8 @@ import time
 import numpy as np
 
 from facesculpt.msgs import Diagnostics, FaceModel, FaceState, InputEvent
-from facesculpt.node import Node
-from facesculpt.nodes.deformer.dragging import axes_velocity
+from facesculpt.runtime.node import Node
+from facesculpt.geometry import axes_velocity
 from facesculpt.nodes.input.joystick import JoystickNode
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from facesculpt.msgs import InputEvent
-from facesculpt.nodes.deformer.dragging import axes_velocity
+from facesculpt.geometry import axes_velocity
 from facesculpt.nodes.input.protocol import (
     InputError,
     JoystickMapper,

@@ -11,8 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, InputEvent
-from facesculpt.node import Node
-from facesculpt.nodes.deformer.picking import project
+from facesculpt.runtime.node import Node
+from facesculpt.geometry import project
 
 from conftest import REPO_ROOT
 
@@ -147,7 +147,7 @@ def _record_bag(video, path, frames: int) -> None:
     """A bag of `camera/image` from a real video, as `facesculpt bag record` writes it."""
     import cv2
 
-    from facesculpt.bag import BagWriter
+    from facesculpt.runtime.bag import BagWriter
     from facesculpt.msgs import Image
     from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 
@@ -174,7 +174,7 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
     import cv2
 
     from facesculpt.msgs import Image
-    from facesculpt.nodes.deformer import merge_deformation
+    from facesculpt.geometry import merge_deformation
 
     bag = tmp_path / "d3.bag"
     _record_bag(data_dir / "video" / "d3.mp4", bag, 120)

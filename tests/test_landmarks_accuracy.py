@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from facesculpt.nodes.landmarks import IBUG68_FROM_MESH, LandmarkDetector, normalised_mean_error, to_ibug68
+from facesculpt.geometry import IBUG68_FROM_MESH, normalised_mean_error, to_ibug68
+from facesculpt.nodes.landmarks import LandmarkDetector
 
 # The photos' faces are as small as 37 pixels in 500-pixel images: look for faces down to 5 %
 # of the short side.

@@ -14,7 +14,7 @@ from facesculpt.nodes.landmarks.detector import (DETECTOR_SIZE, MESH_SIZE, Landm
                                                  OnnxNetwork, crop_image)
 from facesculpt.nodes.landmarks.tflite_reader import TfliteFormatError, read_tflite
 from facesculpt.nodes.landmarks.tflite_to_onnx import UnsupportedOperatorError, convert_tflite
-from facesculpt.setup_models import DOWNLOADS_DIR, WHEEL_NAME
+from facesculpt.app.setup_models import DOWNLOADS_DIR, WHEEL_NAME
 
 Interpreter = pytest.importorskip("ai_edge_litert.interpreter").Interpreter
 

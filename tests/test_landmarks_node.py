@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, Image
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 
 def _collect(graph, models_dir, source, frames, timeout=60):

@@ -15,9 +15,9 @@ import psutil
 import pytest
 import yaml
 
-from facesculpt.launcher import load_launch
+from facesculpt.runtime.launcher import load_launch
 from facesculpt.msgs import Image
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 from conftest import REPO_ROOT
 

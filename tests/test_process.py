@@ -199,7 +199,7 @@ def test_interrupt_keeps_partial_output(data_dir, models_dir, tmp_path):
 def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, models_dir):
     from facesculpt.nodes.deformer import EditStack
     from facesculpt.nodes.fitter import load_model
-    from facesculpt.pipeline import read_preset
+    from facesculpt.app.pipeline import read_preset
 
     preset = read_preset(PRESETS / f"{name}.json")
     for model in (load_model("facemesh"), load_model("sfm")):
@@ -216,7 +216,7 @@ def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, mo
 
 def test_shipped_presets_resolve_by_name_and_a_missing_one_lists_them(tmp_path):
     from facesculpt.paths import preset_file
-    from facesculpt.pipeline import read_preset
+    from facesculpt.app.pipeline import read_preset
 
     assert preset_file("chin") == preset_file("chin.json") == (PRESETS / "chin.json").resolve()
     own = tmp_path / "chin.json"  # a file the user names wins over the shipped preset

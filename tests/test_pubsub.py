@@ -10,7 +10,7 @@ import msgpack
 import numpy as np
 
 from facesculpt.msgs import Diagnostics, InputEvent, encode
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 NODES = "tests/graph_nodes.py"
 

@@ -16,7 +16,7 @@ import psutil
 import yaml
 
 from facesculpt.msgs import FaceState, Image
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 from conftest import REPO_ROOT
 

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from facesculpt.bag import BagReader, BagWriter
+from facesculpt.runtime.bag import BagReader, BagWriter
 from facesculpt.msgs import Diagnostics, FaceState, Image, decode
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 from facesculpt.nodes.renderer.video_out import VideoOutput
 
 

@@ -13,7 +13,7 @@ import zmq
 
 from facesculpt.msgs import (REGISTRY, Deformation, Diagnostics, FaceLandmarks, FaceModel, FaceState, Image,
                              InputEvent, decode)
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 NODES = "tests/reliability_nodes.py"
 N_BAD = 10000
@@ -180,7 +180,7 @@ def test_decode_path_holds_no_memory():
     import zmq
 
     from facesculpt.msgs import REGISTRY
-    from facesculpt.pubsub import Receiver, Subscription
+    from facesculpt.runtime.pubsub import Receiver, Subscription
 
     receiver = Receiver(zmq.Context(), threading.Condition())
     examples = _valid_examples()

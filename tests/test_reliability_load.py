@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 
 from facesculpt.msgs import Diagnostics, Image
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 NODES = "tests/reliability_nodes.py"
 FPS = 15.0

@@ -23,7 +23,7 @@ from renderer_scene import (
     read_frames,
 )
 
-from facesculpt.nodes.deformer import merge_deformation
+from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.renderer import Compositor
 from facesculpt.nodes.renderer.gl_context import create_headless_context
 

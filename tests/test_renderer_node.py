@@ -9,8 +9,8 @@ import numpy as np
 from renderer_scene import issue_edit, place_marked, read_frames
 
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, Image
-from facesculpt.node import Node
-from facesculpt.nodes.deformer import merge_deformation
+from facesculpt.runtime.node import Node
+from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.renderer import Compositor
 
 MS = 1_000_000

@@ -151,7 +151,7 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     and the deformer run as real processes. A drag sent with xdotool on the nose reaches the
     deformer as input/events, and the window then shows a changed nose."""
     from facesculpt.msgs import Diagnostics, FaceModel, FaceState, Image, InputEvent
-    from facesculpt.node import Node
+    from facesculpt.runtime.node import Node
     from facesculpt.nodes.fitter import sfm_from_shared
 
     model = sfm_from_shared(data_dir)

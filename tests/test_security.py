@@ -14,10 +14,10 @@ import pytest
 import yaml
 import zmq
 
-from facesculpt.master import MasterClient, master_alive
+from facesculpt.runtime.master import MasterClient, master_alive
 from facesculpt.msgs import Image, InputEvent
-from facesculpt.node import Node
-from facesculpt.security import Security, SecurityError, generate_keypair
+from facesculpt.runtime.node import Node
+from facesculpt.runtime.security import Security, SecurityError, generate_keypair
 
 from conftest import REPO_ROOT, free_port
 
@@ -138,7 +138,7 @@ def test_keys_command_and_a_secure_launch_file(graph, data_dir, tmp_path):
 
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump({"security": {"keys": "./nowhere"}, "nodes": [{"node": "camera"}]}))
-    from facesculpt.launcher import load_launch
+    from facesculpt.runtime.launcher import load_launch
 
     with pytest.raises(ValueError, match="nowhere"):
         load_launch(bad)

@@ -14,7 +14,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from facesculpt.setup_models import (DOWNLOADS_DIR, MANIFEST_FILE, TRIANGLES_FILE, WHEEL_NAME, WHEEL_SHA256,
+from facesculpt.app.setup_models import (DOWNLOADS_DIR, MANIFEST_FILE, TRIANGLES_FILE, WHEEL_NAME, WHEEL_SHA256,
                                      SetupError, manifest_is_valid, run_setup, sha256_file)
 
 # pip pointed at a closed local port: any download attempt fails at once.

@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from facesculpt.msgs import Image
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 from .intrinsics import intrinsics_from_fov
 from .sources import SourceError, open_source, resize_frame

@@ -134,7 +134,7 @@ class BagImageSource(FrameSource):
     """The `camera/image` records of a bag (or another topic), in order."""
 
     def __init__(self, path: str, topic: str = "camera/image", loop: bool = False, restamp: bool = True):
-        from facesculpt.bag import BagReader
+        from facesculpt.runtime.bag import BagReader
 
         self.reader = BagReader(path)
         self.topic = topic

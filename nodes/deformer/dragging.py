@@ -1,14 +1,14 @@
 """Turning pointer and joystick input into model-space displacements of a handle.
 
 Pose convention (FaceState): ``x_cam = scale * R @ x_model + t``, camera space as in
-picking.py. A camera-space displacement ``dc`` is ``R.T @ dc / scale`` in model space (mm).
+facesculpt.geometry.projection. A camera-space displacement ``dc`` is ``R.T @ dc / scale`` in model space (mm).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .picking import pixel_ray
+from facesculpt.geometry.projection import pixel_ray
 
 
 def camera_to_model_vector(delta_cam: np.ndarray, R: np.ndarray, scale: float) -> np.ndarray:
@@ -54,19 +54,3 @@ def depth_delta(
         away = np.array([0.0, 0.0, 1.0])
     away_model = np.asarray(R, dtype=np.float64).T @ away  # a unit vector stays unit under R^T
     return -float(depth_mm) * away_model
-
-
-def axes_velocity(axes, speed_mm_s: float, deadzone: float = 0.1) -> np.ndarray:
-    """Model-space velocity (3,) mm/s from joystick axes in -1..1 (A,).
-
-    Axis 0 -> +x, axis 1 -> -y (stick pushed forward/up reads negative on most devices and
-    should move the face point up, +y in model space), axis 2 -> +z (out of the face).
-    Values inside ``deadzone`` read as 0; the rest is rescaled so the response starts at 0.
-    """
-    a = np.zeros(3)
-    given = np.asarray(axes, dtype=np.float64).ravel()[:3]
-    given = np.where(np.isfinite(given), given, 0.0)
-    a[: given.size] = np.clip(given, -1.0, 1.0)
-    mag = np.abs(a)
-    a = np.where(mag > deadzone, np.sign(a) * (mag - deadzone) / max(1.0 - deadzone, 1e-9), 0.0)
-    return float(speed_mm_s) * a * np.array([1.0, -1.0, 1.0])

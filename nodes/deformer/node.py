@@ -17,14 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
-from facesculpt.node import Node
+from facesculpt.geometry import axes_velocity, merge_deformation, project
+from facesculpt.runtime.node import Node
 from facesculpt.paths import preset_file
 
 from .arap import DeformerError
-from .dragging import axes_velocity, depth_delta, drag_delta
+from .dragging import depth_delta, drag_delta
 from .edits import EditStack
-from .merge import merge_deformation
-from .picking import pick_vertex, project
+from .picking import pick_vertex
 
 
 MAX_PENDING_WITHOUT_MODEL = 10000

@@ -1,10 +1,7 @@
 """Picking: a pixel becomes a ray through the camera, the ray hits the current (deformed)
 fitted mesh, and the nearest vertex of the hit triangle becomes the handle.
 
-Camera conventions (those of FaceState and the fitter): camera space is OpenCV's (x right,
-y down, z away from the camera).  ``perspective``: pixels ``u = fx X / Z + cx`` (K), the ray
-starts at the camera centre.  ``orthographic`` (scaled orthographic): camera space is in pixel
-scale and a point's pixel is its (x, y); K is not used; every ray is parallel to +z.
+Camera conventions: :mod:`facesculpt.geometry.projection`.
 """
 
 from __future__ import annotations
@@ -13,8 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-PROJECTIONS = ("perspective", "orthographic")
-
+from facesculpt.geometry.projection import pixel_ray
 
 @dataclass
 class Pick:
@@ -26,28 +22,6 @@ class Pick:
     point: np.ndarray
     distance: float
     barycentric: np.ndarray
-
-
-def pixel_ray(x: float, y: float, K: np.ndarray, projection: str = "perspective") -> tuple[np.ndarray, np.ndarray]:
-    """Ray (origin (3,), unit direction (3,)) in camera space through pixel (x, y); ``K`` (3, 3)
-    is used under ``perspective`` only."""
-    if projection == "perspective":
-        d = np.linalg.solve(np.asarray(K, dtype=np.float64), np.array([x, y, 1.0]))
-        return np.zeros(3), d / np.linalg.norm(d)
-    if projection == "orthographic":
-        return np.array([x, y, 0.0], dtype=np.float64), np.array([0.0, 0.0, 1.0])
-    raise ValueError(f"unknown projection {projection!r} (use one of {PROJECTIONS})")
-
-
-def project(points: np.ndarray, K: np.ndarray, projection: str = "perspective") -> np.ndarray:
-    """Pixels (N, 2) of camera-space points (N, 3) under the conventions above."""
-    P = np.asarray(points, dtype=np.float64)
-    if projection == "perspective":
-        h = P @ np.asarray(K, dtype=np.float64).T
-        return h[:, :2] / h[:, 2:3]
-    if projection == "orthographic":
-        return P[:, :2].copy()
-    raise ValueError(f"unknown projection {projection!r} (use one of {PROJECTIONS})")
 
 
 def ray_mesh_hit(

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facesculpt.geometry.projection import project
 from facesculpt.nodes.fitter import fitting, pose
 from facesculpt.nodes.fitter import outline as outline_corr
 from facesculpt.nodes.fitter.model import MorphableModel, load_model, normalise_facemesh_neutral
@@ -294,7 +295,7 @@ class Fitter:
         C = X @ R.T + t
         if (C[:, 2] <= 1e-6).any():
             raise pose.PoseError("the fitted face falls behind the camera")
-        return C, pose.project_perspective(C, self.K)
+        return C, project(C, self.K)
 
     def _linearisation(self, C: np.ndarray, R, s):
         """Jacobians (L, 2, 3) of pixels w.r.t. model points and the local px-per-mm scale (L,)."""
@@ -528,7 +529,7 @@ class Fitter:
             vertices = np.column_stack([X, Y, Z])
             t_out = np.array([(t[0] - self.K[0, 2]) * Z0 / self.K[0, 0], (t[1] - self.K[1, 2]) * Z0 / self.K[1, 1], Z0])
             R_out, s_out = R, 1.0
-            proj = pose.project_perspective(vertices, self.K)
+            proj = project(vertices, self.K)
         self._pose = (R, t, s)
         return FitResult(
             vertices=vertices.astype(np.float32), projected=proj.astype(np.float32), R=R_out, t=t_out,

@@ -50,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facesculpt.geometry.boundary_loops import boundary_loops
 from facesculpt.nodes.fitter import eos_reader
 from facesculpt.paths import model_file, shared_data_dir
 
@@ -561,28 +562,10 @@ def _placeholder_facemesh_neutral(triangles: np.ndarray) -> np.ndarray:
     tri = np.asarray(triangles, np.int64)
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     key = np.sort(edges, axis=1)
-    uniq, counts = np.unique(key, axis=0, return_counts=True)
-    boundary_edges = uniq[counts == 1]
-    # Boundary loops (the face oval, and the eye and mouth holes); the longest is the outline.
-    nbrs: dict[int, list[int]] = {}
-    for a, b in boundary_edges:
-        nbrs.setdefault(int(a), []).append(int(b))
-        nbrs.setdefault(int(b), []).append(int(a))
-    loops, seen = [], set()
-    for start in nbrs:
-        if start in seen:
-            continue
-        loop, prev, cur = [start], None, start
-        seen.add(start)
-        while True:
-            nxt = [n for n in nbrs[cur] if n != prev and n not in seen]
-            if not nxt:
-                break
-            prev, cur = cur, nxt[0]
-            seen.add(cur)
-            loop.append(cur)
-        loops.append(loop)
-    loop = max(loops, key=len) if loops else []
+    uniq = np.unique(key, axis=0)
+    # The longest boundary loop is the outline (the others: eye and mouth holes).
+    loops = boundary_loops(tri)
+    loop = loops[0] if loops else []
     pos = np.zeros((V, 2))
     fixed = np.zeros(V, bool)
     if len(loop) >= 3:

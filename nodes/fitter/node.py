@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
-from facesculpt.node import Node
+from facesculpt.geometry import to_ibug68
+from facesculpt.runtime.node import Node
 
 from .fitter import FitError, Fitter
 from .model import MorphableModel, load_model
@@ -152,8 +153,6 @@ class FitterNode(Node):
             ids = None
             if not self.model.dense:
                 if pts.shape[0] == 468:
-                    from facesculpt.nodes.landmarks import to_ibug68
-
                     pts = to_ibug68(pts)
                 if pts.shape[0] != 68:
                     self.count("bad_landmark_count")

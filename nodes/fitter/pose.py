@@ -8,11 +8,15 @@ looking into the camera therefore has R = diag(1, -1, -1).
 * Scaled orthographic: ``camera = s · R · X + (tx, ty, 0)``; pixels are its first two coordinates
   (``s`` in px per model unit, the depth z in the same pixel scale).
 * Perspective: ``camera = R · X + t`` (model units, mm), pixels ``= π(K · camera)``.
+
+Projecting points: :mod:`facesculpt.geometry.projection`.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from facesculpt.geometry.projection import project
 
 
 class PoseError(ValueError):
@@ -181,19 +185,6 @@ def scaled_orthographic(
     return R, t, s
 
 
-def project_orthographic(points: np.ndarray, R: np.ndarray, t: np.ndarray, s: float) -> np.ndarray:
-    """(N, 3) model points -> (N, 2) pixels under the scaled orthographic camera."""
-    return (s * (np.asarray(points) @ np.asarray(R).T) + t)[:, :2]
-
-
-def project_perspective(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(N, 3) camera-space points -> (N, 2) pixels through intrinsics K (3, 3)."""
-    p = np.asarray(points_cam, np.float64)
-    z = p[:, 2:3]
-    return np.column_stack([K[0, 0] * p[:, 0] / z[:, 0] + K[0, 1] * p[:, 1] / z[:, 0] + K[0, 2],
-                            K[1, 1] * p[:, 1] / z[:, 0] + K[1, 2]])
-
-
 def projection_jacobian(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(N, 2, 3): d pixel / d camera point, for the pinhole camera K (skew ignored)."""
     p = np.asarray(points_cam, np.float64)
@@ -243,7 +234,7 @@ def perspective(
         C = RX + t
         if (C[:, 2] <= 1e-6).any():
             raise PoseError("points fall behind the camera: no perspective pose from these correspondences")
-        r = (project_perspective(C, K) - x) * sw[:, None]
+        r = (project(C, K) - x) * sw[:, None]
         Jp = projection_jacobian(C, K)  # (N, 2, 3)
         # Row j of the projection Jacobian times -[R X]x is (R X) x j.
         a = RX[:, None, :]

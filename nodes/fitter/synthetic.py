@@ -19,7 +19,8 @@ import numpy as np
 
 from facesculpt.nodes.fitter.model import MorphableModel
 from facesculpt.nodes.fitter.outline import nose_region
-from facesculpt.nodes.fitter.pose import project_orthographic, project_perspective, rotation_from_euler
+from facesculpt.geometry.projection import project as project_points, project_orthographic
+from facesculpt.nodes.fitter.pose import rotation_from_euler
 
 OUTLINE_RIGHT = [str(k) for k in range(1, 9)]
 OUTLINE_LEFT = [str(k) for k in range(10, 18)]
@@ -138,7 +139,7 @@ def make_face(
     else:
         s = 1.0
         t = np.array([rng.uniform(-30, 30), rng.uniform(-30, 30), distance_mm])
-        project = lambda X: project_perspective(X @ R.T + t, K)  # noqa: E731
+        project = lambda X: project_points(X @ R.T + t, K)  # noqa: E731
     idx = model.landmark_index()
     ids = [str(k) for k in range(1, 69)]
     clean = np.full((68, 2), np.nan)

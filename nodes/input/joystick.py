@@ -24,8 +24,8 @@ import threading
 import time
 
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
-from facesculpt.node import Node
-from facesculpt.nodes.deformer.dragging import axes_velocity
+from facesculpt.runtime.node import Node
+from facesculpt.geometry import axes_velocity
 
 from .protocol import (
     InputError,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 from .protocol import InputError, ScriptError, ScriptPlayer, load_script
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, Image
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 from .detector import NUM_POINTS, LandmarkDetector
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from facesculpt.geometry.projection import project_with_matrix
+
 # DLT on a spread-out subset: plenty for 11 unknowns, and cheap per frame.
 MAX_DLT_POINTS = 300
 
@@ -74,11 +76,7 @@ def project(P: np.ndarray, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray
     y down), which holds for OpenCV- and OpenGL-style frames alike.
     """
     X = np.asarray(vertices, np.float64)
-    h = X @ P[:, :3].T + P[:, 3]
-    w = h[:, 2]
-    if np.any(w == 0):
-        raise ValueError("a vertex lies on the camera plane (cannot be projected)")
-    px = h[:, :2] / w[:, None]
+    px, _ = project_with_matrix(P, X)
     M = P[:, :3]
     centre = X.mean(axis=0)
     hc = M @ centre + P[:, 3]

@@ -19,8 +19,8 @@ import time
 import numpy as np
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
-from facesculpt.node import Node
-from facesculpt.nodes.deformer import merge_deformation
+from facesculpt.runtime.node import Node
+from facesculpt.geometry import merge_deformation
 
 from .compositor import Compositor
 from .pairing import FramePairer

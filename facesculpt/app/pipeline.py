@@ -28,9 +28,11 @@ from typing import Iterable
 import numpy as np
 
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
-from facesculpt.nodes.deformer import EditStack, merge_deformation
+from facesculpt.geometry import merge_deformation
+from facesculpt.nodes.deformer import EditStack
 from facesculpt.nodes.fitter import FitError, Fitter, MorphableModel, load_model
-from facesculpt.nodes.landmarks import LandmarkDetector, to_ibug68
+from facesculpt.geometry import to_ibug68
+from facesculpt.nodes.landmarks import LandmarkDetector
 
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
 STAGES = ("landmarks", "fit", "merge", "render")

@@ -24,7 +24,7 @@ import zmq
 
 DEFAULT_MASTER = "tcp://127.0.0.1:11411"
 NODE_TIMEOUT_S = 5.0
-log = logging.getLogger("facesculpt.master")
+log = logging.getLogger("facesculpt.runtime.master")
 
 
 def master_address() -> str:
@@ -168,7 +168,7 @@ def serve(address: str | None = None, *, ready=None, stop=None, security=None) -
 
     With ``security`` (or ``$FACESCULPT_KEYS``) the socket is a CURVE server that only
     authorised clients reach: a stranger cannot register nodes or fake publishers."""
-    from facesculpt.security import Security
+    from facesculpt.runtime.security import Security
 
     address = address or master_address()
     security = security if security is not None else Security.from_env()
@@ -233,7 +233,7 @@ class MasterClient:
     (the "lazy pirate" pattern), so a dead or restarted master never wedges a node."""
 
     def __init__(self, address: str | None = None, timeout_s: float = 1.0, context=None, security=None):
-        from facesculpt.security import Security
+        from facesculpt.runtime.security import Security
 
         self.address = address or master_address()
         # CURVE client keys: given, or from $FACESCULPT_KEYS (None: plain).

@@ -5,7 +5,7 @@
 Input: the shared ``s18.mp4`` (1280x720) when the shared data is present, else the embedded face
 photo under a moving virtual camera; frames resized to 856x480, the paper's size. Per model:
 
-* **stages, in-process** (:class:`facesculpt.pipeline.Pipeline`, the graph's stage code called in
+* **stages, in-process** (:class:`facesculpt.app.pipeline.Pipeline`, the graph's stage code called in
   sequence on one frame): landmark detection, model fitting (frontal |yaw| < 20 deg / oblique),
   merging (Eq. 5), inpainting (uncovered mask + fill) and texture + texcoord update + rendering
   (the compositor's other stages), mean ms over N frames with the paper's Fig. 6e edit (nose
@@ -168,7 +168,7 @@ def _mean(values) -> float | None:
 
 def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dict, drags: int) -> dict:
     """Per-stage ms of the in-process pipeline over ``frames`` (see the module doc)."""
-    from facesculpt.pipeline import Pipeline
+    from facesculpt.app.pipeline import Pipeline
 
     skip = 3  # the first frames create the GL context and warm the caches
     with Pipeline(model) as pipeline:
@@ -284,9 +284,9 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     """Frames out per second and end-to-end latency of the graph as separate processes."""
     import yaml
 
-    from facesculpt.master import master_alive
+    from facesculpt.runtime.master import master_alive
     from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
-    from facesculpt.node import Node
+    from facesculpt.runtime.node import Node
 
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
     address = f"tcp://127.0.0.1:{_free_port()}"
@@ -424,8 +424,8 @@ def table(result: dict) -> str:
 
 
 def cmd_bench(args) -> int:
-    from facesculpt.pipeline import combine_presets, load_face_model, read_preset
-    from facesculpt.process_limits import limit_threads
+    from facesculpt.app.pipeline import combine_presets, load_face_model, read_preset
+    from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(args.threads)  # also in the environment the graph's processes inherit
     if args.frames < 5 or args.drags < 1 or args.window <= 0:

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from facesculpt.msgs import Diagnostics, Image
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 
 def register(sub) -> None:
@@ -96,7 +96,7 @@ def timing_table(listener: DemoListener) -> tuple[str, dict]:
 
 
 def cmd_demo(args) -> int:
-    from facesculpt.launcher import Launcher, load_launch
+    from facesculpt.runtime.launcher import Launcher, load_launch
     from facesculpt.paths import launch_file
 
     out = Path(args.out).resolve()

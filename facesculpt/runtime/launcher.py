@@ -13,7 +13,7 @@ A launch file is YAML::
 
 Optional top-level keys: ``transport: tcp`` (default ipc) with ``host: ADDRESS``
 (what tcp publishers bind to; default 127.0.0.1, loopback), and ``security:``
-(ZeroMQ CURVE, see facesculpt.security and docs/security.md)::
+(ZeroMQ CURVE, see facesculpt.runtime.security and docs/security.md)::
 
     security:
       keys: ./keys                   # from `facesculpt keys generate keys`
@@ -41,8 +41,8 @@ from pathlib import Path
 
 import yaml
 
-from facesculpt.master import master_address, master_alive
-from facesculpt.node import parse_assignments
+from facesculpt.runtime.master import master_address, master_alive
+from facesculpt.runtime.node import parse_assignments
 
 STOP_GRACE_S = 2.5
 # A node that ran this long before dying was healthy: its next respawn starts without backoff
@@ -101,7 +101,7 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
         if "key" in entry:
             if not graph_env:
                 raise ValueError(f"launch file {path}: node {spec.name} names a key but there is no security block")
-            from facesculpt.security import ENV_CLIENT, Security
+            from facesculpt.runtime.security import ENV_CLIENT, Security
 
             Security.from_dir(graph_env["FACESCULPT_KEYS"], graph_env.get("FACESCULPT_SERVER_KEY", "graph"),
                               str(entry["key"]))  # fail now, with the file's name, not in the child
@@ -128,7 +128,7 @@ def _security_env(path: Path, block) -> dict:
     """The launch file's ``security:`` block as environment variables for every process."""
     if block is None:
         return {}
-    from facesculpt.security import Security, SecurityError, env_for
+    from facesculpt.runtime.security import Security, SecurityError, env_for
 
     if not isinstance(block, dict) or "keys" not in block or set(block) - {"keys", "server", "client"}:
         raise ValueError(f"launch file {path}: security needs 'keys' (a directory) and optionally "
@@ -188,7 +188,7 @@ class Launcher:
         self.env = dict(os.environ, FACESCULPT_MASTER=self.master, PYTHONUNBUFFERED="1")
         if specs:
             self.env.update(specs[0].graph_env)
-        from facesculpt.security import Security
+        from facesculpt.runtime.security import Security
 
         self.security = Security.from_env(self.env)
 

@@ -8,7 +8,7 @@ pairing); a frame without a face is written unchanged. The output is a video (by
 .mp4, .mov, .m4v, .avi, .mkv) or, when OUT holds a printf pattern (``out/%05d.png``), a lossless
 image sequence numbered from 0 like the input's frames. Edits are deformer presets (JSON; several
 accumulate in order); they are solved once on the person's neutral model, which a first pass over
-the first frames learns (see :mod:`facesculpt.pipeline`), and applied to every frame. The result
+the first frames learns (see :mod:`facesculpt.app.pipeline`), and applied to every frame. The result
 is deterministic: the same input and options give the same output, bit for bit (PNG; a video
 codec is deterministic too, but lossy). Ctrl-C or SIGTERM stops after the current frame and keeps
 what was written, a playable file.
@@ -143,10 +143,10 @@ def _progress(total: int | None, desc: str, quiet: bool):
 
 
 def cmd_process(args) -> int:
-    from facesculpt.pipeline import Pipeline, combine_presets, read_preset
-    from facesculpt.process_limits import limit_threads
+    from facesculpt.app.pipeline import Pipeline, combine_presets, read_preset
+    from facesculpt.runtime.process_limits import limit_threads
 
-    limit_threads(1)  # one thread per stage is faster here (see facesculpt.process_limits)
+    limit_threads(1)  # one thread per stage is faster here (see facesculpt.runtime.process_limits)
     if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:
         raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
     source = open_input(args.input)

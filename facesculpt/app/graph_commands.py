@@ -8,7 +8,7 @@ import sys
 import time
 
 from facesculpt.msgs import REGISTRY, summarize
-from facesculpt.node import Node
+from facesculpt.runtime.node import Node
 
 
 def register(sub) -> None:
@@ -75,20 +75,21 @@ def register(sub) -> None:
 
 # -- master / run / launch -------------------------------------------------------------------
 def cmd_master(args) -> int:
-    from facesculpt.master import serve
+    from facesculpt.runtime.master import serve
 
     serve(args.address)
     return 0
 
 
 def cmd_run(args) -> int:
-    from facesculpt.node import load_node_class, run_node
+    from facesculpt.nodes import BUILTIN_NODES
+    from facesculpt.runtime.node import load_node_class, run_node
 
-    return run_node(load_node_class(args.node), args.args)
+    return run_node(load_node_class(args.node, BUILTIN_NODES), args.args)
 
 
 def cmd_launch(args) -> int:
-    from facesculpt.launcher import Launcher, load_launch
+    from facesculpt.runtime.launcher import Launcher, load_launch
     from facesculpt.paths import launch_file
 
     specs = load_launch(launch_file(args.file), args.overrides)
@@ -97,7 +98,7 @@ def cmd_launch(args) -> int:
 
 # -- introspection ------------------------------------------------------------------------------
 def _master_call(op: str) -> dict:
-    from facesculpt.master import MasterClient
+    from facesculpt.runtime.master import MasterClient
 
     client = MasterClient(timeout_s=2.0)
     try:
@@ -197,7 +198,7 @@ def cmd_topic_hz(args) -> int:
 
 # -- bags ----------------------------------------------------------------------------------------
 def cmd_bag_record(args) -> int:
-    from facesculpt.bag import BagError, BagWriter
+    from facesculpt.runtime.bag import BagError, BagWriter
 
     writer = BagWriter(args.output, compression=args.compression)
     node = _ToolNode("bag_record")
@@ -227,7 +228,7 @@ def cmd_bag_record(args) -> int:
 
 
 def cmd_bag_play(args) -> int:
-    from facesculpt.bag import BagReader
+    from facesculpt.runtime.bag import BagReader
 
     reader = BagReader(args.file)
     node = _ToolNode("bag_play")
@@ -274,7 +275,7 @@ def cmd_bag_play(args) -> int:
 
 
 def cmd_bag_info(args) -> int:
-    from facesculpt.bag import bag_info
+    from facesculpt.runtime.bag import bag_info
 
     info = bag_info(args.file)
     if args.json:

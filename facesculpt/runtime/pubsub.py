@@ -29,7 +29,7 @@ import zmq
 from facesculpt.msgs import DecodeError, Message, decode
 from facesculpt.paths import run_dir
 
-log = logging.getLogger("facesculpt.pubsub")
+log = logging.getLogger("facesculpt.runtime.pubsub")
 
 # Small types (events, diagnostics) may queue deeply; big ones (images) must not
 # pile up behind a stalled peer: memory stays bounded by hwm * message size.
@@ -209,7 +209,7 @@ class Receiver(threading.Thread):
     def __init__(self, ctx: zmq.Context, wakeup: threading.Condition, security=None):
         super().__init__(name="facesculpt-receiver", daemon=True)
         self.ctx = ctx
-        self.security = security      # facesculpt.security.Security: connect as CURVE clients
+        self.security = security      # facesculpt.runtime.security.Security: connect as CURVE clients
         self.lock = wakeup            # guards Subscription.latest/pending
         self.commands: queue.Queue = queue.Queue()
         self.command_posted = threading.Event()  # wakes a wait while there is no socket to poll

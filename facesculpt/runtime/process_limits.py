@@ -17,7 +17,7 @@ def limit_threads(threads: int = 1) -> list[str]:
     """Limit the worker threads of OpenBLAS (:func:`limit_blas_threads`) and OpenCV
     (``cv2.setNumThreads``) in this process to ``threads``; 0 leaves both at their defaults
     (one per core). Child processes inherit the limit through ``FACESCULPT_THREADS``, which
-    :func:`facesculpt.node.run_node` reads. Returns the BLAS libraries changed."""
+    :func:`facesculpt.runtime.node.run_node` reads. Returns the BLAS libraries changed."""
     threads = int(threads)
     os.environ["FACESCULPT_THREADS"] = str(threads)
     if threads <= 0:
