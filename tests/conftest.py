@@ -1,4 +1,6 @@
-"""Shared fixtures: the shared data folder (skip when absent) and the model directory."""
+"""Shared fixtures: the shared data folder (skip when absent), the model directory, a running
+graph; and a session check that the suite wrote nothing into the checkout (tests write only
+into temporary folders)."""
 
 from __future__ import annotations
 
@@ -38,6 +40,41 @@ import tempfile
 import time
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+# -- the suite writes only into temporary folders ------------------------------------------------
+# Files a test run may leave in the checkout: Python's and tools' caches, the install.
+_CACHES = ("__pycache__", ".egg-info", ".ruff_cache", ".pytest_cache", ".venv/")
+_BEFORE = pytest.StashKey[set]()
+
+
+def untracked_files() -> set[str] | None:
+    """Untracked and ignored files of the checkout (caches aside), or None outside a git checkout."""
+    try:
+        out = subprocess.run(["git", "status", "--porcelain", "--untracked-files=all", "--ignored"],
+                             cwd=REPO_ROOT, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if out.returncode != 0:
+        return None
+    return {line[3:] for line in out.stdout.splitlines()
+            if line[:2] in ("??", "!!") and not any(c in line for c in _CACHES)}
+
+
+def pytest_sessionstart(session):
+    session.config.stash[_BEFORE] = untracked_files()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    before, after = session.config.stash.get(_BEFORE, None), untracked_files()
+    if before is None or after is None:
+        return
+    left = sorted(after - before)
+    if left:
+        print(f"\nthe test run left files in the checkout (tests must write only into temporary folders): "
+              f"{', '.join(left[:10])}", file=sys.stderr)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
 
 
 def free_port() -> int:
