@@ -1,10 +1,9 @@
 """Per-process limits for the graph's nodes.
 
 Several nodes share a few cores; a library that spreads each small operation over
-every core only adds contention. Measured on two cores: the SFM fit took 87 ms per
-frame with OpenBLAS's default threads beside the graph, 23 ms with one; the
-renderer's push-pull fill of two cheek bands took 0.28 ms with OpenCV's default
-threads, 0.19 ms with one.
+every core only adds contention: the fitter's small least squares and the
+renderer's fills of small bands run faster on one thread each than spread over
+cores that the graph's other processes already use.
 """
 
 from __future__ import annotations
@@ -34,8 +33,7 @@ def limit_threads(threads: int = 1) -> list[str]:
 def limit_blas_threads(threads: int = 1) -> list[str]:
     """Make OpenBLAS (numpy's and scipy's) use ``threads`` threads in this process and in the
     processes it starts. The fitter's least squares are small (68 landmarks x 69 coefficients):
-    a second BLAS thread only spins, and beside the graph's other processes on two cores it made the
-    SFM fit about 4x slower (87 ms against 23 ms per frame). Sets ``OPENBLAS_NUM_THREADS`` (read by
+    a second BLAS thread only spins, and slows the fit beside the graph's other processes. Sets ``OPENBLAS_NUM_THREADS`` (read by
     libraries loaded later and by child processes) and calls ``*openblas_set_num_threads*`` of the
     libraries already loaded (Linux: found in /proc/self/maps). Returns the libraries changed."""
     os.environ["OPENBLAS_NUM_THREADS"] = str(int(threads))

@@ -202,9 +202,8 @@ class Receiver(threading.Thread):
     (the node wants them: this thread is woken through an inproc socket and lets go),
     :meth:`receive` (the node polls and drains them itself), :meth:`return_sockets` (before the
     node runs callbacks). The hand-over costs thread switches before a message arrives rather
-    than after it: on the transport benchmark it took the ipc latency of an 856x480 image from
-    1.9x raw pyzmq (this thread always owning the sockets) to 1.6x (1.45x with the leaner
-    decode and publish)."""
+    than after it, which is where latency matters (benchmarks/bench_transport.py compares the
+    ipc latency against raw pyzmq)."""
 
     def __init__(self, ctx: zmq.Context, wakeup: threading.Condition, security=None):
         super().__init__(name="facesculpt-receiver", daemon=True)

@@ -162,8 +162,8 @@ def detection_tiles(width: int, height: int, min_face: float) -> list[tuple[floa
 
     The first is the whole image, letterboxed (centred, padded with black). Then come levels of
     overlapping tiles (stride half the side) whose side halves from the image's short side until
-    a face of ``min_face`` pixels fills at least 15 % of a tile (the short-range model finds
-    faces from about 12 % of its input, measured). ``min_face`` <= 0: the whole image only.
+    a face of ``min_face`` pixels fills at least 15 % of a tile (the short-range model misses
+    faces much smaller than that share of its input). ``min_face`` <= 0: the whole image only.
     """
     long_side, short_side = max(width, height), min(width, height)
     tiles = [((width - long_side) / 2.0, (height - long_side) / 2.0, float(long_side))]

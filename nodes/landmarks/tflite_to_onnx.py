@@ -225,7 +225,7 @@ class _Converter:
             # Per-channel slope a: PRelu(x) = x + (1 - a) * relu(-x), written as two 1x1 depthwise
             # convolutions (the first with a fused Relu, the second with a fused sum). onnxruntime's
             # own PRelu is a slow generic broadcast outside its blocked NCHWc kernels; this form
-            # keeps the whole network inside them (about 3x faster end to end).
+            # keeps the whole network inside them (benchmarks/bench_landmarks.py times the result).
             a = self.consts[alpha_idx].astype(np.float32).reshape(-1, 1, 1, 1)
             channels = a.shape[0]
             neg = self.node("Conv", [x, self.add_const(-np.ones_like(a), "minus_one")], "prelu_neg",
@@ -248,7 +248,7 @@ class _Converter:
             # Zero channels appended/prepended (how these networks widen a residual shortcut): a 1x1
             # convolution with identity weights, so onnxruntime stays in its blocked NCHWc layout
             # instead of reordering around a Pad node. Only worth it when the channel counts are
-            # whole NCHWc blocks (16); otherwise the extra multiply-adds cost more (measured).
+            # whole NCHWc blocks (16); otherwise the extra multiply-adds cost more than the reorder.
             weight = np.zeros((before + c_in + after, c_in, 1, 1), np.float32)
             weight[before + np.arange(c_in), np.arange(c_in)] = 1.0
             out = self.node("Conv", [self.value(op.inputs[0], "nchw"), self.add_const(weight, "channel_pad")],
