@@ -1,4 +1,4 @@
-"""Message types: the contract between nodes (DESIGN.md "Messages")."""
+"""Message types: the contract between nodes (docs/architecture.md "Topics")."""
 
 from .codec import REGISTRY, DecodeError, Message, decode, encode, summarize
 from .types import (

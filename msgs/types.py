@@ -1,4 +1,4 @@
-"""The message types of the graph (DESIGN.md "Messages").
+"""The message types of the graph (docs/architecture.md "Topics").
 
 Units: pixels for image coordinates, millimetres in model space, nanoseconds
 for stamps. Array fields are validated on decode against the dtypes and
@@ -132,7 +132,7 @@ class InputEvent(Message):
 @register
 @dataclass
 class Deformation(Message):
-    """The user's edit as a displacement of the neutral model (DESIGN.md step 3).
+    """The user's edit as a displacement of the neutral model (docs/architecture.md "Stages", 3).
 
     displacement: (V, 3) float32, model space, mm (M_m - M_bar).
     static / handles / roi: anchor vertex indices, int32.  version grows with every solve.

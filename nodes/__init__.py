@@ -1,4 +1,4 @@
-"""Built-in nodes: one folder per room of the graph (DESIGN.md "Layout").
+"""Built-in nodes: one folder per room of the graph (docs/architecture.md "Rooms").
 
 BUILTIN_NODES maps the short names used by `facesculpt run NAME` and by launch
 files (``node: camera``) to ``module:Class``.

@@ -1,4 +1,4 @@
-"""Rendering (DESIGN.md stage 4): texture update, inpainting, compositing; window / video / topic.
+"""Rendering (docs/architecture.md "Stages", 4): texture update, inpainting, compositing; window / video / topic.
 
 Library use, without the graph::
 

@@ -1,4 +1,4 @@
-"""Filling the background that a shrinking face uncovers (DESIGN.md stage 4).
+"""Filling the background that a shrinking face uncovers (docs/architecture.md "Stages", 4).
 
 The region to fill is the original face region minus the deformed face region,
 slightly dilated (:func:`uncovered_mask`). It is filled from the surrounding
