@@ -52,6 +52,46 @@ def _node_process(launch: psutil.Process, name: str) -> psutil.Process | None:
     return None
 
 
+def _recoveries(kills: list, arrivals: list[tuple[float, int]]) -> list[tuple[str, float]]:
+    """(victim, seconds) from each kill to the first message captured after it arrived."""
+    arr = np.array(arrivals)
+    out = []
+    for name, killed_at, killed_ns in kills:
+        after = arr[arr[:, 1] > killed_ns]
+        out.append((name, after[0, 0] - killed_at if len(after) else float("inf")))
+    return out
+
+
+def _memory_growth(rss: dict[int, list[tuple[float, float]]], names: dict[int, str]) -> dict[str, float]:
+    """MiB grown by each process that lived through the run (master, launcher, nodes never
+    killed), from 20 s into its life to its end."""
+    growth = {}
+    for pid, samples in rss.items():
+        if len(samples) < 30:
+            continue
+        t0 = samples[0][0]
+        later = [m for t, m in samples if t - t0 >= 20.0]
+        if len(later) >= 10:
+            growth[f"{names.get(pid, 'node')}:{pid}"] = round(later[-1] - later[0], 1)
+    return growth
+
+
+def _assert_clean_stop(launch_proc, seen_pids: set[int]) -> None:
+    """Ctrl-C on the launcher leaves no orphan: every process ever seen is gone."""
+    launch_proc.send_signal(signal.SIGINT)
+    launch_proc.wait(15)
+
+    def alive(pids):
+        return [p for p in pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+
+    deadline = time.monotonic() + 5
+    left = alive(seen_pids)
+    while left and time.monotonic() < deadline:
+        time.sleep(0.2)
+        left = alive(left)
+    assert not left, f"orphans: {left}"
+
+
 def test_chaos_kills_do_not_stop_the_graph(graph, data_dir, models_dir, tmp_path):
     duration_s = float(os.environ.get("FACESCULPT_CHAOS_S", "100"))
     launch_proc = graph.spawn("launch", _chaos_launch(tmp_path, data_dir / "video" / "d3.mp4"))
@@ -103,29 +143,12 @@ def test_chaos_kills_do_not_stop_the_graph(graph, data_dir, models_dir, tmp_path
     graph.spin_until(watcher, lambda: False, 3.0)
     sample()
 
-    # Recovery: from the kill to the first rendered frame captured after it (and the first face state).
-    render_arr = np.array(renders)
-    state_arr = np.array(states)
-    recoveries, state_recoveries = [], []
-    for name, killed_at, killed_ns in kills:
-        after = render_arr[render_arr[:, 1] > killed_ns]
-        recoveries.append((name, after[0, 0] - killed_at if len(after) else float("inf")))
-        after = state_arr[state_arr[:, 1] > killed_ns]
-        state_recoveries.append((name, after[0, 0] - killed_at if len(after) else float("inf")))
+    recoveries = _recoveries(kills, renders)
+    state_recoveries = _recoveries(kills, states)
     worst = max(r for _, r in recoveries)
     per_node = {n: round(max(r for m, r in recoveries if m == n), 2) for n in {k[0] for k in kills}}
     per_node_state = {n: round(max(r for m, r in state_recoveries if m == n), 2) for n in {k[0] for k in kills}}
-
-    # Memory of processes that lived through the run (master, launcher, nodes never killed):
-    # from 20 s into their life to their end.
-    growth = {}
-    for pid, samples in rss.items():
-        if len(samples) < 30:
-            continue
-        t0 = samples[0][0]
-        later = [m for t, m in samples if t - t0 >= 20.0]
-        if len(later) >= 10:
-            growth[f"{names.get(pid, 'node')}:{pid}"] = round(later[-1] - later[0], 1)
+    growth = _memory_growth(rss, names)
 
     print(f"\nchaos: {len(kills)} kills survived over {duration_s:.0f} s; worst render recovery {worst:.2f} s; "
           f"per node (render) {per_node}; per node (face/state) {per_node_state}; "
@@ -137,12 +160,4 @@ def test_chaos_kills_do_not_stop_the_graph(graph, data_dir, models_dir, tmp_path
     assert renders[-1][0] > time.monotonic() - 5 and states[-1][0] > time.monotonic() - 5
     assert all(g < 30 for g in growth.values()), f"memory grew: {growth}"
 
-    # Clean stop, no orphan: every process ever seen is gone.
-    launch_proc.send_signal(signal.SIGINT)
-    launch_proc.wait(15)
-    deadline = time.monotonic() + 5
-    alive = [p for p in seen_pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
-    while alive and time.monotonic() < deadline:
-        time.sleep(0.2)
-        alive = [p for p in alive if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
-    assert not alive, f"orphans: {alive}"
+    _assert_clean_stop(launch_proc, seen_pids)
