@@ -9,10 +9,12 @@ import sys
 
 import cv2
 import numpy as np
+import pytest
 
 from conftest import REPO_ROOT, free_port
 
 
+@pytest.mark.timing
 def test_demo_writes_an_edited_video_a_before_after_picture_and_timings(models_dir, tmp_path):
     out = tmp_path / "demo"
     env = dict(os.environ, FACESCULPT_MASTER=f"tcp://127.0.0.1:{free_port()}", FACESCULPT_RUN_DIR=str(tmp_path))

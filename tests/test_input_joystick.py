@@ -10,6 +10,7 @@ import socket
 import time
 
 import numpy as np
+import pytest
 
 from facesculpt.msgs import Diagnostics, FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
@@ -85,6 +86,7 @@ class Listener:
         return self.diag
 
 
+@pytest.mark.timing
 def test_pty_lines_become_events_with_the_right_axis_values(graph, tmp_path):
     pty = Pty(tmp_path / "joystick0")
     try:

@@ -8,6 +8,7 @@ import time
 
 import msgpack
 import numpy as np
+import pytest
 
 from facesculpt.msgs import Diagnostics, InputEvent, encode
 from facesculpt.runtime.node import Node
@@ -15,6 +16,7 @@ from facesculpt.runtime.node import Node
 NODES = "tests/graph_nodes.py"
 
 
+@pytest.mark.timing
 def test_slow_consumer_gets_fresh_messages_and_publisher_keeps_its_rate(graph, tmp_path):
     """100 Hz of 856x480x3 images into a subscriber that sleeps 100 ms per message."""
     rate_hz, count = 100.0, 2000

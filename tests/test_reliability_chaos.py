@@ -14,6 +14,7 @@ import time
 import numpy as np
 import psutil
 import yaml
+import pytest
 
 from facesculpt.msgs import FaceState, Image
 from facesculpt.runtime.node import Node
@@ -92,6 +93,7 @@ def _assert_clean_stop(launch_proc, seen_pids: set[int]) -> None:
     assert not left, f"orphans: {left}"
 
 
+@pytest.mark.timing
 def test_chaos_kills_do_not_stop_the_graph(graph, data_dir, models_dir, tmp_path):
     duration_s = float(os.environ.get("FACESCULPT_CHAOS_S", "100"))
     launch_proc = graph.spawn("launch", _chaos_launch(tmp_path, data_dir / "video" / "d3.mp4"))

@@ -4,6 +4,7 @@ output rate (by more than 5 %): the camera never waits for its slowest subscribe
 from __future__ import annotations
 
 import time
+import pytest
 
 from facesculpt.msgs import Diagnostics, Image
 from facesculpt.runtime.node import Node
@@ -20,6 +21,7 @@ def _rate(graph, watcher, arrivals, seconds) -> float:
     return (len(arrivals) - 1) / (arrivals[-1] - arrivals[0]) if len(arrivals) > 1 else 0.0
 
 
+@pytest.mark.timing
 def test_a_ten_times_too_slow_consumer_does_not_slow_the_renderer(graph, data_dir):
     video = data_dir / "video" / "d3.mp4"
     graph.spawn("run", "camera", f"source={video}", "loop=true", f"fps={FPS}")
