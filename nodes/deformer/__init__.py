@@ -4,7 +4,10 @@ Library: :class:`ArapDeformer` (Sorkine & Alexa 2007), edit layers and presets (
 (``node.py``) turns ``input/events`` into ``face/deformation``.
 """
 
-from .arap import ArapDeformer, DeformerError, arap_energy, cotangent_weights, fit_rotations
+from .arap import ArapDeformer
+from .energy import arap_energy, cotangent_weights
+from .errors import DeformerError
+from .rotations import fit_rotations
 from .edits import EditStack
 
 __all__ = [

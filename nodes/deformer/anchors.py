@@ -7,7 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from .arap import DeformerError
+from .errors import DeformerError
 
 METRICS = ("geodesic", "euclidean")
 

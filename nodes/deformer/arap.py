@@ -1,22 +1,15 @@
-"""As-rigid-as-possible surface deformation (Sorkine & Alexa 2007; the paper's Eq. 4).
+"""The as-rigid-as-possible surface deformation solver (Sorkine & Alexa 2007; the paper's Eq. 4).
 
-A pure module: numpy arrays in, numpy arrays out. The energy of a deformed mesh ``P'`` of
-the rest mesh ``P`` is
-
-    E(P') = sum_i sum_{j in N(i)} w_ij || (p'_i - p'_j) - R_i (p_i - p_j) ||^2
-
-with cotangent weights ``w_ij = (cot a_ij + cot b_ij) / 2`` and, per vertex cell, the rotation
-``R_i`` that minimises the cell's term (found by SVD of the cell's covariance). The solver
-alternates that local step with a global step, a sparse linear solve over the free (ROI)
-vertices whose matrix only depends on the anchor set: it is factorised once per anchor set
-and reused while only the handle positions move.
+A pure module: numpy arrays in, numpy arrays out. It minimises the ARAP energy of
+:mod:`.energy` (cotangent weights) by alternating a local step, the per-cell rotations of
+:mod:`.rotations`, with a global step, a sparse linear solve over the free (ROI) vertices
+whose matrix only depends on the anchor set: it is factorised once per anchor set and
+reused while only the handle positions move.
 
 The local/global alternation converges slowly (linearly) on its long, smooth modes. By default
-each solve is Anderson-accelerated (Peng et al., "Anderson Acceleration for Geometry Optimization
-and Physics Simulation", SIGGRAPH 2018): each step extrapolates from the last few local/global
-steps, and a step that would raise the energy is replaced by the plain local/global step, so the
-energy still never increases. On a nose drag of the Surrey Face Model five accelerated iterations
-land closer to the converged mesh than ten plain ones.
+each solve is Anderson-accelerated (:mod:`.anderson`): each step extrapolates from the last few
+local/global steps, and a step that would raise the energy is replaced by the plain
+local/global step, so the energy still never increases.
 
 Anchor sets (vertex indices into the rest mesh):
 
@@ -29,222 +22,19 @@ Vertices in no set are fixed at their rest positions (outside every ROI nothing 
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-
-class DeformerError(ValueError):
-    """Bad input to the deformer: indices out of range or not integers, overlapping or
-    duplicated anchor sets, an empty ROI, non-finite or wrongly shaped positions, a name
-    that is not a landmark of the model, a preset that does not fit the model."""
-
-
-# ----------------------------------------------------------------------------------------
-# Weights, rotations, energy
-# ----------------------------------------------------------------------------------------
-
-
-def cotangent_weights(vertices: np.ndarray, triangles: np.ndarray, clamp: bool = True) -> sp.csr_matrix:
-    """Symmetric edge weights ``w_ij = (cot a_ij + cot b_ij) / 2`` of a triangle mesh.
-
-    vertices: (V, 3) float, rest positions. triangles: (T, 3) int.
-    clamp: obtuse angles have negative cotangents, which can make the energy non-convex in the
-    global step; with ``clamp`` each angle's cotangent is clamped at 0 (and each edge weight
-    floored at 1e-8 x the mean weight, so no edge drops out of the mesh graph). Without it
-    the weights are exactly those of ``igl.cotmatrix`` (its off-diagonal entries).
-    Returns (V, V) csr float64 with zero diagonal.
-    """
-    V = np.asarray(vertices, dtype=np.float64)
-    T = np.asarray(triangles, dtype=np.int64)
-    n = V.shape[0]
-    rows, cols, vals = [], [], []
-    for k in range(3):
-        # angle at corner k is opposite edge (k+1, k+2)
-        i, j, o = T[:, (k + 1) % 3], T[:, (k + 2) % 3], T[:, k]
-        a = V[i] - V[o]
-        b = V[j] - V[o]
-        cross = np.linalg.norm(np.cross(a, b), axis=1)
-        dot = np.einsum("ij,ij->i", a, b)
-        cot = dot / np.maximum(cross, 1e-300)
-        if clamp:
-            cot = np.maximum(cot, 0.0)
-        rows += [i, j]
-        cols += [j, i]
-        vals += [0.5 * cot, 0.5 * cot]
-    W = sp.csr_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
-    )  # duplicates (the two triangles of an edge) are summed
-    W.sum_duplicates()
-    if clamp and W.nnz:
-        W.data = np.maximum(W.data, 1e-8 * float(np.mean(np.abs(W.data))))
-    return W
-
-
-def fit_rotations(S: np.ndarray, method: str = "fast") -> np.ndarray:
-    """Rotations ``R_i`` maximising ``tr(R_i S_i)`` for covariances ``S_i = sum_j w e e'^T``.
-
-    S: (N, 3, 3) float64. Returns (N, 3, 3) proper rotations ``R = V diag(1, 1, det(V U^T)) U^T``
-    where ``S = U diag(s) V^T`` (SVD with the reflection fix of Sorkine & Alexa).
-    method: ``"svd"`` - numpy's batched LAPACK SVD; ``"fast"`` - the same SVD computed in
-    closed form, vectorised over the batch (eigen-decomposition of ``S^T S``, then ``U`` from
-    ``S V``), several times faster at this size; the two agree to ~1e-9 (tested).
-    """
-    S = np.asarray(S, dtype=np.float64)
-    if method == "svd":
-        U, _, Vt = np.linalg.svd(S)
-        R = np.einsum("nji,nkj->nik", Vt, U)  # V @ U^T
-        flip = np.linalg.det(R) < 0
-        if np.any(flip):
-            Vf = np.swapaxes(Vt[flip], 1, 2).copy()
-            Vf[:, :, 2] *= -1.0
-            R[flip] = Vf @ np.swapaxes(U[flip], 1, 2)
-        return R
-    if method != "fast":
-        raise DeformerError(f"unknown rotation method {method!r} (use 'fast' or 'svd')")
-    return _rotations_closed_form(S)
-
-
-# Closed-form batched SVD. Every vector is a tuple of three length-N arrays (structure of
-# arrays), so each numpy call does work across the whole batch; LAPACK's batched SVD pays a
-# per-matrix overhead that dominates at 3x3.
-
-
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _scaled(a, k):
-    return (a[0] * k, a[1] * k, a[2] * k)
-
-
-def _aligned_sum(x, y, z):
-    """x + sign(.) y + sign(.) z for parallel (or anti-parallel) vectors, signs chosen so nothing
-    cancels: |result|^2 >= |x|^2 + |y|^2 + |z|^2."""
-    sy = np.where(_dot(x, y) < 0, -1.0, 1.0)
-    c = (x[0] + sy * y[0], x[1] + sy * y[1], x[2] + sy * y[2])
-    sz = np.where(_dot(c, z) < 0, -1.0, 1.0)
-    return (c[0] + sz * z[0], c[1] + sz * z[1], c[2] + sz * z[2])
-
-
-def _rotations_closed_form(S: np.ndarray) -> np.ndarray:
-    """R = V' U'^T with V' = [v1, v2, v1 x v2], U' = [u1, u2, u1 x u2]: the SVD solution with the
-    reflection fix (flipping the least singular pair) without forming v3, u3 or det(V U^T).
-    v1, v2: the top eigenvectors of B = S^T S, found in the plane orthogonal to v3 (the least
-    one, from cross products of two rows of B - l3 I); rows whose two least eigenvalues nearly
-    coincide (where that is unstable) go to LAPACK."""
-    N = S.shape[0]
-    s = S.reshape(N, 9).T.copy()  # s[3a + b] = S[:, a, b]
-    b00 = s[0] * s[0] + s[3] * s[3] + s[6] * s[6]
-    b11 = s[1] * s[1] + s[4] * s[4] + s[7] * s[7]
-    b22 = s[2] * s[2] + s[5] * s[5] + s[8] * s[8]
-    tr = b00 + b11 + b22
-    itr = 1.0 / np.maximum(tr, 1e-300)
-    b00 *= itr  # trace 1 from here on: the thresholds below are relative
-    b11 *= itr
-    b22 *= itr
-    b01 = (s[0] * s[1] + s[3] * s[4] + s[6] * s[7]) * itr
-    b02 = (s[0] * s[2] + s[3] * s[5] + s[6] * s[8]) * itr
-    b12 = (s[1] * s[2] + s[4] * s[5] + s[7] * s[8]) * itr
-    # least eigenvalue l3 and the gap l2 - l3 (trigonometric formula for symmetric 3x3)
-    q = (b00 + b11 + b22) * (1.0 / 3.0)
-    d0, d1, d2 = b00 - q, b11 - q, b22 - q
-    p2 = (d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * (b01 * b01 + b02 * b02 + b12 * b12)) * (1.0 / 6.0)
-    p = np.sqrt(p2)
-    det = (d0 * (d1 * d2 - b12 * b12) - b01 * (b01 * d2 - b12 * b02) + b02 * (b01 * b12 - d1 * b02)) / np.maximum(p2 * p, 1e-300)
-    cphi = np.cos(np.arccos(np.clip(0.5 * det, -1.0, 1.0)) * (1.0 / 3.0))
-    sphi = np.sqrt(np.maximum(1.0 - cphi * cphi, 0.0))
-    l3 = q - p * (cphi + np.sqrt(3.0) * sphi)
-    gap = (2.0 * np.sqrt(3.0)) * p * sphi
-    # v3: cross products of rows of A = B - l3 I are all parallel to it
-    a00, a11, a22 = b00 - l3, b11 - l3, b22 - l3
-    r0, r1, r2 = (a00, b01, b02), (b01, a11, b12), (b02, b12, a22)
-    v3 = _aligned_sum(_cross(r0, r1), _cross(r0, r2), _cross(r1, r2))
-    n3 = _dot(v3, v3)
-    v3 = _scaled(v3, 1.0 / np.sqrt(np.maximum(n3, 1e-300)))
-    # a basis (a, b) of the plane orthogonal to v3, from the rows of A (which span it)
-    a = _aligned_sum(r0, r1, r2)
-    k = _dot(a, v3)
-    a = (a[0] - k * v3[0], a[1] - k * v3[1], a[2] - k * v3[2])
-    na = _dot(a, a)
-    a = _scaled(a, 1.0 / np.sqrt(np.maximum(na, 1e-300)))
-    b = _cross(v3, a)
-    # the 2x2 problem in that plane, exact by a Jacobi rotation (half-angle formulas)
-    Ba = (b00 * a[0] + b01 * a[1] + b02 * a[2], b01 * a[0] + b11 * a[1] + b12 * a[2], b02 * a[0] + b12 * a[1] + b22 * a[2])
-    Bb = (b00 * b[0] + b01 * b[1] + b02 * b[2], b01 * b[0] + b11 * b[1] + b12 * b[2], b02 * b[0] + b12 * b[1] + b22 * b[2])
-    m01 = _dot(a, Bb)
-    h = _dot(a, Ba) - _dot(b, Bb)
-    r = np.sqrt(h * h + 4.0 * m01 * m01)
-    c2 = h / np.maximum(r, 1e-300)
-    c2 = np.where(r > 0, c2, 1.0)
-    ct = np.sqrt(np.maximum(0.5 * (1.0 + c2), 0.0))
-    st = np.copysign(np.sqrt(np.maximum(0.5 * (1.0 - c2), 0.0)), m01)
-    v1 = (ct * a[0] + st * b[0], ct * a[1] + st * b[1], ct * a[2] + st * b[2])
-    v2 = (ct * b[0] - st * a[0], ct * b[1] - st * a[1], ct * b[2] - st * a[2])
-    # left singular vectors: u1 = S v1 / s1, u2 = S v2 orthogonalised against u1
-    w1 = (s[0] * v1[0] + s[1] * v1[1] + s[2] * v1[2], s[3] * v1[0] + s[4] * v1[1] + s[5] * v1[2], s[6] * v1[0] + s[7] * v1[1] + s[8] * v1[2])
-    s1 = np.sqrt(_dot(w1, w1))
-    u1 = _scaled(w1, 1.0 / np.maximum(s1, 1e-300))
-    w2 = (s[0] * v2[0] + s[1] * v2[1] + s[2] * v2[2], s[3] * v2[0] + s[4] * v2[1] + s[5] * v2[2], s[6] * v2[0] + s[7] * v2[1] + s[8] * v2[2])
-    k = _dot(u1, w2)
-    w2 = (w2[0] - k * u1[0], w2[1] - k * u1[1], w2[2] - k * u1[2])
-    s2 = np.sqrt(_dot(w2, w2))
-    u2 = _scaled(w2, 1.0 / np.maximum(s2, 1e-300))
-    v3 = _cross(v1, v2)
-    u3 = _cross(u1, u2)
-    Rt = np.empty((3, 3, N))  # contiguous rows to write; returned as an (N, 3, 3) view
-    for i in range(3):
-        for j in range(3):
-            Rt[i, j] = v1[i] * u1[j] + v2[i] * u2[j] + v3[i] * u3[j]
-    R = Rt.transpose(2, 0, 1)
-    # unstable rows: l2 ~ l3 (v3 undetermined), rank <= 1 (u2 undetermined) -> LAPACK
-    bad = (gap < 1e-6) | (n3 < 1e-24) | (na < 1e-24) | (s2 <= 1e-9 * s1) | ~np.isfinite(tr)
-    if np.any(bad):
-        idx = np.flatnonzero(bad)
-        R[idx] = fit_rotations(S[idx], "svd")
-        R[idx[tr[idx] <= 1e-300]] = np.eye(3)  # S = 0: no preference, keep the identity
-    return R
-
-
-def _edge_list(weights: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    coo = weights.tocoo()
-    return coo.row.astype(np.int64), coo.col.astype(np.int64), coo.data.astype(np.float64)
-
-
-def arap_energy(
-    rest: np.ndarray,
-    deformed: np.ndarray,
-    weights: sp.csr_matrix,
-    rotation_method: str = "fast",
-) -> float:
-    """ARAP energy of ``deformed`` against ``rest`` with the optimal cell rotations.
-
-    rest, deformed: (V, 3) float, same units (mm); weights: (V, V) from :func:`cotangent_weights`.
-    Returns ``sum_i sum_j w_ij ||(p'_i - p'_j) - R_i (p_i - p_j)||^2`` in units^2 (every
-    undirected edge appears in both of its vertices' cells).
-    """
-    P = np.asarray(rest, dtype=np.float64)
-    Q = np.asarray(deformed, dtype=np.float64)
-    i, j, w = _edge_list(weights)
-    e = P[i] - P[j]
-    f = Q[i] - Q[j]
-    S = np.zeros((P.shape[0], 3, 3))
-    np.add.at(S, i, w[:, None, None] * e[:, :, None] * f[:, None, :])
-    R = fit_rotations(S, rotation_method)
-    r = f - np.einsum("nab,nb->na", R[i], e)
-    return float(np.sum(w * np.einsum("na,na->n", r, r)))
-
-
-# ----------------------------------------------------------------------------------------
-# The solver
-# ----------------------------------------------------------------------------------------
+from .anderson import AndersonAcceleration
+from .energy import arap_energy, cotangent_weights
+from .errors import DeformerError
+from .rotations import fit_rotations
 
 
 def _index_array(name: str, idx, n: int) -> np.ndarray:
@@ -269,6 +59,16 @@ def _index_array(name: str, idx, n: int) -> np.ndarray:
     return a
 
 
+def _handle_positions(positions, n_handles: int) -> np.ndarray:
+    """The handles' target positions as (H, 3) float64; DeformerError unless finite and (H, 3)."""
+    X = np.asarray(np.zeros((0, 3)) if positions is None else positions, dtype=np.float64)
+    if X.shape != (n_handles, 3):
+        raise DeformerError(f"handle_positions must be ({n_handles}, 3), got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise DeformerError("handle_positions contain NaN or inf")
+    return X
+
+
 @dataclass
 class _System:
     """Everything that depends on the anchor set only (built by set_anchors, cached)."""
@@ -287,71 +87,85 @@ class _System:
     factor_ms: float
 
 
-class _Anderson:
-    """Anderson acceleration (type II, Walker & Ni 2011) of a fixed-point iteration x <- G(x) over
-    the last ``depth`` steps: x_next = G(x) - dG gamma with gamma minimising |f - dF gamma|, where
-    f = G(x) - x and the rows of dF, dG are differences of consecutive f and G(x). The differences
-    live in a ring buffer and their Gram matrix is updated one row per step: a step costs a few
-    vector operations on top of G."""
+# -- the global step's operators, built once per anchor set ------------------------------------
 
-    # Extrapolations need weights well above 1, but a combination whose weights sum (in absolute
-    # value) past this comes from a nearly degenerate history and lands far from the solution
-    # (seen on the nose-drag benchmark: 2e-3 of the diagonal off after two such steps).
-    MAX_WEIGHT = 20.0
 
-    def __init__(self, depth: int):
-        self.depth = depth
-        self.dF: np.ndarray | None = None  # (depth, N) ring buffers
-        self.dG: np.ndarray | None = None
-        self.gram = np.zeros((depth, depth))
-        self.size = 0
-        self.head = 0
-        self.f_prev: np.ndarray | None = None
-        self.g_prev: np.ndarray | None = None
+def _active_cells(weights: sp.csr_matrix, free: np.ndarray) -> np.ndarray:
+    """Vertices whose rotation enters the global step (V_a,) int64: the free vertices and their
+    neighbours (their cells hold free edges)."""
+    n = weights.shape[0]
+    is_free = np.zeros(n, bool)
+    is_free[free] = True
+    touch = np.asarray(weights[free].sum(axis=0) != 0).ravel() if free.size else np.zeros(n, bool)
+    touch |= is_free
+    return np.flatnonzero(touch)
 
-    def restart(self) -> None:
-        """Forget the history."""
-        self.size = self.head = 0
-        self.f_prev = self.g_prev = None
 
-    def begin_solve(self) -> None:
-        """A new solve of the same map shifted (new handle positions): keep the history, but form
-        no difference with the previous solve's last step."""
-        self.f_prev = self.g_prev = None
+def _cell_spokes(weights: sp.csr_matrix, cells: np.ndarray):
+    """The spokes (directed edges i -> j) of the cells ``cells`` (C,): per spoke the cell's
+    position in ``cells``, i = cells[position], j and w_ij; each (E,)."""
+    coo = weights[cells].tocoo()
+    return coo.row, cells[coo.row], coo.col.astype(np.int64), coo.data
 
-    def step(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """The next iterate from the current one ``x`` and its image ``g`` = G(x) (same shapes;
-        ``g`` is kept, not copied: do not modify it afterwards)."""
-        gf = g.reshape(-1)
-        f = gf - x.reshape(-1)
-        if self.f_prev is not None:
-            if self.dF is None or self.dF.shape[1] != f.size:
-                self.dF = np.empty((self.depth, f.size))
-                self.dG = np.empty((self.depth, f.size))
-            k = self.head
-            np.subtract(f, self.f_prev, out=self.dF[k])
-            np.subtract(gf, self.g_prev, out=self.dG[k])
-            self.head = (k + 1) % self.depth
-            self.size = min(self.size + 1, self.depth)
-            column = self.dF[: self.size] @ self.dF[k]
-            self.gram[k, : self.size] = column
-            self.gram[: self.size, k] = column
-        self.f_prev, self.g_prev = f, gf
-        m = self.size
-        if m == 0:
-            return g
-        A = self.gram[:m, :m].copy()
-        # A tiny ridge keeps nearly collinear histories solvable.
-        A[np.diag_indices_from(A)] += 1e-12 * max(float(np.trace(A)), 1e-300)
+
+def _spoke_energy_form(i: np.ndarray, j: np.ndarray, w: np.ndarray, n: int) -> sp.csr_matrix:
+    """(V, V) quadratic form of the spokes' energy: sum w_ij |p'_i - p'_j|^2 = sum(P' * (form @ P'))
+    (both ends of each spoke)."""
+    return sp.csr_matrix(
+        (np.concatenate([w, w, -w, -w]), (np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i]))),
+        shape=(n, n),
+    )
+
+
+def _covariance_operator(cell: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.ndarray,
+                         rest: np.ndarray, n_cells: int) -> sp.csr_matrix:
+    """(3 C, V) operator from deformed positions P' (V, 3) to the cells' covariances
+    (C, 3, 3): S_i[a, b] = sum_j w_ij e_ij[a] (p'_i - p'_j)[b], e the rest spoke."""
+    e = rest[i] - rest[j]
+    rows = (3 * cell[:, None] + np.arange(3)[None, :]).ravel()  # row 3*i_local + a
+    diag_vals = (w[:, None] * e).ravel()
+    return sp.csr_matrix(
+        (
+            np.concatenate([diag_vals, -diag_vals]),
+            (np.concatenate([rows, rows]), np.concatenate([np.repeat(i, 3), np.repeat(j, 3)])),
+        ),
+        shape=(3 * n_cells, rest.shape[0]),
+    )
+
+
+def _rotation_rhs_operator(weights: sp.csr_matrix, rest: np.ndarray, free: np.ndarray,
+                           active: np.ndarray) -> sp.csr_matrix:
+    """(F, 3 V_a) operator from the active cells' rotations, stacked as (3 V_a, 3) rows of
+    R^T, to the global step's right-hand side b_i = sum_j w_ij / 2 (R_i + R_j) e_ij, i free."""
+    pos_a = -np.ones(rest.shape[0], np.int64)
+    pos_a[active] = np.arange(active.size)
+    cell, fi, fj, w = _cell_spokes(weights, free)
+    wf = 0.5 * w
+    ef = rest[fi] - rest[fj]
+    r_rows = np.repeat(cell, 3)
+    vals = (wf[:, None] * ef).ravel()
+    cols_i = (3 * pos_a[fi][:, None] + np.arange(3)[None, :]).ravel()
+    cols_j = (3 * pos_a[fj][:, None] + np.arange(3)[None, :]).ravel()
+    return sp.csr_matrix(
+        (np.concatenate([vals, vals]), (np.concatenate([r_rows, r_rows]), np.concatenate([cols_i, cols_j]))),
+        shape=(free.size, 3 * active.size),
+    )
+
+
+def _factorise(L_ff: sp.csc_matrix, solver: str):
+    """A solve (F, 3) -> (F, 3) with the free block L_ff (F, F) of the Laplacian, factorised
+    once: ``"splu"`` sparse LU, ``"dense"`` Cholesky. DeformerError when it is singular."""
+    if solver == "dense":
         try:
-            gamma = np.linalg.solve(A, self.dF[:m] @ f)
-        except np.linalg.LinAlgError:
-            self.restart()
-            return g
-        if np.abs(gamma).sum() > self.MAX_WEIGHT:  # an ill-conditioned history: start it again
-            self.restart()
-            return g
-        return (gf - gamma @ self.dG[:m]).reshape(g.shape)
+            factor = sla.cho_factor(L_ff.toarray(), lower=False, check_finite=False)
+        except np.linalg.LinAlgError as exc:
+            raise DeformerError(f"the ROI system is singular ({exc})") from exc
+        return lambda b: sla.cho_solve(factor, b, check_finite=False)
+    try:
+        lu = spla.splu(L_ff, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    except RuntimeError as exc:
+        raise DeformerError(f"the ROI system is singular ({exc})") from exc
+    return lu.solve
 
 
 class ArapDeformer:
@@ -419,7 +233,7 @@ class ArapDeformer:
         self.last_energies: list[float] = []
         self.last_restarts = 0  # accelerated solves: extrapolations rejected for raising the energy
         self.last_converged = False  # the last solve stopped below the tolerance (not at the iteration cap)
-        self._anderson: tuple[_System, _Anderson] | None = None  # history of the current anchor set
+        self._anderson: tuple[_System, AndersonAcceleration] | None = None  # history of the current anchor set
         self.clamp_weights = clamp_weights
         self.diagonal = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
         self.weights = cotangent_weights(V, self.triangles, clamp=clamp_weights)
@@ -482,92 +296,28 @@ class ArapDeformer:
         self.last_factor_ms = sys_.factor_ms
 
     def _build(self, static: np.ndarray, handles: np.ndarray, free: np.ndarray) -> _System:
-        import time
-
         t0 = time.perf_counter()
-        n = self.n
-        W = self.weights
-        L = self.laplacian
-        P = self.rest
-        is_free = np.zeros(n, bool)
-        is_free[free] = True
-        # rotations needed: free vertices and their neighbours (their cells hold free edges)
-        touch = np.asarray(W[free].sum(axis=0) != 0).ravel() if free.size else np.zeros(n, bool)
-        touch |= is_free
-        active = np.flatnonzero(touch)
-        n_a = active.size
-        pos_a = -np.ones(n, np.int64)
-        pos_a[active] = np.arange(n_a)
-        # covariance operator: S_i[a, b] = sum_j w_ij e_ij[a] (p'_i - p'_j)[b], e = rest edge
-        Wa = W[active].tocoo()
-        ii = active[Wa.row]
-        jj = Wa.col.astype(np.int64)
-        w = Wa.data
-        e = P[ii] - P[jj]
-        # energy of the active cells' spokes: sum_ij w_ij |d_ij|^2 as a quadratic form (both ends of each spoke)
-        spokes = sp.csr_matrix(
-            (np.concatenate([w, w, -w, -w]), (np.concatenate([ii, jj, ii, jj]), np.concatenate([ii, jj, jj, ii]))),
-            shape=(n, n),
-        )
-        rows = (3 * Wa.row[:, None] + np.arange(3)[None, :]).ravel()  # row 3*i_local + a
-        diag_vals = (w[:, None] * e).ravel()
-        cov = sp.csr_matrix(
-            (
-                np.concatenate([diag_vals, -diag_vals]),
-                (np.concatenate([rows, rows]), np.concatenate([np.repeat(ii, 3), np.repeat(jj, 3)])),
-            ),
-            shape=(3 * n_a, n),
-        )
-        # rhs from rotations: b_i = sum_j w_ij / 2 (R_i + R_j) e_ij for free i
-        pos_f = -np.ones(n, np.int64)
-        pos_f[free] = np.arange(free.size)
-        Wf = W[free].tocoo()
-        fi = free[Wf.row]
-        fj = Wf.col.astype(np.int64)
-        wf = 0.5 * Wf.data
-        ef = P[fi] - P[fj]
-        r_rows = np.repeat(Wf.row, 3)
-        vals = (wf[:, None] * ef).ravel()
-        cols_i = (3 * pos_a[fi][:, None] + np.arange(3)[None, :]).ravel()
-        cols_j = (3 * pos_a[fj][:, None] + np.arange(3)[None, :]).ravel()
-        rot_to_rhs = sp.csr_matrix(
-            (np.concatenate([vals, vals]), (np.concatenate([r_rows, r_rows]), np.concatenate([cols_i, cols_j]))),
-            shape=(free.size, 3 * n_a),
-        )
-        Lf = L[free]
-        L_ff = Lf[:, free].tocsc()
-        L_fh = Lf[:, handles].tocsr()
+        n, P = self.n, self.rest
+        active = _active_cells(self.weights, free)
+        cell, i, j, w = _cell_spokes(self.weights, active)
+        spokes = _spoke_energy_form(i, j, w, n)
+        Lf = self.laplacian[free]
         fixed = np.ones(n, bool)
         fixed[free] = False
         fixed[handles] = False
         fixed_idx = np.flatnonzero(fixed)
-        rhs_fixed = -(Lf[:, fixed_idx] @ P[fixed_idx])
-        if self.solver == "dense":
-            import scipy.linalg as sla
-
-            try:
-                factor = sla.cho_factor(L_ff.toarray(), lower=False, check_finite=False)
-            except np.linalg.LinAlgError as exc:
-                raise DeformerError(f"the ROI system is singular ({exc})") from exc
-            solve = lambda b, f=factor: sla.cho_solve(f, b, check_finite=False)  # noqa: E731
-        else:
-            try:
-                lu = spla.splu(L_ff, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-            except RuntimeError as exc:
-                raise DeformerError(f"the ROI system is singular ({exc})") from exc
-            solve = lu.solve
         return _System(
             free=free,
             handles=handles,
             static=static,
             active=active,
-            cov=cov,
-            rot_to_rhs=rot_to_rhs,
-            L_fh=L_fh,
-            rhs_fixed=rhs_fixed,
+            cov=_covariance_operator(cell, i, j, w, P, active.size),
+            rot_to_rhs=_rotation_rhs_operator(self.weights, P, free, active),
+            L_fh=Lf[:, handles].tocsr(),
+            rhs_fixed=-(Lf[:, fixed_idx] @ P[fixed_idx]),
             spokes=spokes,
             rest_spokes=float(np.sum(P * (spokes @ P))),
-            solve=solve,
+            solve=_factorise(Lf[:, free].tocsc(), self.solver),
             factor_ms=(time.perf_counter() - t0) * 1e3,
         )
 
@@ -589,13 +339,7 @@ class ArapDeformer:
         if sys_ is None:
             raise DeformerError("set_anchors() must be called before solve()")
         H = sys_.handles.size
-        if handle_positions is None:
-            handle_positions = np.zeros((0, 3))
-        X = np.asarray(handle_positions, dtype=np.float64)
-        if X.shape != (H, 3):
-            raise DeformerError(f"handle_positions must be ({H}, 3), got {X.shape}")
-        if not np.all(np.isfinite(X)):
-            raise DeformerError("handle_positions contain NaN or inf")
+        X = _handle_positions(handle_positions, H)
         iters = self.iterations if iterations is None else int(iterations)
         if iters < 0:
             raise DeformerError("iterations must be >= 0")
@@ -614,7 +358,7 @@ class ArapDeformer:
             # The history outlives the solve while the anchor set stays: its secant pairs describe
             # the local/global map, which a handle move only shifts. No pair spans two solves.
             if self._anderson is None or self._anderson[0] is not sys_:
-                self._anderson = (sys_, _Anderson(self.history))
+                self._anderson = (sys_, AndersonAcceleration(self.history))
             anderson = self._anderson[1]
             anderson.begin_solve()
         energies: list[float] = []

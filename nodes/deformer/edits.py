@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from .anchors import METRICS, edge_length_graph, roi_within_radius
-from .arap import ArapDeformer, DeformerError
+from .arap import ArapDeformer
+from .errors import DeformerError
 
 PRESET_FORMAT = "facesculpt-deformer-preset"
 PRESET_VERSION = 1

@@ -21,7 +21,7 @@ from facesculpt.geometry import axes_velocity, merge_deformation, project
 from facesculpt.runtime.node import Node
 from facesculpt.paths import preset_file
 
-from .arap import DeformerError
+from .errors import DeformerError
 from .dragging import depth_delta, drag_delta
 from .edits import EditStack
 from .picking import pick_vertex
