@@ -85,6 +85,7 @@ def _runtime_receiver(n: int, out: mp.Queue, env: dict) -> None:
     os.environ.update(env)
     from facesculpt.msgs import Image
     from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVERY_MESSAGE
 
     node = Node(name=f"bench_rx_{os.getpid()}")
     lat, times = [], []
@@ -94,7 +95,7 @@ def _runtime_receiver(n: int, out: mp.Queue, env: dict) -> None:
         lat.append((now - msg.stamp) / 1e6)
         times.append(now)
 
-    node.subscribe("bench/image", Image, on_image, queued=True)
+    node.subscribe("bench/image", Image, on_image, qos=EVERY_MESSAGE)
     node.start()
     while len(lat) < n:
         node.spin_once(0.05)
@@ -106,11 +107,12 @@ def run_runtime(transport: str, n: int, rate_hz: float, env: dict) -> dict:
     os.environ.update(env)
     from facesculpt.msgs import Image
     from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVENTS, SENSOR_DATA
 
     results = {}
     for mode, rate in (("latency", rate_hz), ("throughput", 0.0)):
         node = Node(name=f"bench_tx_{mode}", transport=transport)
-        pub = node.advertise("bench/image", Image, reliable=(mode == "throughput"))
+        pub = node.advertise("bench/image", Image, qos=EVENTS if mode == "throughput" else SENSOR_DATA)
         node.start()
         out = mp.Queue()
         proc = mp.Process(target=_runtime_receiver, args=(n, out, env))

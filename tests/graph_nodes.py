@@ -11,6 +11,7 @@ import psutil
 
 from facesculpt.msgs import Image, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS
 
 
 class ImagePublisher(Node):
@@ -78,7 +79,7 @@ class EventCounter(Node):
     PARAMS = {"topic": "input/events"}
 
     def setup(self):
-        self.subscribe(self.params.topic, InputEvent, self.on_event, queued=True)
+        self.subscribe(self.params.topic, InputEvent, self.on_event, qos=EVENTS)
 
     def on_event(self, msg):
         self.count("valid")

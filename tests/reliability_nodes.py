@@ -8,6 +8,7 @@ import psutil
 
 from facesculpt.msgs import REGISTRY
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE
 
 
 class AllTypesCounter(Node):
@@ -19,7 +20,7 @@ class AllTypesCounter(Node):
 
     def setup(self):
         for name, cls in REGISTRY.items():
-            self.subscribe(f"fuzz/{name}", cls, lambda m, n=name: self.count(f"valid:{n}"), queued=True)
+            self.subscribe(f"fuzz/{name}", cls, lambda m, n=name: self.count(f"valid:{n}"), qos=EVERY_MESSAGE)
         self.timer(0.5, self.on_tick)
 
     def on_tick(self):

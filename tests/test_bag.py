@@ -16,6 +16,7 @@ import pytest
 from facesculpt.runtime.bag import MAGIC, BagError, BagReader, BagWriter
 from facesculpt.msgs import Image, decode, encode
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE
 
 
 def _video_frames(path) -> list[np.ndarray]:
@@ -40,7 +41,7 @@ class _Collector:
         self.items: list = []
         self.node = graph.node(Node(name="collector"))
         self.node.subscribe("camera/image", Image, lambda m, f: self.items.append((m, [bytes(x) for x in f])),
-                            queued=True, raw=True)
+                            qos=EVERY_MESSAGE, raw=True)
 
     def play(self, graph, bag, expected, timeout=60):
         import subprocess

@@ -257,17 +257,18 @@ def test_bad_input_is_counted_and_last_good_deformation_stays(node, sfm, tmp_pat
 def test_real_process_receives_every_event_and_publishes(graph, sfm):
     """`facesculpt run deformer` in its own process: latched model, state, 40 queued moves."""
     from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
 
     proc = graph.spawn("run", "deformer", "round_s=0.02")
     client = Node(name="deformer_test_client")
     got: list[Deformation] = []
-    model_pub = client.advertise("face/model", FaceModel, latch=True)
+    model_pub = client.advertise("face/model", FaceModel, qos=LATCHED)
     state_pub = client.advertise("face/state", FaceState)
     events = client.advertise("input/events", InputEvent)
-    client.subscribe("face/deformation", Deformation, got.append, queued=True)
+    client.subscribe("face/deformation", Deformation, got.append, qos=EVERY_MESSAGE)
     from facesculpt.msgs import Diagnostics
     diags = []
-    client.subscribe("diagnostics", Diagnostics, lambda m: diags.append((m.node, m.values)), queued=True)
+    client.subscribe("diagnostics", Diagnostics, lambda m: diags.append((m.node, m.values)), qos=EVERY_MESSAGE)
     client.start()
     try:
         deadline = time.monotonic() + 30

@@ -162,14 +162,15 @@ def test_missing_model_keeps_the_node_up(monkeypatch, tmp_path, frames):
 
 def test_real_process_publishes_state_and_latched_model(graph, frames):
     from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVERY_MESSAGE
 
     proc = graph.spawn("run", "fitter", "model=facemesh", "neutral_frames=3")
     client = Node(name="fitter_test_client")
     states: list[FaceState] = []
     models: list[FaceModel] = []
     pub = client.advertise("face/landmarks", FaceLandmarks)
-    client.subscribe("face/state", FaceState, states.append, queued=True)
-    client.subscribe("face/model", FaceModel, models.append, queued=True)
+    client.subscribe("face/state", FaceState, states.append, qos=EVERY_MESSAGE)
+    client.subscribe("face/model", FaceModel, models.append, qos=EVERY_MESSAGE)
     client.start()
     try:
         deadline = time.monotonic() + 30

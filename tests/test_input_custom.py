@@ -11,6 +11,7 @@ import yaml
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
 
 from conftest import REPO_ROOT
 from test_input_script import sfm, sfm_model_msg, sfm_state_msg  # noqa: F401  (sfm is a fixture)
@@ -22,11 +23,11 @@ def test_example_custom_node_joins_a_launched_graph_and_moves_the_nose(graph, sf
                                                  "params": {"round_s": 0.02}}]}))
     graph.spawn("launch", str(launch))
     face = Node(name="custom_test_face")  # stands in for the camera, landmarks and fitter
-    model_pub = face.advertise("face/model", FaceModel, latch=True)
+    model_pub = face.advertise("face/model", FaceModel, qos=LATCHED)
     state_pub = face.advertise("face/state", FaceState)
     face.timer(0.1, lambda: state_pub.publish(sfm_state_msg(sfm, stamp=1)))
     got: list[Deformation] = []
-    face.subscribe("face/deformation", Deformation, got.append, queued=True)
+    face.subscribe("face/deformation", Deformation, got.append, qos=EVERY_MESSAGE)
     graph.node(face)
     model_pub.publish(sfm_model_msg(sfm))
     assert graph.spin_until(face, lambda: bool(got), 20), "the launched deformer is not answering"

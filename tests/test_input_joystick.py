@@ -14,6 +14,7 @@ import pytest
 
 from facesculpt.msgs import Diagnostics, FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE
 from facesculpt.geometry import axes_velocity
 from facesculpt.nodes.input.joystick import JoystickNode
 
@@ -56,9 +57,9 @@ class Listener:
         self.diag: dict = {}
         self.graph = graph
         self.node = Node(name="joystick_test_listener")
-        self.node.subscribe("input/events", InputEvent, self.events.append, queued=True)
+        self.node.subscribe("input/events", InputEvent, self.events.append, qos=EVENTS)
         self.node.subscribe("diagnostics", Diagnostics,
-                            lambda m: self.diag.update(m.values) if m.node == name else None, queued=True)
+                            lambda m: self.diag.update(m.values) if m.node == name else None, qos=EVERY_MESSAGE)
         graph.node(self.node)
 
     def wait(self, predicate, timeout=10.0) -> bool:

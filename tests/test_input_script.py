@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
 from facesculpt.geometry import project
 
 from conftest import REPO_ROOT
@@ -50,13 +51,13 @@ class FakeFitter:
     def __init__(self, graph, m):
         self.graph, self.m = graph, m
         self.node = Node(name="script_test_fitter")
-        self.model_pub = self.node.advertise("face/model", FaceModel, latch=True)
+        self.model_pub = self.node.advertise("face/model", FaceModel, qos=LATCHED)
         self.state_pub = self.node.advertise("face/state", FaceState)
         self.deformations: list[Deformation] = []
         self.diag: dict[str, dict] = {}
-        self.node.subscribe("face/deformation", Deformation, self.deformations.append, queued=True)
+        self.node.subscribe("face/deformation", Deformation, self.deformations.append, qos=EVERY_MESSAGE)
         self.node.subscribe("diagnostics", Diagnostics, lambda d: self.diag.__setitem__(d.node, d.values),
-                            queued=True)
+                            qos=EVERY_MESSAGE)
         self.publishing = False
         self.node.timer(0.1, self.tick)
         self.frame = 0
@@ -195,11 +196,11 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
     model: list[FaceModel] = []
     deformations: list[Deformation] = []
     watcher = Node(name="script_test_watcher")
-    watcher.subscribe("camera/image", Image, lambda m: frames.__setitem__(m.stamp, m), queued=True)
-    watcher.subscribe("render/image", Image, lambda m: renders.__setitem__(m.stamp, m), queued=True)
-    watcher.subscribe("face/state", FaceState, lambda m: states.__setitem__(m.stamp, m), queued=True)
+    watcher.subscribe("camera/image", Image, lambda m: frames.__setitem__(m.stamp, m), qos=EVERY_MESSAGE)
+    watcher.subscribe("render/image", Image, lambda m: renders.__setitem__(m.stamp, m), qos=EVERY_MESSAGE)
+    watcher.subscribe("face/state", FaceState, lambda m: states.__setitem__(m.stamp, m), qos=EVERY_MESSAGE)
     watcher.subscribe("face/model", FaceModel, model.append)
-    watcher.subscribe("face/deformation", Deformation, deformations.append, queued=True)
+    watcher.subscribe("face/deformation", Deformation, deformations.append, qos=EVERY_MESSAGE)
     graph.node(watcher)
     assert graph.spin_until(watcher, lambda: script.poll() is not None, 90), "the script did not play"
     assert script.returncode == 0
@@ -251,7 +252,7 @@ def test_loop_start_delay_and_a_failed_batch_run(graph, tmp_path):
                        "  - release\n  - wait: 0.2\n")
     events: list[InputEvent] = []
     listener = Node(name="script_test_listener")
-    listener.subscribe("input/events", InputEvent, events.append, queued=True)
+    listener.subscribe("input/events", InputEvent, events.append, qos=EVENTS)
     graph.node(listener)
     node = ScriptNode(params={"script": str(gesture), "loop": True, "start_delay_s": 0.5, "wait_for_face": False,
                               "wait_subscribers": 1})

@@ -9,13 +9,14 @@ import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, Image
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE
 
 
 def _collect(graph, models_dir, source, frames, timeout=60):
     images, landmarks = {}, []
     node = graph.node(Node(name="landmarks_collector"))
-    node.subscribe("camera/image", Image, lambda m: images.__setitem__(m.stamp, m.image.shape), queued=True)
-    node.subscribe("face/landmarks", FaceLandmarks, landmarks.append, queued=True)
+    node.subscribe("camera/image", Image, lambda m: images.__setitem__(m.stamp, m.image.shape), qos=EVERY_MESSAGE)
+    node.subscribe("face/landmarks", FaceLandmarks, landmarks.append, qos=EVERY_MESSAGE)
     graph.spawn("run", "landmarks", f"models_dir={models_dir}")
     # The camera waits for both subscribers (collector and landmarks) before its first frame.
     cam = graph.spawn("run", "camera", f"source={source}", "fps=15", f"max_frames={frames}", "wait_subscribers=2",

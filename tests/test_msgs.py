@@ -8,7 +8,7 @@ import pytest
 
 from facesculpt.msgs import (REGISTRY, Deformation, Diagnostics, DecodeError, FaceLandmarks, FaceModel, FaceState,
                              Image, InputEvent, decode, encode, summarize)
-from facesculpt.runtime.node import coerce_param, parse_assignments
+from facesculpt.runtime.parameters import coerce_param, parse_assignments
 
 rng = np.random.default_rng(3)
 

@@ -13,6 +13,7 @@ import pytest
 from facesculpt.runtime.bag import BagReader, BagWriter
 from facesculpt.msgs import Diagnostics, FaceState, Image, decode
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE
 from facesculpt.nodes.renderer.video_out import VideoOutput
 
 
@@ -36,7 +37,7 @@ def test_corrupt_and_truncated_videos_are_reported_and_end_cleanly(graph, data_d
     garbled.write_bytes(bytes(data[:a]) + rng.integers(0, 256, b - a, dtype=np.uint8).tobytes() + bytes(data[b:]))
     got: list[Image] = []
     watcher = graph.node(Node(name="watcher"))
-    watcher.subscribe("camera/image", Image, got.append, queued=True)
+    watcher.subscribe("camera/image", Image, got.append, qos=EVERY_MESSAGE)
     cam = graph.spawn("run", "camera", f"source={garbled}", "fps=60", "wait_subscribers=1",
                       stderr=subprocess.PIPE)
     assert graph.spin_until(watcher, lambda: cam.poll() is not None, 60), "the camera did not end"
@@ -67,8 +68,8 @@ def test_frames_of_a_new_size_flow_through_the_graph(graph, data_dir, models_dir
     sizes_render, sizes_state = set(), set()
     diags: dict = {}
     watcher = graph.node(Node(name="watcher"))
-    watcher.subscribe("render/image", Image, lambda m: sizes_render.add(m.image.shape[:2]), queued=True)
-    watcher.subscribe("face/state", FaceState, lambda m: sizes_state.add(tuple(m.image_size)), queued=True)
+    watcher.subscribe("render/image", Image, lambda m: sizes_render.add(m.image.shape[:2]), qos=EVERY_MESSAGE)
+    watcher.subscribe("face/state", FaceState, lambda m: sizes_state.add(tuple(m.image_size)), qos=EVERY_MESSAGE)
     watcher.subscribe("diagnostics", Diagnostics, lambda m: diags.__setitem__(m.node, m.values))
     procs = [graph.spawn("run", "landmarks"), graph.spawn("run", "fitter"),
              graph.spawn("run", "renderer", "pairing=latest", "output=")]

@@ -14,6 +14,7 @@ import zmq
 from facesculpt.msgs import (REGISTRY, Deformation, Diagnostics, FaceLandmarks, FaceModel, FaceState, Image,
                              InputEvent, decode)
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE
 
 NODES = "tests/reliability_nodes.py"
 N_BAD = 10000
@@ -116,7 +117,7 @@ def test_fuzz_every_message_type(graph):
     diags: dict = {}
     fuzzer.subscribe("diagnostics", Diagnostics, lambda m: diags.__setitem__(m.node, m.values))
     examples = _valid_examples()
-    pubs = {name: fuzzer.advertise(f"fuzz/{name}", None, reliable=True) for name in examples}
+    pubs = {name: fuzzer.advertise(f"fuzz/{name}", None, qos=EVENTS) for name in examples}
     for pub in pubs.values():
         assert pub.wait_for_subscribers(1, 20), "the subscriber never connected"
     assert graph.spin_until(fuzzer, lambda: "all_types_counter" in diags, 10)
@@ -184,7 +185,8 @@ def test_decode_path_holds_no_memory():
 
     receiver = Receiver(zmq.Context(), threading.Condition())
     examples = _valid_examples()
-    subs = {n: Subscription(f"fuzz/{n}", REGISTRY[m.TYPE], lambda m: None, queued=True) for n, m in examples.items()}
+    subs = {n: Subscription(f"fuzz/{n}", REGISTRY[m.TYPE], lambda m: None, qos=EVERY_MESSAGE)
+            for n, m in examples.items()}
     rng = random.Random(11)
     tracemalloc.start()
     try:

@@ -10,6 +10,7 @@ from renderer_scene import issue_edit, place_marked, read_frames
 
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, Image
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
 from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.renderer import Compositor
 
@@ -24,12 +25,12 @@ class Feeder(Node):
     def setup(self):
         self.image_pub = self.advertise("camera/image", Image)
         self.state_pub = self.advertise("face/state", FaceState)
-        self.model_pub = self.advertise("face/model", FaceModel, latch=True)
+        self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
         self.deformation_pub = self.advertise("face/deformation", Deformation)
         self.rendered: dict[int, np.ndarray] = {}
         self.diagnostics_seen: list[dict] = []
-        self.subscribe("render/image", Image, self.on_render, queued=True)
-        self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, queued=True)
+        self.subscribe("render/image", Image, self.on_render, qos=EVERY_MESSAGE)
+        self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, qos=EVERY_MESSAGE)
 
     def on_render(self, msg):
         self.rendered[msg.stamp] = msg.image

@@ -152,6 +152,7 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     deformer as input/events, and the window then shows a changed nose."""
     from facesculpt.msgs import Diagnostics, FaceModel, FaceState, Image, InputEvent
     from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
     from facesculpt.nodes.fitter import sfm_from_shared
 
     model = sfm_from_shared(data_dir)
@@ -165,11 +166,11 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
         def setup(self):
             self.image_pub = self.advertise("camera/image", Image)
             self.state_pub = self.advertise("face/state", FaceState)
-            self.model_pub = self.advertise("face/model", FaceModel, latch=True)
+            self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
             self.events = []
-            self.subscribe("input/events", InputEvent, self.events.append, queued=True)
+            self.subscribe("input/events", InputEvent, self.events.append, qos=EVENTS)
             self.listeners = 0  # the renderer's input/events subscribers, from its diagnostics
-            self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, queued=True)
+            self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, qos=EVERY_MESSAGE)
             self.timer(1 / 15, self.tick)
             self.n = 0
 

@@ -17,6 +17,7 @@ import zmq
 from facesculpt.runtime.master import MasterClient, master_alive
 from facesculpt.msgs import Image, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS
 from facesculpt.runtime.security import Security, SecurityError, generate_keypair
 
 from conftest import REPO_ROOT, free_port
@@ -65,7 +66,7 @@ def test_curve_admits_authenticated_peers_and_shuts_out_strangers(graph, keys):
     pub = pub_node.advertise("input/events", InputEvent)
     got: list[int] = []
     sub_node = graph.node(Node(name="secure_sub", master=address, transport="tcp", security=laptop))
-    sub = sub_node.subscribe("input/events", InputEvent, lambda m: got.append(m.handle), queued=True)
+    sub = sub_node.subscribe("input/events", InputEvent, lambda m: got.append(m.handle), qos=EVENTS)
     assert pub.endpoint.startswith("tcp://127.0.0.1:")   # loopback unless told otherwise
 
     # A stranger's publisher on the same topic, with its own (wrong) server key; its master link is

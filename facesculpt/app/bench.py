@@ -287,6 +287,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     from facesculpt.runtime.master import master_alive
     from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
     from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVERY_MESSAGE
 
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
     address = f"tcp://127.0.0.1:{_free_port()}"
@@ -307,9 +308,10 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         diagnostics: dict[str, list[dict]] = {}
         deformed = []
         listener = Node(name=f"_bench_{os.getpid()}", master=address)
-        listener.subscribe("render/image", Image, lambda m: arrivals.append((time.time_ns(), m.stamp)), queued=True)
+        listener.subscribe("render/image", Image, lambda m: arrivals.append((time.time_ns(), m.stamp)),
+                           qos=EVERY_MESSAGE)
         listener.subscribe("diagnostics", Diagnostics,
-                           lambda m: diagnostics.setdefault(m.node, []).append(m.values), queued=True)
+                           lambda m: diagnostics.setdefault(m.node, []).append(m.values), qos=EVERY_MESSAGE)
         listener.subscribe("face/deformation", Deformation,
                            lambda m: deformed.append(float(np.abs(m.displacement).max()) if m.displacement.size else 0.0))
         events = listener.advertise("input/events", InputEvent)

@@ -24,6 +24,7 @@ import numpy as np
 
 from facesculpt.msgs import Diagnostics, Image
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE
 
 
 def register(sub) -> None:
@@ -47,9 +48,9 @@ class DemoListener(Node):
         self.rendered = 0
         self.stages: dict[str, dict[str, list[float]]] = collections.defaultdict(lambda: collections.defaultdict(list))
         self.rates: dict[str, dict[str, float]] = {}
-        self.subscribe("camera/image", Image, self.on_camera, queued=True)
-        self.subscribe("render/image", Image, self.on_render, queued=True)
-        self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, queued=True)
+        self.subscribe("camera/image", Image, self.on_camera, qos=EVERY_MESSAGE)
+        self.subscribe("render/image", Image, self.on_render, qos=EVERY_MESSAGE)
+        self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, qos=EVERY_MESSAGE)
 
     def on_camera(self, msg: Image):
         self.frames[msg.stamp] = np.array(msg.image)

@@ -9,6 +9,7 @@ import time
 
 from facesculpt.msgs import REGISTRY, summarize
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, SENSOR_DATA
 
 
 def register(sub) -> None:
@@ -158,7 +159,7 @@ def cmd_topic_echo(args) -> int:
         summary = summarize(msg)
         print(json.dumps(summary, default=str) if args.json else _pretty(summary), flush=True)
 
-    node.subscribe(args.topic, None, on_msg, queued=True)
+    node.subscribe(args.topic, None, on_msg, qos=EVERY_MESSAGE)
     start = time.monotonic()
     _run_tool(node, lambda: (args.count and seen[0] >= args.count)
               or (args.timeout and time.monotonic() - start > args.timeout))
@@ -175,7 +176,7 @@ def _pretty(summary: dict) -> str:
 def cmd_topic_hz(args) -> int:
     node = _ToolNode("hz")
     arrivals: list[float] = []
-    node.subscribe(args.topic, None, lambda msg: arrivals.append(time.monotonic()), queued=True)
+    node.subscribe(args.topic, None, lambda msg: arrivals.append(time.monotonic()), qos=EVERY_MESSAGE)
     start = time.monotonic()
     _run_tool(node, lambda: time.monotonic() - start > args.duration)
     result = {"topic": args.topic, "messages": len(arrivals), "duration_s": args.duration}
@@ -213,7 +214,7 @@ def cmd_bag_record(args) -> int:
             failure.append(str(exc))
 
     for topic in args.topics:
-        node.subscribe(topic, None, lambda m, f, t=topic: on_msg(m, f, t), queued=True, raw=True)
+        node.subscribe(topic, None, lambda m, f, t=topic: on_msg(m, f, t), qos=EVERY_MESSAGE, raw=True)
     start = time.monotonic()
     try:
         _run_tool(node, lambda: bool(failure) or (args.count and writer.count >= args.count)
@@ -236,7 +237,7 @@ def cmd_bag_play(args) -> int:
     for rec in reader:
         if rec.topic not in publishers:
             msg_type = REGISTRY.get(rec.header.get("type"))
-            publishers[rec.topic] = node.advertise(rec.topic, msg_type, reliable=args.fast)
+            publishers[rec.topic] = node.advertise(rec.topic, msg_type, qos=EVENTS if args.fast else SENSOR_DATA)
     if not publishers:
         print(f"{args.file}: no complete records", file=sys.stderr)
         return 1

@@ -24,6 +24,9 @@ Optional top-level keys: ``transport: tcp`` (default ipc) with ``host: ADDRESS``
 starting with ``./`` is a path relative to the launch file. Children are
 killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
 SIGINT/SIGTERM every child gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``.
+
+A node that exits with ``EXIT_BAD_PARAMETER`` (2: a parameter out of its range or choices,
+see facesculpt.runtime.parameters) is not respawned: the same values would stop it again.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from pathlib import Path
 import yaml
 
 from facesculpt.runtime.master import master_address, master_alive
-from facesculpt.runtime.node import parse_assignments
+from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER, parse_assignments
 
 STOP_GRACE_S = 2.5
 # A node that ran this long before dying was healthy: its next respawn starts without backoff
@@ -229,7 +232,11 @@ class Launcher:
                     self.status(f"[{child.spec.name}] ended ({how}); it is required, so the graph stops")
                     child.state = "done"
                     return False
-                if child.spec.respawn and not self.stopping:
+                if child.spec.respawn and code == EXIT_BAD_PARAMETER:
+                    child.state = "done"
+                    self.status(f"[{child.spec.name}] ended ({how}): a parameter it cannot run with "
+                                f"(its message above); not respawning")
+                elif child.spec.respawn and not self.stopping:
                     # A node that ran healthily comes back at once (the graph waits on it); back off
                     # only while it keeps dying quickly (a crash loop): delay, 2 x delay, ... capped.
                     child.failures = 0 if now - child.started_at >= HEALTHY_RUN_S else child.failures + 1
@@ -263,7 +270,8 @@ class Launcher:
             self.stop()
             for s, handler in old.items():
                 signal.signal(s, handler)
-        failed = [c for c in self.children if c.exit_code not in (None, 0) and not c.spec.respawn]
+        failed = [c for c in self.children if c.exit_code not in (None, 0)
+                  and (not c.spec.respawn or c.exit_code == EXIT_BAD_PARAMETER)]
         return 1 if failed else 0
 
     def stop(self) -> None:

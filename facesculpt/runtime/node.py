@@ -1,13 +1,15 @@
 """The node base every process of the graph is built on.
 
-A node declares its parameters in ``PARAMS`` (the type of each default is the
-parameter's type), and in :meth:`Node.setup` advertises topics, subscribes
-with callbacks and starts timers. :meth:`Node.spin` then runs callbacks on
+A node declares its parameters in ``PARAMS`` (:mod:`facesculpt.runtime.parameters`:
+each a ``Param`` with its description and valid range or choices, or a plain default),
+and in :meth:`Node.setup` advertises topics, subscribes with callbacks (each with a
+:class:`~facesculpt.runtime.qos.QoSProfile`) and starts timers. :meth:`Node.spin` then runs callbacks on
 the node's own thread until SIGINT/SIGTERM. Three threads per process:
 
 * the node's thread: your callbacks and timers, nothing else;
 * the receiver (:class:`facesculpt.runtime.pubsub.Receiver`): drains SUB sockets,
-  validates, keeps the newest (or queues), counts drops and malformed input;
+  validates, keeps the newest (or queues, as the subscription's QoS says), counts drops and
+  malformed input;
 * the master link (:class:`MasterLink`): registers with the master,
   heartbeats, follows publishers that move, fetches latched messages. A dead
   or restarted master never blocks the node's thread.
@@ -15,11 +17,12 @@ the node's own thread until SIGINT/SIGTERM. Three threads per process:
 Example (a complete custom node)::
 
     from facesculpt.runtime.node import Node
+    from facesculpt.runtime.parameters import Param
     from facesculpt.msgs import Image
 
     class Brightness(Node):
         NAME = "brightness"
-        PARAMS = {"gain": 1.5}
+        PARAMS = {"gain": Param(1.5, "brightness factor", range=(0.0, 10.0))}
         def setup(self):
             self.out = self.advertise("camera/bright", Image)
             self.subscribe("camera/image", Image, self.on_image)
@@ -46,64 +49,19 @@ import sys
 import threading
 import time
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any, Callable
 
-import yaml
 import zmq
 
 from facesculpt.runtime.master import MasterClient, master_address
 from facesculpt.runtime.process_limits import limit_threads
 from facesculpt.msgs import Diagnostics, Message
+from facesculpt.runtime.parameters import (EXIT_BAD_PARAMETER, ParameterError, Params, declared, default_values,
+                                           parse_assignments, resolve_params)
 from facesculpt.runtime.pubsub import Publisher, Receiver, Subscription, new_endpoint
+from facesculpt.runtime.qos import SENSOR_DATA, QoSProfile
 
 DIAGNOSTICS_TOPIC = "diagnostics"
-
-
-# -- parameters -------------------------------------------------------------------------
-def coerce_param(name: str, value: Any, default: Any) -> Any:
-    """Convert ``value`` (from YAML or a ``name=value`` string) to the type of ``default``."""
-    if isinstance(value, str) and not isinstance(default, str):
-        try:
-            value = yaml.safe_load(value) if value != "" else None
-        except yaml.YAMLError:
-            raise ValueError(f"param {name}: cannot parse {value!r}") from None
-    if default is None or value is None:
-        return value
-    typ = type(default)
-    if typ is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, (int, float)) and value in (0, 1):
-            return bool(value)
-        raise ValueError(f"param {name}: expected true/false, got {value!r}")
-    if typ is float and isinstance(value, (int, float)) and not isinstance(value, bool):
-        return float(value)
-    if typ is int and isinstance(value, (int, float)) and not isinstance(value, bool) and float(value).is_integer():
-        return int(value)
-    if typ is str:
-        return str(value)
-    if isinstance(value, typ):
-        return value
-    raise ValueError(f"param {name}: expected {typ.__name__}, got {value!r}")
-
-
-def parse_assignments(items: list[str]) -> dict[str, str]:
-    """``["a=1", "b=x"]`` -> ``{"a": "1", "b": "x"}``, with a clear error for a malformed item."""
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"expected name=value, got {item!r}")
-        out[key.strip()] = value
-    return out
-
-
-class Params(SimpleNamespace):
-    """Attribute access to a node's parameters (``self.params.fps``)."""
-
-    def as_dict(self) -> dict:
-        return dict(vars(self))
 
 
 # -- the master link ----------------------------------------------------------------------
@@ -250,7 +208,7 @@ class Node:
                  security=None):
         self.name = name or self.NAME
         self.log = logging.getLogger(f"facesculpt.{self.name}")
-        self.params = Params(**self._apply_params(params or {}))
+        self.params = Params(**resolve_params(self.name, self.PARAMS, params or {}))
         self.remap = dict(remap or {})
         self.master = master or master_address()
         self.transport = transport
@@ -278,42 +236,38 @@ class Node:
         self._diag_window: dict[str, float] = {}
 
     # -- parameters ---------------------------------------------------------------------------
-    def _apply_params(self, given: dict) -> dict:
-        values = dict(self.PARAMS)
-        unknown = sorted(set(given) - set(values))
-        if unknown:
-            known = ", ".join(sorted(values)) or "none"
-            raise ValueError(f"node {self.name}: unknown param(s) {', '.join(unknown)} (known: {known})")
-        for key, value in given.items():
-            values[key] = coerce_param(f"{self.name}.{key}", value, self.PARAMS[key])
-        return values
+    @classmethod
+    def default_params(cls) -> dict[str, Any]:
+        """``{name: default}`` of this node's parameters."""
+        return default_values(cls.PARAMS)
 
     def resolve(self, topic: str) -> str:
         """Apply this node's remaps to a topic name."""
         return self.remap.get(topic, topic)
 
     # -- graph API ---------------------------------------------------------------------------
-    def advertise(self, topic: str, msg_type: type[Message] | None, *, latch: bool = False,
-                  hwm: int | None = None, reliable: bool = False) -> Publisher:
-        """Publish ``msg_type`` on ``topic`` (remapped). ``latch``: the master keeps the last
-        message for nodes that join later. ``reliable``: block instead of dropping."""
+    def advertise(self, topic: str, msg_type: type[Message] | None, *,
+                  qos: QoSProfile = SENSOR_DATA) -> Publisher:
+        """Publish ``msg_type`` on ``topic`` (remapped), delivered as ``qos`` says
+        (:mod:`facesculpt.runtime.qos`): e.g. ``LATCHED``, the master keeps the last message
+        for nodes that join later; ``EVENTS``, block instead of dropping."""
         topic = self.resolve(topic)
-        pub = Publisher(self.ctx, topic, msg_type, endpoint=new_endpoint(self.transport, self.host), hwm=hwm,
-                        reliable=reliable, latch=latch, on_latch=self.link.push_latched, security=self.security)
+        pub = Publisher(self.ctx, topic, msg_type, qos=qos, endpoint=new_endpoint(self.transport, self.host),
+                        on_latch=self.link.push_latched, security=self.security)
         self.publishers[topic] = pub
         self.link.invalidate()  # re-register everything, including this publisher
         return pub
 
     def subscribe(self, topic: str, msg_type: type[Message] | None, callback: Callable, *,
-                  queued: bool = False, raw: bool = False) -> Subscription:
-        """Call ``callback(msg)`` for messages on ``topic`` (remapped).
+                  qos: QoSProfile = SENSOR_DATA, raw: bool = False) -> Subscription:
+        """Call ``callback(msg)`` for messages on ``topic`` (remapped), delivered as ``qos`` says.
 
-        Latest-only by default: the callback gets the newest message when it is
-        free; ``queued=True`` delivers every message in order (bounded at 10,000).
-        ``msg_type=None`` accepts any registered type. ``raw=True`` calls
-        ``callback(msg, frames)`` with the received frames as well (for recording).
+        ``SENSOR_DATA`` (the default): the callback gets the newest message when it is
+        free; a ``KEEP_ALL`` profile (``EVENTS``, ``EVERY_MESSAGE``) delivers every message in
+        order, up to its depth. ``msg_type=None`` accepts any registered type. ``raw=True``
+        calls ``callback(msg, frames)`` with the received frames as well (for recording).
         """
-        sub = Subscription(self.resolve(topic), msg_type, callback, queued=queued, raw=raw)
+        sub = Subscription(self.resolve(topic), msg_type, callback, qos=qos, raw=raw)
         self.subscriptions.append(sub)
         self.receiver.add(sub)
         self.link.invalidate()
@@ -536,17 +490,33 @@ def load_node_class(spec: str, builtin: dict[str, str] | None = None) -> type[No
     return cls
 
 
+def params_help(cls: type[Node]) -> str:
+    """Every parameter of ``cls`` with its type, default, range or choices and description."""
+    params = declared(cls.PARAMS)
+    if not params:
+        return "parameters: none"
+    lines = ["parameters (name=value; a value out of its range or choices stops the node, "
+             f"exit code {EXIT_BAD_PARAMETER}):"]
+    width = max(len(name) for name in params)
+    for name, param in params.items():
+        lines.append(f"  {name:<{width}}  {param.help_text()}")
+    return "\n".join(lines)
+
+
 def run_node(cls: type[Node], argv: list[str]) -> int:
-    """Parse ``[--name N] [--remap from=to ...] [--config-json J] [param=value ...]`` and run."""
+    """Parse ``[--name N] [--remap from=to ...] [--config-json J] [param=value ...]`` and run.
+
+    A parameter the node cannot run with (:class:`ParameterError`) is reported in one sentence
+    and the exit code is :data:`EXIT_BAD_PARAMETER`, which the launcher does not respawn."""
     import argparse
 
     parser = argparse.ArgumentParser(prog=f"facesculpt run {cls.NAME}",
-                                     description=(cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else None)
+                                     description=(cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else None,
+                                     epilog=params_help(cls), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--name", help=f"node name (default {cls.NAME})")
     parser.add_argument("--remap", action="append", default=[], metavar="FROM=TO", help="rename a topic")
     parser.add_argument("--config-json", help=argparse.SUPPRESS)  # used by `facesculpt launch`
-    parser.add_argument("params", nargs="*", metavar="param=value",
-                        help="params: " + (", ".join(f"{k}={v!r}" for k, v in cls.PARAMS.items()) or "none"))
+    parser.add_argument("params", nargs="*", metavar="param=value", help="parameters (listed below)")
     args = parser.parse_args(argv)
     config = json.loads(args.config_json) if args.config_json else {}
     params = dict(config.get("params", {}))
@@ -555,6 +525,10 @@ def run_node(cls: type[Node], argv: list[str]) -> int:
     remap.update(parse_assignments(args.remap))
     # Many processes share few cores: one BLAS and OpenCV thread per node unless told otherwise.
     limit_threads(int(os.environ.get("FACESCULPT_THREADS", "1")))
-    node = cls(name=args.name or config.get("name"), params=params, remap=remap,
-               transport=config.get("transport", "ipc"), host=config.get("host", "127.0.0.1"))
+    try:
+        node = cls(name=args.name or config.get("name"), params=params, remap=remap,
+                   transport=config.get("transport", "ipc"), host=config.get("host", "127.0.0.1"))
+    except ParameterError as exc:
+        print(f"facesculpt: {exc}", file=sys.stderr)
+        return EXIT_BAD_PARAMETER
     return node.run()

@@ -1,4 +1,4 @@
-"""Publish/subscribe over ZeroMQ with latest-only or queued delivery.
+"""Publish/subscribe over ZeroMQ, delivered as each topic's :class:`~facesculpt.runtime.qos.QoSProfile` says.
 
 A :class:`Publisher` binds an XPUB socket (it behaves like PUB, and also tells
 us how many subscribers are connected). The SUB sockets of a process are
@@ -7,9 +7,9 @@ served by a :class:`Receiver`: while the node's thread waits for messages
 callback without a thread switch; the rest of the time (callbacks running,
 the node busy elsewhere) the receiver's own thread owns them and drains them as
 fast as messages come. Either way each message is validated and either the
-newest one is kept (latest-only, the default: a slow callback always gets the
+newest one is kept (``KEEP_LAST``, the default: a slow callback always gets the
 freshest message and nothing piles up) or all of them in a bounded queue
-(``queued``: for input events). Malformed messages are dropped and counted
+(``KEEP_ALL``: for input events). Malformed messages are dropped and counted
 there; the node's callbacks never see them.
 """
 
@@ -28,16 +28,17 @@ import zmq
 
 from facesculpt.msgs import DecodeError, Message, decode
 from facesculpt.paths import run_dir
+from facesculpt.runtime.qos import SENSOR_DATA, QoSProfile
 
 log = logging.getLogger("facesculpt.runtime.pubsub")
 
-# Small types (events, diagnostics) may queue deeply; big ones (images) must not
-# pile up behind a stalled peer: memory stays bounded by hwm * message size.
+# High-water marks when the profile gives none. Small types (events, diagnostics) may queue
+# deeply; big ones (images) must not pile up behind a stalled peer: memory stays bounded by
+# hwm * message size.
 SMALL_TYPES = {"InputEvent", "Diagnostics", "Deformation", "FaceModel"}
 DEFAULT_HWM_SMALL = 10000
 DEFAULT_HWM_LARGE = 4
 _SNDMORE, _NOBLOCK = int(zmq.SNDMORE), int(zmq.NOBLOCK)  # plain ints: IntFlag arithmetic is slow
-QUEUE_LIMIT = 10000
 DISCONNECT_GRACE_S = 2.0
 
 _endpoint_counter = 0
@@ -58,23 +59,27 @@ def new_endpoint(transport: str = "ipc", host: str = "127.0.0.1") -> str:
 class Publisher:
     """Sends messages of one type on one topic; bound to its own endpoint.
 
-    ``reliable=True`` blocks (up to ``timeout_s``) instead of dropping when a
-    subscriber's queue is full; bag playback uses it so that nothing is lost.
+    ``qos``: a reliable profile blocks (up to ``timeout_s``) instead of dropping when a
+    subscriber's queue is full (bag playback uses it so that nothing is lost); a
+    transient-local one hands each message to ``on_latch`` for the master to keep.
     """
 
     def __init__(self, ctx: zmq.Context, topic: str, msg_type: type[Message] | None, *,
-                 endpoint: str | None = None, hwm: int | None = None, reliable: bool = False,
-                 latch: bool = False, on_latch: Callable[[str, list], None] | None = None, security=None):
+                 qos: QoSProfile = SENSOR_DATA, endpoint: str | None = None,
+                 on_latch: Callable[[str, list], None] | None = None, security=None):
         self.topic = topic
         self.on_latch = on_latch  # told of every latched message (the node forwards it to the master)
         self.msg_type = msg_type
         self.type_name = msg_type.TYPE if msg_type else "*"
-        self.latch = latch
-        self.reliable = reliable
+        self.qos = qos
+        # Read on every publish: plain attributes, not the profile's properties.
+        self.latch = qos.latched
+        self.reliable = reliable = qos.reliable
         self.count = 0
         self.subscribers = 0
         self.last_frames: list | None = None
         self._topic_bytes = topic.encode()
+        hwm = qos.hwm
         if hwm is None:
             hwm = DEFAULT_HWM_SMALL if self.type_name in SMALL_TYPES or reliable else DEFAULT_HWM_LARGE
         self.sock = ctx.socket(zmq.XPUB)
@@ -176,9 +181,10 @@ class Subscription:
     topic: str
     msg_type: type[Message] | None
     callback: Callable
-    queued: bool = False
-    raw: bool = False
+    qos: QoSProfile = SENSOR_DATA
+    raw: bool = False  # the callback also gets the received frames (recording)
     endpoints: set = field(default_factory=set)
+    queued: bool = field(init=False)  # qos.keep_all, read for every message
     # gathered by the receiver thread, taken by the node's thread (under Receiver.lock)
     latest: tuple | None = None
     pending: collections.deque = field(default_factory=lambda: collections.deque())
@@ -192,6 +198,9 @@ class Subscription:
     last_key: tuple | None = None
     last_was_latched: bool = False
     publisher_lost_at: float | None = None
+
+    def __post_init__(self):
+        self.queued = self.qos.keep_all
 
 
 class Receiver(threading.Thread):
@@ -307,7 +316,10 @@ class Receiver(threading.Thread):
                 if self.security is not None:
                     # CURVE client: a publisher that cannot prove the graph's key is never heard.
                     self.security.client_socket(sock)
-                sock.setsockopt(zmq.RCVHWM, QUEUE_LIMIT if sub.queued else DEFAULT_HWM_LARGE)
+                hwm = sub.qos.hwm
+                if hwm is None:
+                    hwm = sub.qos.depth if sub.queued else DEFAULT_HWM_LARGE
+                sock.setsockopt(zmq.RCVHWM, hwm)
                 # Exact-topic filter: zmq matches prefixes, so we also check the topic frame.
                 sock.setsockopt(zmq.SUBSCRIBE, sub.topic.encode())
                 self.subs.append(sub)
@@ -380,7 +392,7 @@ class Receiver(threading.Thread):
             sub.received += 1
             item = (msg, frames[1:]) if sub.raw else (msg, None)
             if sub.queued:
-                if len(sub.pending) >= QUEUE_LIMIT:
+                if len(sub.pending) >= sub.qos.depth:
                     sub.pending.popleft()
                     sub.dropped += 1
                 sub.pending.append(item)

@@ -19,6 +19,7 @@ import numpy as np
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
 from facesculpt.geometry import axes_velocity, merge_deformation, project
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS, LATCHED
 from facesculpt.paths import preset_file
 
 from .errors import DeformerError
@@ -48,10 +49,10 @@ class DeformerNode(Node):
 
     def setup(self):
         # latched: a renderer that starts later still gets the current edit
-        self.pub = self.advertise("face/deformation", Deformation, latch=True)
+        self.pub = self.advertise("face/deformation", Deformation, qos=LATCHED)
         self.subscribe("face/model", FaceModel, self.on_model)
         self.subscribe("face/state", FaceState, self.on_state)
-        self.subscribe("input/events", InputEvent, self.on_event, queued=True)
+        self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
         self.timer(self.params.round_s, self.on_round)
         self.model: FaceModel | None = None
         self.state: FaceState | None = None

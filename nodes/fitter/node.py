@@ -17,6 +17,7 @@ import numpy as np
 from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
 from facesculpt.geometry import to_ibug68
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import LATCHED
 
 from .fitter import FitError, Fitter
 from .model import MorphableModel, load_model
@@ -47,7 +48,7 @@ class FitterNode(Node):
 
     def setup(self):
         self.state_pub = self.advertise("face/state", FaceState)
-        self.model_pub = self.advertise("face/model", FaceModel, latch=True)
+        self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
         self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
         self.model: MorphableModel | None = None
         self.fitter: Fitter | None = None

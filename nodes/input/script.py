@@ -19,6 +19,7 @@ import time
 
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVENTS
 
 from .protocol import InputError, ScriptError, ScriptPlayer, load_script
 
@@ -46,7 +47,7 @@ class ScriptNode(Node):
             self.script = load_script(p.script, default_handle=p.handle)
         except ScriptError as exc:
             raise ValueError(str(exc)) from None
-        self.events = self.advertise("input/events", InputEvent, reliable=True)
+        self.events = self.advertise("input/events", InputEvent, qos=EVENTS)
         self.subscribe("face/state", FaceState, self.on_state)
         self.subscribe("face/model", FaceModel, self.on_model)
         self.state: FaceState | None = None

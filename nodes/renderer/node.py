@@ -20,6 +20,7 @@ import numpy as np
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
 from facesculpt.geometry import merge_deformation
 
 from .compositor import Compositor
@@ -48,15 +49,15 @@ class RendererNode(Node):
 
     def setup(self):
         p = self.params
-        queued = p.pairing == "sync"  # sync must see every frame and state to pair them
+        qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))
         if p.inpaint not in ("pushpull", "telea"):
             raise ValueError(f"renderer: unknown inpaint {p.inpaint!r} (pushpull | telea)")
         self.image_pub = self.advertise("render/image", Image) if p.publish else None
         self.events_pub = self.advertise("input/events", InputEvent) if p.window else None
-        self.subscribe("camera/image", Image, self.on_image, queued=queued)
-        self.subscribe("face/state", FaceState, self.on_state, queued=queued)
+        self.subscribe("camera/image", Image, self.on_image, qos=qos)
+        self.subscribe("face/state", FaceState, self.on_state, qos=qos)
         self.subscribe("face/model", FaceModel, self.on_model)
         self.subscribe("face/deformation", Deformation, self.on_deformation)
         self.model: FaceModel | None = None

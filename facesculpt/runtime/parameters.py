@@ -1,0 +1,166 @@
+"""Node parameters: declared with a description and a valid range or choices, checked at start
+(as rclpy's ``declare_parameter`` with a ``ParameterDescriptor``).
+
+A node lists its parameters in ``PARAMS``, each a :class:`Param` or a plain default::
+
+    PARAMS = {
+        "iterations": Param(5, "iterations per frame", range=(1, 50)),
+        "outline": Param("ray", "contour correspondences", choices=("ray", "nearest", "off")),
+        "gain": 1.5,   # a plain default: its type is the parameter's type, no description or range
+    }
+
+The type of the default is the parameter's type: values given as ``name=value`` strings or
+from YAML are converted to it (:func:`coerce_param`). :func:`resolve_params` converts and
+checks every value given to a node; a wrong one raises :class:`ParameterError` with one
+sentence, and a node run from the command line then exits with :data:`EXIT_BAD_PARAMETER`,
+which the launcher does not respawn (the same values would fail again).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import yaml
+
+# Exit status of a node stopped by a parameter it cannot run with.
+EXIT_BAD_PARAMETER = 2
+
+
+class ParameterError(ValueError):
+    """A parameter a node cannot run with (unknown, wrong type, out of range, not a choice)."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One declared parameter: its default (whose type is the parameter's type), what it does
+    (with its unit), and the values it may take: ``range=(lo, hi)`` inclusive for numbers
+    (``None`` on a side: unbounded), or ``choices`` for a fixed set of values."""
+
+    default: Any
+    description: str = ""
+    range: tuple | None = None
+    choices: tuple | None = None
+
+    def __post_init__(self):
+        if self.range is not None and self.choices is not None:
+            raise ValueError("a parameter takes a range or choices, not both")
+        if self.range is not None:
+            if not isinstance(self.default, (int, float)) or isinstance(self.default, bool):
+                raise ValueError(f"a range needs a numeric default, not {self.default!r}")
+            lo, hi = self.range
+            if lo is not None and hi is not None and lo > hi:
+                raise ValueError(f"empty range [{lo}, {hi}]")
+        if self.choices is not None:
+            object.__setattr__(self, "choices", tuple(self.choices))
+            if not self.choices:
+                raise ValueError("choices must not be empty")
+        problem = self.problem(self.default)
+        if problem:
+            raise ValueError(f"default {self.default!r} {problem}")
+
+    @property
+    def type_name(self) -> str:
+        return "any" if self.default is None else type(self.default).__name__
+
+    def problem(self, value: Any) -> str:
+        """Why ``value`` (of the parameter's type) is not allowed, as the end of a sentence; "" if it is."""
+        if self.range is not None and value is not None:
+            lo, hi = self.range
+            if (lo is not None and value < lo) or (hi is not None and value > hi) or math.isnan(value):
+                return f"is out of range {self.range_text()}"
+        if self.choices is not None and value not in self.choices:
+            return f"is not one of {', '.join(map(str, self.choices))}"
+        return ""
+
+    def range_text(self) -> str:
+        lo, hi = self.range
+        return f"{'(-inf' if lo is None else f'[{lo}'}, {'inf)' if hi is None else f'{hi}]'}"
+
+    def help_text(self) -> str:
+        """``int, default 5, range [1, 50]: iterations per frame`` (for ``--help``)."""
+        text = f"{self.type_name}, default {self.default!r}"
+        if self.range is not None:
+            text += f", range {self.range_text()}"
+        if self.choices is not None:
+            text += f", one of {', '.join(map(str, self.choices))}"
+        return text + (f": {self.description}" if self.description else "")
+
+
+def declared(params: dict[str, Any]) -> dict[str, Param]:
+    """A node's ``PARAMS`` with plain defaults read as undescribed, unbounded :class:`Param`."""
+    return {name: value if isinstance(value, Param) else Param(value) for name, value in params.items()}
+
+
+def default_values(params: dict[str, Any]) -> dict[str, Any]:
+    """``{name: default}`` of a node's ``PARAMS``."""
+    return {name: p.default for name, p in declared(params).items()}
+
+
+def coerce_param(name: str, value: Any, default: Any) -> Any:
+    """Convert ``value`` (from YAML or a ``name=value`` string) to the type of ``default``."""
+    if isinstance(value, str) and not isinstance(default, str):
+        try:
+            value = yaml.safe_load(value) if value != "" else None
+        except yaml.YAMLError:
+            raise ValueError(f"param {name}: cannot parse {value!r}") from None
+    if default is None or value is None:
+        return value
+    typ = type(default)
+    if typ is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, (int, float)) and value in (0, 1):
+            return bool(value)
+        raise ValueError(f"param {name}: expected true/false, got {value!r}")
+    if typ is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if typ is int and isinstance(value, (int, float)) and not isinstance(value, bool) and float(value).is_integer():
+        return int(value)
+    if typ is str:
+        return str(value)
+    if isinstance(value, typ):
+        return value
+    raise ValueError(f"param {name}: expected {typ.__name__}, got {value!r}")
+
+
+def resolve_params(node_name: str, params: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """The values a node runs with: the defaults of ``params`` (its ``PARAMS``) overridden by
+    ``given``, each converted to its type and checked against its range or choices. Raises
+    :class:`ParameterError` naming the node, the parameter, the value and what is allowed."""
+    decl = declared(params)
+    unknown = sorted(set(given) - set(decl))
+    if unknown:
+        known = ", ".join(sorted(decl)) or "none"
+        raise ParameterError(f"node {node_name}: unknown param(s) {', '.join(unknown)} (known: {known})")
+    values = {name: p.default for name, p in decl.items()}
+    for key, value in given.items():
+        full = f"{node_name}.{key}"
+        try:
+            values[key] = coerce_param(full, value, decl[key].default)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        problem = decl[key].problem(values[key])
+        if problem:
+            raise ParameterError(f"{full}={values[key]!r} {problem}")
+    return values
+
+
+def parse_assignments(items: list[str]) -> dict[str, str]:
+    """``["a=1", "b=x"]`` -> ``{"a": "1", "b": "x"}``, with a clear error for a malformed item."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"expected name=value, got {item!r}")
+        out[key.strip()] = value
+    return out
+
+
+class Params(SimpleNamespace):
+    """Attribute access to a node's parameters (``self.params.fps``)."""
+
+    def as_dict(self) -> dict:
+        return dict(vars(self))
