@@ -10,20 +10,15 @@ import pytest
 
 from facesculpt.msgs import InputEvent
 from facesculpt.geometry import axes_velocity
-from facesculpt.nodes.input.protocol import (
-    InputError,
+from facesculpt.nodes.input.face_targets import InputError, nearest_landmark, roi_centre
+from facesculpt.nodes.input.gesture_script import ScriptError, ScriptPlayer, load_script, parse_script
+from facesculpt.nodes.input.joystick_protocol import (
     JoystickMapper,
     LineSplitter,
     ProtocolError,
     Sample,
-    ScriptError,
-    ScriptPlayer,
     axis_signs,
-    load_script,
-    nearest_landmark,
     parse_line,
-    parse_script,
-    roi_centre,
 )
 
 from conftest import REPO_ROOT

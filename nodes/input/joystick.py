@@ -1,11 +1,11 @@
 """The serial joystick node: ``facesculpt run joystick port=/dev/ttyACM0`` -> ``input/events``.
 
-Reads the line protocol of :mod:`.protocol` (``X Y Z BUTTONS`` per line) from a serial device
+Reads the line protocol of :mod:`.joystick_protocol` (``X Y Z BUTTONS`` per line) from a serial device
 or any pyserial URL (``loop://``, ``socket://host:port``, ``rfc2217://host:port``). A reader
 thread owns the port: it opens it, reads, and when the device disappears closes it and
 reopens it with exponential backoff (``reconnect_min_s`` doubling up to ``reconnect_max_s``),
 so a joystick unplugged and plugged back resumes without a restart. The node's thread maps
-samples to events (:class:`.protocol.JoystickMapper`): deadzone and speed turn the axes into a
+samples to events (:class:`.joystick_protocol.JoystickMapper`): deadzone and speed turn the axes into a
 model-space velocity (mm/s) that moves the grabbed handle; the grab button presses the
 landmark nearest the centre of the fitted face's ROI (or ``grab_landmark``), the release
 button releases it, the reset button sends ``command reset``.
@@ -27,16 +27,8 @@ from facesculpt.msgs import FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.geometry import axes_velocity
 
-from .protocol import (
-    InputError,
-    JoystickMapper,
-    LineSplitter,
-    ProtocolError,
-    axis_signs,
-    nearest_landmark,
-    parse_line,
-    roi_centre,
-)
+from .face_targets import InputError, nearest_landmark, roi_centre
+from .joystick_protocol import JoystickMapper, LineSplitter, ProtocolError, axis_signs, parse_line
 
 
 def describe_open_error(port: str, exc: Exception) -> str:

@@ -1,6 +1,6 @@
 """The scripted-gesture node: ``facesculpt run script script=examples/gestures/nose_pull.yaml``.
 
-Plays a YAML gesture script (format: :mod:`.protocol`, README "Input events") as
+Plays a YAML gesture script (format: :mod:`.gesture_script`, README "Input events") as
 ``input/events``: presses at landmarks or pixels, drags by model-space millimetres or by
 pixels over a duration, depth pushes, releases, waits, presets and commands — for demos, tests
 and reproducible edits. Before the first step it waits (each optional) for a fitted face
@@ -21,7 +21,8 @@ from facesculpt.msgs import FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVENTS
 
-from .protocol import InputError, ScriptError, ScriptPlayer, load_script
+from .face_targets import InputError
+from .gesture_script import ScriptError, ScriptPlayer, load_script
 
 
 class ScriptNode(Node):
