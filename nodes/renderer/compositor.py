@@ -1,4 +1,4 @@
-"""The compositor: one frame in, the frame with the deformed face out (DESIGN.md stage 4).
+"""The compositor: one frame in, the frame with the deformed face out (docs/architecture.md "Stages", 4).
 
 Per frame, on the bounding box of the face only:
 
@@ -20,8 +20,8 @@ Per frame, on the bounding box of the face only:
    by construction.
 
 Steps 4-5 run on the CPU: on llvmpipe a GPU pass would add an upload and a
-readback of the same crop for work that numpy/OpenCV do in well under a
-millisecond (benchmarks/bench_renderer.py measures both).
+readback of the same crop for work that numpy/OpenCV do cheaply on it
+(benchmarks/bench_renderer.py measures both).
 """
 
 from __future__ import annotations
@@ -236,29 +236,68 @@ class Compositor:
         t_camera = time.perf_counter() - t0
 
         out = frame_bgr.copy()
-        W, H = self.width, self.height
+        box = self._work_box(projected, dst_px)
+        if box is None:
+            self.timings = {"camera": t_camera * 1e3, "total": (time.perf_counter() - t_start) * 1e3}
+            return out  # the face is entirely outside the frame
+        x0, y0, x1, y1 = box
+        t0 = time.perf_counter()
+        self._upload_texture(frame_bgr, projected)
+        t1 = time.perf_counter()
+        self._draw(dst_px, depth, projected, box)
+        t2 = time.perf_counter()
+        rgba, orig = self._read_back(box)
+        t3 = time.perf_counter()
+        orig_mask, def_mask, fill, source = self._masks(rgba, orig)
+        t4 = time.perf_counter()
+        crop = out[y0:y1, x0:x1]
+        if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
+            fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius, in_place=True)
+        t5 = time.perf_counter()
+        self._composite(crop, rgba, def_mask, fill)
+        t6 = time.perf_counter()
+
+        self.box = box
+        self.original_region, self.deformed_region, self.inpainted_region = orig_mask, def_mask, fill
+        self.timings = {
+            "camera": t_camera * 1e3, "texture": (t1 - t0) * 1e3, "draw": (t2 - t1) * 1e3,
+            "readback": (t3 - t2) * 1e3, "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4) * 1e3,
+            "composite": (t6 - t5) * 1e3,
+            "total": (time.perf_counter() - t_start) * 1e3,
+        }
+        return out
+
+    def _work_box(self, projected: np.ndarray, dst_px: np.ndarray) -> tuple[int, int, int, int] | None:
+        """The frame-pixel rectangle (x0, y0, x1, y1) the frame's work is done on: both face
+        regions (projected (V, 2), dst_px (V, 2) pixels) with background around them for the
+        fill, cut to the frame. None when less than 2 x 2 pixels of it are in the frame."""
         pad = self.dilate_px + 10  # background context around the region for the fill
         both = np.concatenate([projected, dst_px])
         lo = np.floor(both.min(axis=0)).astype(int) - pad
         hi = np.ceil(both.max(axis=0)).astype(int) + pad + 1
         x0, y0 = max(0, lo[0]), max(0, lo[1])
-        x1, y1 = min(W, hi[0]), min(H, hi[1])
+        x1, y1 = min(self.width, hi[0]), min(self.height, hi[1])
         if x1 - x0 < 2 or y1 - y0 < 2:
-            self.timings = {"camera": t_camera * 1e3, "total": (time.perf_counter() - t_start) * 1e3}
-            return out  # the face is entirely outside the frame
-        bw, bh = x1 - x0, y1 - y0
+            return None
+        return x0, y0, x1, y1
 
-        # Texture: only the part of the frame the undeformed mesh covers (+1 px for filtering).
-        t0 = time.perf_counter()
+    def _upload_texture(self, frame_bgr: np.ndarray, projected: np.ndarray) -> None:
+        """Write into the texture the part of the frame the undeformed mesh (projected (V, 2)
+        pixels) covers, +1 px for filtering."""
+        W, H = self.width, self.height
         slo = np.clip(np.floor(projected.min(axis=0)).astype(int) - 2, 0, [W, H])
         shi = np.clip(np.ceil(projected.max(axis=0)).astype(int) + 3, 0, [W, H])
         if (shi - slo).min() > 0:
             sub = np.ascontiguousarray(frame_bgr[slo[1]:shi[1], slo[0]:shi[0]])
             self.texture.write(sub, viewport=(int(slo[0]), int(slo[1]), int(shi[0] - slo[0]), int(shi[1] - slo[1])))
-        t_texture = time.perf_counter() - t0
 
-        # Draw the deformed face and the original region into the box.
-        t0 = time.perf_counter()
+    def _draw(self, dst_px: np.ndarray, depth: np.ndarray, projected: np.ndarray,
+              box: tuple[int, int, int, int]) -> None:
+        """Draw the deformed face (dst_px (V, 2) pixels, depth (V,)) textured at ``projected``
+        (V, 2) pixels into ``fbo_face``, and the original region into ``fbo_orig``, both at
+        the origin of their targets, ``box`` in size."""
+        x0, y0, x1, y1 = box
+        bw, bh = x1 - x0, y1 - y0
         dmin, dmax = float(depth.min()), float(depth.max())
         drange = max(dmax - dmin, 1e-9)
         self._vbo_dst.write(np.column_stack([dst_px, depth]).astype(np.float32).tobytes())
@@ -281,36 +320,37 @@ class Compositor:
         ctx.viewport = viewport
         self.fbo_orig.clear(0.0, viewport=viewport)
         self._vao_mask.render(moderngl.TRIANGLES, vertices=self._n_indices)
-        t_draw = time.perf_counter() - t0
-        t0 = time.perf_counter()
+
+    def _read_back(self, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """The drawn face (h, w, 4) uint8 BGRA (alpha: the deformed region) and the original
+        region (h, w) uint8, both 0 or 255, ``box`` in size."""
+        x0, y0, x1, y1 = box
+        bw, bh = x1 - x0, y1 - y0
+        viewport = (0, 0, bw, bh)
         rgba = np.frombuffer(self.fbo_face.read(viewport=viewport, components=4, alignment=1),
                              np.uint8).reshape(bh, bw, 4)
         orig = np.frombuffer(self.fbo_orig.read(viewport=viewport, components=1, alignment=1),
                              np.uint8).reshape(bh, bw)
-        t_read = time.perf_counter() - t0
+        return rgba, orig
 
-        # The regions (the targets hold exactly 0 or 255), then the fill of what the face no
-        # longer covers, from the background only.
-        t0 = time.perf_counter()
-        orig_mask = orig >> 7
+    def _masks(self, rgba: np.ndarray, orig: np.ndarray):
+        """The regions as (h, w) uint8 0/1 masks: original, deformed, and the one to fill (what
+        the face no longer covers), with the (h, w) bool pixels the fill may take its colours
+        from (background only), None when there is nothing to fill."""
+        orig_mask = orig >> 7  # the targets hold exactly 0 or 255
         def_mask = rgba[..., 3] >> 7
-        crop = out[y0:y1, x0:x1]
         fill = uncovered_mask(orig_mask, def_mask, self.dilate_px)
-        has_fill = cv2.countNonZero(fill) > 0
-        if has_fill:
-            source = dilate(orig_mask, 1) == 0
-            source &= fill == 0
-            if not source.any():  # the face fills the whole box: take what is outside the fill
-                source = fill == 0
-            has_fill = bool(source.any())
-        t_masks = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        if has_fill:  # in place: the crop becomes the background (the face is blended over it below)
-            fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius, in_place=True)
-        t_inpaint = time.perf_counter() - t0
+        if cv2.countNonZero(fill) == 0:
+            return orig_mask, def_mask, fill, None
+        source = dilate(orig_mask, 1) == 0
+        source &= fill == 0
+        if not source.any():  # the face fills the whole box: take what is outside the fill
+            source = fill == 0
+        return orig_mask, def_mask, fill, source if source.any() else None
 
-        # Blend the face over the background with a feathered outline; write the region only.
-        t0 = time.perf_counter()
+    def _composite(self, crop: np.ndarray, rgba: np.ndarray, def_mask: np.ndarray, fill: np.ndarray) -> None:
+        """Blend the drawn face (rgba (h, w, 4)) over the background ``crop`` (h, w, 3) uint8,
+        in place, with a feathered outline; only the deformed and filled pixels are written."""
         if self.feather_px > 0:
             alpha = cv2.distanceTransform(def_mask, cv2.DIST_L2, 3)
             alpha *= 1.0 / self.feather_px
@@ -321,17 +361,6 @@ class Compositor:
         blended = cv2.blendLinear(face, crop, alpha, 1.0 - alpha)
         write = (def_mask | fill).astype(bool)
         np.copyto(crop, blended, where=write[..., None])
-        t_composite = time.perf_counter() - t0
-
-        self.box = (x0, y0, x1, y1)
-        self.original_region, self.deformed_region, self.inpainted_region = orig_mask, def_mask, fill
-        self.timings = {
-            "camera": t_camera * 1e3, "texture": t_texture * 1e3, "draw": t_draw * 1e3,
-            "readback": t_read * 1e3, "masks": t_masks * 1e3, "inpaint": t_inpaint * 1e3,
-            "composite": t_composite * 1e3,
-            "total": (time.perf_counter() - t_start) * 1e3,
-        }
-        return out
 
     def full_frame_regions(self) -> dict[str, np.ndarray]:
         """Full-frame (H, W) bool masks of the last render: 'original', 'deformed', 'inpainted'

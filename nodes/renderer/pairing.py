@@ -1,4 +1,4 @@
-"""Which frame is rendered with which face state (DESIGN.md stage 4, "Frame/state pairing").
+"""Which frame is rendered with which face state (docs/architecture.md "Stages", 4).
 
 Two policies, both pure bookkeeping (no clocks: time is the messages' stamps, ns):
 
@@ -68,7 +68,6 @@ class FramePairer:
         self._latest_state: Any = None
         self._latest_state_stamp: int | None = None
         self._newest_frame_stamp: int | None = None
-        self._last_emitted_stamp: int | None = None
 
     def _count(self, name: str, n: int = 1) -> None:
         self.counters[name] = self.counters.get(name, 0) + n
@@ -155,5 +154,4 @@ class FramePairer:
     def _emit(self, stamp: int, frame: Any, state: Any) -> Pair:
         if state is None:
             self._count("passed_without_face")
-        self._last_emitted_stamp = stamp
         return Pair(frame, stamp, state, None if state is None else stamp)
