@@ -13,7 +13,7 @@ DEADZONE = 0.1
 DEADZONE_RANGE = (0.0, 0.99)
 
 
-def axes_velocity(axes, speed_mm_s: float, deadzone: float = 0.1) -> np.ndarray:
+def axes_velocity(axes, speed_mm_s: float, deadzone: float = DEADZONE) -> np.ndarray:
     """Model-space velocity (3,) mm/s from joystick axes in -1..1 (A,).
 
     Axis 0 -> +x, axis 1 -> -y (stick pushed forward/up reads negative on most devices and

@@ -231,7 +231,6 @@ class ArapDeformer:
         # Accelerated solves: the energy (units^2) of each accepted iterate, over the cells of the free
         # vertices and their neighbours (the other cells do not change during a solve).
         self.last_energies: list[float] = []
-        self.last_restarts = 0  # accelerated solves: extrapolations rejected for raising the energy
         self.last_converged = False  # the last solve stopped below the tolerance (not at the iteration cap)
         self._anderson: tuple[_System, AndersonAcceleration] | None = None  # history of the current anchor set
         self.clamp_weights = clamp_weights
@@ -365,7 +364,7 @@ class ArapDeformer:
         x = Q[free]
         x_extrapolated = False
         plain = x  # the last plain local/global iterate
-        done = restarts = 0
+        done = 0
         step = np.inf
         while done < iters:
             Q[free] = x
@@ -377,7 +376,6 @@ class ArapDeformer:
                 energy = float(np.sum(Q * (sys_.spokes @ Q)) + sys_.rest_spokes - 2.0 * np.einsum("nab,nba->", R, S))
                 if x_extrapolated and energy > energies[-1]:
                     # The extrapolation overshot: take the plain step from the last accepted iterate.
-                    restarts += 1
                     anderson.restart()
                     x, x_extrapolated = plain, False
                     continue
@@ -397,7 +395,6 @@ class ArapDeformer:
         self.last_iterations = done
         self.last_converged = step <= tol
         self.last_energies = energies
-        self.last_restarts = restarts
         self.current = Q
         return Q.copy()
 

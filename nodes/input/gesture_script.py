@@ -131,7 +131,6 @@ class _Compiler:
         self.rate_hz = rate_hz
         self.default_handle = default_handle
         self.actions: list[Action] = []
-        self.steps = 0
         self.held: set[int] = set()  # handles pressed and not released, in script order
 
     def fail(self, line: int, what: str):
@@ -208,7 +207,6 @@ class _Compiler:
             self.fail(line, f"a step is one of {', '.join(STEP_KINDS)} (e.g. '- press: nose_tip'), got {step!r}")
         if kind not in STEP_KINDS:
             self.fail(line, f"unknown step {kind!r} (known: {', '.join(STEP_KINDS)})")
-        self.steps += 1
         if kind in ("load_preset", "save_preset"):
             return self.preset_step(line, kind, arg, t)
         if kind == "parallel":
