@@ -4,14 +4,14 @@
    in ±2 sigma over all 63 components, each blendshape weight uniform in [0, 0.5], yaw ±60°,
    pitch ±20°, roll ±10°, scaled orthographic camera (eos' camera model), 1 px landmark noise, 68
    iBUG landmarks with the outline points on the true outline of the posed face
-   (:mod:`facesculpt.nodes.fitter.synthetic`). For our fitter and eos' ``fit_shape_and_pose`` (same
+   (tests/synthetic_faces.py). For our fitter and eos' ``fit_shape_and_pose`` (same
    model, blendshapes, contours, landmark mapping, 5 iterations): mean 3D vertex error after
    similarity alignment (mm), landmark reprojection error (px), time per fit — by |yaw| bin.
 2. Paper Table 1 analogue: with / without the ray-triangle outline refinement (nearest vertex),
    frontal vs yaw 45°, time and error.
 3. Perspective ground truth: the same faces through a pinhole camera, fitted with and without K.
 4. Facemesh dense fit time per frame (needs `facesculpt setup` for the tessellation; synthetic
-   468-point observations from the canonical/learned neutral), and the paper's 20.63 / 30.58 ms.
+   468-point observations from the model's neutral), and the paper's 20.63 / 30.58 ms.
 5. Real video (needs `facesculpt setup`): the landmark networks on every frame of
    ../shared/data/video/*.mp4; the SFM fitted to their iBUG-68 mapping (reprojection RMSE of the
    68 landmarks per frame, px) and the facemesh dense fit (its residual: RMS distance of the points
@@ -31,17 +31,21 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from facesculpt.nodes.fitter import Fitter, sfm_from_shared  # noqa: E402
-from facesculpt.nodes.fitter.model import sfm_files  # noqa: E402
-from facesculpt.nodes.fitter.synthetic import (  # noqa: E402
-    EosPeer,
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+from eos_peer import EosPeer  # noqa: E402
+from synthetic_faces import (  # noqa: E402
     landmark_reprojection_error,
     make_face,
     similarity_aligned_error,
 )
+
+from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter  # noqa: E402
+from facesculpt.nodes.fitter.eos_import import sfm_files  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
 BINS = [(0, 20), (20, 40), (40, 61)]
@@ -69,7 +73,7 @@ def fit_all(fitter, faces, model):
 def compare_with_eos(model, files, n_faces: int, seed: int = 0, iterations: int = 5):
     rng = np.random.default_rng(seed)
     faces = [make_face(model, rng) for _ in range(n_faces)]
-    fitter = Fitter(model, (640, 480), iterations=iterations, smoothing=False, accumulate_identity=False)
+    fitter = make_fitter(model, FitterConfig(iterations=iterations, smoothing=False, accumulate_identity=False), (640, 480))
     try:
         peer = EosPeer(files, (640, 480), iterations)
     except ImportError:
@@ -112,7 +116,7 @@ def table1(model, n: int = 40, seed: int = 7) -> str:
         rng = np.random.default_rng(seed)
         faces = [make_face(model, rng, yaw=yaw * (1 if i % 2 else -1), pitch=0.0, roll=0.0) for i in range(n)]
         for mode in ("ray", "nearest", "off"):
-            fitter = Fitter(model, (640, 480), outline=mode, smoothing=False, accumulate_identity=False)
+            fitter = make_fitter(model, FitterConfig(outline=mode, smoothing=False, accumulate_identity=False), (640, 480))
             errs, reps, times = fit_all(fitter, faces, model)
             lines.append(f"| {mode} | {yaw:.0f}° | {np.mean(errs):.2f} | {np.mean(reps):.2f} | {np.median(times):.1f} |")
     return "\n".join(lines)
@@ -124,8 +128,9 @@ def perspective_table(model, files, n: int = 60, seed: int = 5) -> str:
     K = np.array([[700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]])
     rng = np.random.default_rng(seed)
     faces = [make_face(model, rng, K=K, distance_mm=float(rng.uniform(450, 650))) for _ in range(n)]
-    fitters = {"ours, perspective K": Fitter(model, (640, 480), K=K, smoothing=False, accumulate_identity=False),
-               "ours, orthographic": Fitter(model, (640, 480), smoothing=False, accumulate_identity=False)}
+    config = FitterConfig(smoothing=False, accumulate_identity=False)
+    fitters = {"ours, perspective K": make_fitter(model, config, (640, 480), K),
+               "ours, orthographic": make_fitter(model, config, (640, 480))}
     try:
         peer = EosPeer(files, (640, 480), 5)
     except ImportError:
@@ -146,7 +151,6 @@ def perspective_table(model, files, n: int = 60, seed: int = 5) -> str:
 
 
 def dense_timing(frames: int = 200) -> str:
-    from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.fitter.pose import rotation_from_euler
     from facesculpt.paths import MissingModelsError
 
@@ -156,7 +160,7 @@ def dense_timing(frames: int = 200) -> str:
         return f"facemesh dense: skipped ({exc})"
     rng = np.random.default_rng(3)
     K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
-    fitter = Fitter(model, (640, 480), K=K)
+    fitter = make_fitter(model, FitterConfig(), (640, 480), K)
     times = []
     for i in range(frames):
         R = rotation_from_euler(30 * np.sin(i / 20), 10 * np.sin(i / 33), 0)
@@ -185,8 +189,8 @@ def real_video(model, max_frames: int = 400) -> str:
         cap = cv2.VideoCapture(str(path))
         W, H = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
         fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
-        sparse = Fitter(model, (W, H))
-        dense = Fitter("facemesh", (W, H))
+        sparse = make_fitter(model, FitterConfig(), (W, H))
+        dense = make_fitter("facemesh", FitterConfig(), (W, H))
         detector.reset()
         rmse, res, t_s, t_d = [], [], [], []
         i = 0
@@ -218,7 +222,7 @@ def main(argv=None) -> int:
     if shared_data_dir() is None:
         print("shared data not found (FACESCULPT_DATA or ../shared/data): nothing to benchmark")
         return 0
-    model = sfm_from_shared()
+    model = load_model("sfm")
     files = sfm_files()
     rows, has_eos = compare_with_eos(model, files, args.faces, iterations=args.iterations)
     print(f"## Synthetic SFM faces: ours vs eos-py fit_shape_and_pose ({args.faces} faces, {args.iterations} iterations)")

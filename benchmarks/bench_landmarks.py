@@ -22,9 +22,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from facesculpt.nodes.camera.sources import read_frames
-from facesculpt.nodes.landmarks.detector import LandmarkDetector
-from facesculpt.paths import model_home, shared_data_dir
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+from renderer_scene import read_frames  # noqa: E402
+
+from facesculpt.nodes.landmarks.detector import LandmarkDetector  # noqa: E402
+from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
 
 PAPER_MS = 36.28
 BACKENDS = ("onnxruntime", "litert")
@@ -50,7 +53,7 @@ def main(argv=None) -> int:
         print("shared data not found (set FACESCULPT_DATA)", file=sys.stderr)
         return 2
     models = args.models or model_home()
-    frames = read_frames(data / "video" / f"{args.video}.mp4", args.frames, 856, 480)
+    frames = read_frames(data, args.video, args.frames, size=(856, 480))
     trackers = {b: LandmarkDetector(models, threads=args.threads, backend=b) for b in BACKENDS}
     detectors = {b: LandmarkDetector(models, threads=args.threads, backend=b) for b in BACKENDS}
 

@@ -34,9 +34,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / "tests"))
 
-from renderer_scene import issue_edit, place_fitted, place_marked  # noqa: E402
+from renderer_scene import issue_edit, place_fitted, place_marked, read_frames  # noqa: E402
 
-from facesculpt.nodes.camera.sources import read_frames  # noqa: E402
 from facesculpt.geometry import merge_deformation  # noqa: E402
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
 from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
@@ -47,11 +46,11 @@ PAPER_TEXTURE_DRAW_MS = 10.55
 SIZE = (856, 480)
 
 
-def geometry(frames, model_name: str, data_dir: Path):
+def geometry(frames, model_name: str):
     """Per frame: (fitted, projected, triangles, deformed)."""
-    from facesculpt.nodes.fitter import Fitter, facemesh_model, sfm_from_shared
+    from facesculpt.nodes.fitter import FitterConfig, facemesh_model, load_model, make_fitter
 
-    model = sfm_from_shared(data_dir) if model_name == "sfm" else facemesh_model()
+    model = load_model("sfm") if model_name == "sfm" else facemesh_model()
     out = []
     if (model_home() / "manifest.json").is_file():
         from facesculpt.geometry import to_ibug68
@@ -60,7 +59,7 @@ def geometry(frames, model_name: str, data_dir: Path):
         detector = LandmarkDetector()
         first = place_fitted(model, frames[0], detector)
         edit = issue_edit(first)
-        fitter = Fitter(model, image_size=SIZE)
+        fitter = make_fitter(model, FitterConfig(), SIZE)
         source = "detector + fitter per frame"
         for i, frame in enumerate(frames):
             faces = detector.track(frame)
@@ -136,8 +135,8 @@ def main(argv=None) -> int:
     data = shared_data_dir()
     if data is None:
         raise SystemExit("shared data not found: set FACESCULPT_DATA")
-    frames = read_frames(data / "video" / f"{args.video}.mp4", args.frames, 856, 480)
-    geo, source, model_id = geometry(frames, args.model, data)
+    frames = read_frames(data, args.video, args.frames, size=SIZE)
+    geo, source, model_id = geometry(frames, args.model)
     W, H = SIZE
     comps = {m: Compositor(W, H, inpaint=m) for m in ("pushpull", "telea")}
     gpu = GpuComposite(comps["pushpull"].ctx, W, H)

@@ -32,13 +32,15 @@ FRAMES = {
 }
 
 
-def read_frames(data_dir: Path, name: str, count: int = 1, start: int = 0) -> list[np.ndarray]:
-    """``count`` consecutive BGR frames of video ``name`` from ``start``, at FRAMES[name]["size"]
-    (the video's own size for videos not listed there)."""
+def read_frames(data_dir: Path, name: str, count: int = 1, start: int = 0,
+                size: tuple[int, int] | None = None) -> list[np.ndarray]:
+    """``count`` consecutive BGR frames of the shared video ``name`` from ``start``, at ``size``
+    (W, H) (default FRAMES[name]["size"]; the video's own size for videos not listed there), for
+    the tests and the benchmarks."""
     cap = cv2.VideoCapture(str(Path(data_dir) / "video" / f"{name}.mp4"))
     cap.set(cv2.CAP_PROP_POS_FRAMES, start)
     frames = []
-    size = FRAMES.get(name, {}).get("size")
+    size = size or FRAMES.get(name, {}).get("size")
     while len(frames) < count:
         ok, frame = cap.read()
         if not ok:
@@ -93,13 +95,13 @@ def place_marked(model, name: str) -> Placement:
 def place_fitted(model, frame: np.ndarray, detector) -> Placement:
     """The model fitted to ``frame`` by the real pipeline: the landmark detector (468 points;
     their iBUG-68 subset for a sparse model) and the fitter (orthographic by default)."""
-    from facesculpt.nodes.fitter import Fitter
+    from facesculpt.nodes.fitter import FitterConfig, make_fitter
     from facesculpt.geometry import to_ibug68
 
     faces = detector.detect(frame)
     assert faces, "no face detected in the frame"
     points = faces[0].points
-    fitter = Fitter(model, image_size=(frame.shape[1], frame.shape[0]))
+    fitter = make_fitter(model, FitterConfig(), (frame.shape[1], frame.shape[0]))
     r = fitter.fit(points if model.dense else to_ibug68(points))
     index = {str(k): int(v) for k, v in zip(model.landmark_names, model.landmark_vertices)}
     K = None if r.projection == "orthographic" else np.asarray(r.K, np.float64)

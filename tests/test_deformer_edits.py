@@ -209,7 +209,7 @@ def test_merge_turns_displacement_into_pose():
 def fit_video(model, data_dir, models_dir, name, frames=12):
     """Fit the SFM to the first frames of a shared video: (FitResult, person's neutral (V, 3))."""
     cv2 = pytest.importorskip("cv2")
-    from facesculpt.nodes.fitter import Fitter
+    from facesculpt.nodes.fitter import FitterConfig, make_fitter
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
     from facesculpt.geometry import to_ibug68
 
@@ -221,7 +221,7 @@ def fit_video(model, data_dir, models_dir, name, frames=12):
         ok, frame = cap.read()
         assert ok, f"cannot read {name}.mp4"
         if fitter is None:
-            fitter = Fitter(model, image_size=(frame.shape[1], frame.shape[0]))
+            fitter = make_fitter(model, FitterConfig(), (frame.shape[1], frame.shape[0]))
         faces = detector.track(frame)
         assert faces, f"no face in {name}.mp4"
         result = fitter.fit(to_ibug68(faces[0].points))

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic_faces import make_face
 
-from facesculpt.nodes.fitter import FitError, Fitter, sfm_from_shared
-from facesculpt.nodes.fitter.synthetic import make_face
+from facesculpt.nodes.fitter import FitError, FitterConfig, load_model, make_fitter
 
 
 @pytest.fixture(scope="module")
 def sfm(data_dir):
-    return sfm_from_shared(data_dir)
+    return load_model("sfm")
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +20,7 @@ def face(sfm):
 
 
 def test_nan_and_too_few_landmarks_are_refused(sfm, face):
-    fitter = Fitter(sfm, (640, 480))
+    fitter = make_fitter(sfm, FitterConfig(), (640, 480))
     with pytest.raises(FitError, match="only 0 usable landmarks"):
         fitter.fit(np.full((68, 2), np.nan), face.ids)
     few = face.noisy.copy()
@@ -35,7 +35,7 @@ def test_nan_and_too_few_landmarks_are_refused(sfm, face):
 
 
 def test_degenerate_configurations_are_refused(sfm, face):
-    fitter = Fitter(sfm, (640, 480))
+    fitter = make_fitter(sfm, FitterConfig(), (640, 480))
     line = np.column_stack([np.linspace(100, 400, 68), np.full(68, 200.0)])
     with pytest.raises(FitError, match="collinear"):
         fitter.fit(line, face.ids)
@@ -47,12 +47,12 @@ def test_degenerate_configurations_are_refused(sfm, face):
 def test_bad_arguments_are_refused(sfm, face):
     for size in ((0, 480), (640, 0), (-1, 5), "big", None):
         with pytest.raises(FitError, match="image_size"):
-            Fitter(sfm, size)
+            make_fitter(sfm, FitterConfig(), size)
     with pytest.raises(FitError, match="intrinsics"):
-        Fitter(sfm, (640, 480), K=np.zeros((3, 3)))
+        make_fitter(sfm, FitterConfig(), (640, 480), K=np.zeros((3, 3)))
     with pytest.raises(FitError, match="needs the intrinsics"):
-        Fitter(sfm, (640, 480), projection="perspective")
-    fitter = Fitter(sfm, (640, 480))
+        make_fitter(sfm, FitterConfig(projection="perspective"), (640, 480))
+    fitter = make_fitter(sfm, FitterConfig(), (640, 480))
     with pytest.raises(FitError, match=r"\(N, 2\)"):
         fitter.fit(np.zeros((68,)), face.ids)
     with pytest.raises(FitError, match="68 points but 3 ids"):

@@ -7,8 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from facesculpt.nodes.fitter import Fitter, load_model, sfm_from_shared
-from facesculpt.nodes.fitter.model import FACEMESH_EYE_CORNER_MM, FACEMESH_SEMANTIC
+from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
+from facesculpt.nodes.fitter.facemesh_model import FACEMESH_EYE_CORNER_MM, FACEMESH_SEMANTIC
 from facesculpt.paths import MissingModelsError
 
 FRAMES = 40
@@ -52,7 +52,7 @@ def test_facemesh_model_has_the_named_landmarks(models_dir):
 
 def test_dense_fit_reproduces_the_points_and_learns_a_neutral(tracked):
     size, frames = tracked
-    fitter = Fitter("facemesh", size, smoothing=False, neutral_frames=20)
+    fitter = make_fitter("facemesh", FitterConfig(smoothing=False, neutral_frames=20), size)
     versions = []
     for i, pts in enumerate(frames):
         r = fitter.fit(pts, stamp=i / 25)
@@ -77,8 +77,8 @@ def test_dense_and_sfm_fits_agree_on_the_head_pose(tracked, data_dir):
     from facesculpt.geometry import to_ibug68
 
     size, frames = tracked
-    dense = Fitter("facemesh", size, smoothing=False)
-    sparse = Fitter(sfm_from_shared(data_dir), size, smoothing=False)
+    dense = make_fitter("facemesh", FitterConfig(smoothing=False), size)
+    sparse = make_fitter(load_model("sfm"), FitterConfig(smoothing=False), size)
     yaw_d, yaw_s, rmse = [], [], []
     for i, pts in enumerate(frames):
         yaw_d.append(dense.fit(pts, stamp=i / 25).yaw_pitch_roll[0])
@@ -95,7 +95,7 @@ def test_dense_and_sfm_fits_agree_on_the_head_pose(tracked, data_dir):
 def test_dense_perspective_vertices_project_onto_the_points(tracked):
     size, frames = tracked
     K = np.array([[size[0], 0, size[0] / 2], [0, size[0], size[1] / 2], [0, 0, 1.0]])
-    fitter = Fitter("facemesh", size, K=K, smoothing=False)
+    fitter = make_fitter("facemesh", FitterConfig(smoothing=False), size, K)
     for i, pts in enumerate(frames[:5]):
         r = fitter.fit(pts, stamp=i / 25)
         assert r.projection == "perspective"
@@ -109,7 +109,7 @@ def test_dense_bad_input_is_refused(tracked):
     from facesculpt.nodes.fitter import FitError
 
     size, frames = tracked
-    fitter = Fitter("facemesh", size)
+    fitter = make_fitter("facemesh", FitterConfig(), size)
     with pytest.raises(FitError, match="relative depth"):
         fitter.fit(frames[0][:, :2])
     pts = frames[0].copy()

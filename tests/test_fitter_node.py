@@ -97,9 +97,9 @@ def test_bad_input_is_counted_never_raised(monkeypatch, tmp_path, frames):
 
 
 def test_sfm_node_fits_the_68_point_mapping(monkeypatch, tmp_path, frames, data_dir):
-    from facesculpt.nodes.fitter import save_model, sfm_from_shared
+    from facesculpt.nodes.fitter import load_model, save_model
 
-    path = save_model(sfm_from_shared(data_dir), tmp_path / "sfm.npz")
+    path = save_model(load_model("sfm"), tmp_path / "sfm.npz")
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     node = FitterNode(params={"model": str(path), "projection": "orthographic", "model_period_s": 0.0})
     node.setup()
@@ -126,9 +126,9 @@ def test_a_learned_sparse_identity_is_republished_only_for_a_real_change(monkeyp
     """The SFM identity keeps moving a little with every frame. While it is learned (the first
     2 x neutral_frames frames) each 0.5 mm is republished; afterwards only a change past
     model_change_mm is."""
-    from facesculpt.nodes.fitter import save_model, sfm_from_shared
+    from facesculpt.nodes.fitter import load_model, save_model
 
-    path = save_model(sfm_from_shared(data_dir), tmp_path / "sfm.npz")
+    path = save_model(load_model("sfm"), tmp_path / "sfm.npz")
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     late = {}
     for change_mm in (0.5, 1000.0):

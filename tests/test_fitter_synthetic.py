@@ -1,4 +1,4 @@
-"""The fitter on synthetic Surrey-Face-Model faces with known ground truth (nodes/fitter/synthetic.py):
+"""The fitter on synthetic Surrey-Face-Model faces with known ground truth (tests/synthetic_faces.py):
 accuracy against eos-py's fit_shape_and_pose on the same faces, outline correspondences, perspective,
 identity accumulation and temporal smoothing."""
 
@@ -6,25 +6,25 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from facesculpt.nodes.fitter import Fitter, sfm_from_shared
-from facesculpt.nodes.fitter import outline as outline_corr
-from facesculpt.nodes.fitter.fitting import correspondence_points
-from facesculpt.nodes.fitter.model import sfm_files
-from facesculpt.nodes.fitter.pose import euler_from_rotation
-from facesculpt.nodes.fitter.synthetic import (
-    EosPeer,
+from eos_peer import EosPeer
+from synthetic_faces import (
     landmark_reprojection_error,
     make_face,
     similarity_aligned_error,
 )
+
+from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
+from facesculpt.nodes.fitter import outline as outline_corr
+from facesculpt.nodes.fitter.eos_import import sfm_files
+from facesculpt.nodes.fitter.fitting import correspondence_points
+from facesculpt.nodes.fitter.pose import euler_from_rotation
 
 BINS = [(0, 20), (20, 40), (40, 60)]
 
 
 @pytest.fixture(scope="module")
 def sfm(data_dir):
-    return sfm_from_shared(data_dir)
+    return load_model("sfm")
 
 
 def test_fit_is_at_least_as_accurate_as_eos_in_every_yaw_bin(sfm, data_dir):
@@ -32,7 +32,7 @@ def test_fit_is_at_least_as_accurate_as_eos_in_every_yaw_bin(sfm, data_dir):
     mean 3D error after similarity alignment and landmark reprojection error <= eos' per bin."""
     pytest.importorskip("eos")
     peer = EosPeer(sfm_files(data_dir), (640, 480), iterations=5)
-    fitter = Fitter(sfm, (640, 480), iterations=5, smoothing=False, accumulate_identity=False)
+    fitter = make_fitter(sfm, FitterConfig(iterations=5, smoothing=False, accumulate_identity=False), (640, 480))
     rng = np.random.default_rng(2024)
     for lo, hi in BINS:
         ours, theirs, rep_ours, rep_theirs = [], [], [], []
@@ -55,7 +55,7 @@ def test_fit_is_at_least_as_accurate_as_eos_in_every_yaw_bin(sfm, data_dir):
 def _outline_residuals(sfm, mode: str, faces) -> np.ndarray:
     """Pixel distance between each true outline landmark and its model correspondence, with the
     model at the true shape and pose (so only the correspondence search is measured)."""
-    fitter = Fitter(sfm, (640, 480), outline=mode, smoothing=False)
+    fitter = make_fitter(sfm, FitterConfig(outline=mode, smoothing=False), (640, 480))
     out = []
     for f in faces:
         sel = [i for i, k in enumerate(f.ids) if k in fitter._outline_side]
@@ -80,7 +80,7 @@ def test_ray_triangle_outline_points_lie_closer_to_the_true_outline_than_vertice
 
 
 def test_outline_candidates_exclude_the_nose_and_back_facing_vertices(sfm):
-    fitter = Fitter(sfm, (640, 480), smoothing=False)
+    fitter = make_fitter(sfm, FitterConfig(smoothing=False), (640, 480))
     nose = outline_corr.nose_region(sfm.mean, sfm.landmark_index())
     assert nose[sfm.landmark_index()["31"]] and nose.sum() > 20
     for band in fitter._bands:
@@ -97,7 +97,7 @@ def test_outline_candidates_exclude_the_nose_and_back_facing_vertices(sfm):
 def test_perspective_fit_recovers_the_pose(sfm):
     K = np.array([[700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]])
     rng = np.random.default_rng(3)
-    fitter = Fitter(sfm, (640, 480), K=K, smoothing=False, accumulate_identity=False)
+    fitter = make_fitter(sfm, FitterConfig(smoothing=False, accumulate_identity=False), (640, 480), K)
     assert fitter.projection == "perspective"
     for _ in range(6):
         f = make_face(sfm, rng, K=K, distance_mm=550.0)
@@ -114,7 +114,7 @@ def test_perspective_fit_recovers_the_pose(sfm):
 
 
 def test_orthographic_pose_angles_follow_the_head(sfm):
-    fitter = Fitter(sfm, (640, 480), smoothing=False, accumulate_identity=False)
+    fitter = make_fitter(sfm, FitterConfig(smoothing=False, accumulate_identity=False), (640, 480))
     for yaw, pitch in ((-50, 10), (0, -15), (35, 5)):
         f = make_face(sfm, np.random.default_rng(int(yaw + 100)), yaw=yaw, pitch=pitch, roll=0.0)
         fitter.reset()
@@ -130,8 +130,8 @@ def test_identity_accumulates_over_frames(sfm):
     alpha = np.random.default_rng(5).uniform(-2, 2, 63).astype(np.float32)
     truth = sfm.instance(alpha)
     frames = [make_face(sfm, np.random.default_rng(200 + i), alpha=alpha) for i in range(30)]
-    single = Fitter(sfm, (640, 480), smoothing=False, accumulate_identity=False)
-    accum = Fitter(sfm, (640, 480), smoothing=False, accumulate_identity=True)
+    single = make_fitter(sfm, FitterConfig(smoothing=False, accumulate_identity=False), (640, 480))
+    accum = make_fitter(sfm, FitterConfig(smoothing=False, accumulate_identity=True), (640, 480))
     single_err = []
     for i, f in enumerate(frames):
         single.fit(f.noisy, f.ids, stamp=i * 1.0)
@@ -149,7 +149,7 @@ def test_smoothing_steadies_a_still_face(sfm):
     f = make_face(sfm, np.random.default_rng(8), yaw=20.0, pitch=5.0, roll=0.0, noise_px=0.0)
     jitter = {}
     for smooth in (False, True):
-        fitter = Fitter(sfm, (640, 480), smoothing=smooth, iterations=3)
+        fitter = make_fitter(sfm, FitterConfig(smoothing=smooth, iterations=3), (640, 480))
         noise = np.random.default_rng(9)
         yaws, proj = [], []
         for i in range(45):
@@ -173,7 +173,7 @@ def test_tracking_iterations_follow_a_turning_head_as_well_as_full_iterations(sf
     errors, yaw_errors = {}, {}
     for tracking in ("default", None):
         kw = {} if tracking == "default" else {"tracking_iterations": None}
-        fitter = Fitter(sfm, (640, 480), K=K, smoothing=False, **kw)
+        fitter = make_fitter(sfm, FitterConfig(smoothing=False, **kw), (640, 480), K)
         assert fitter.tracking_iterations == (1 if tracking else fitter.iterations)
         errs, yerr = [], []
         for i, f in enumerate(frames):
@@ -185,4 +185,4 @@ def test_tracking_iterations_follow_a_turning_head_as_well_as_full_iterations(sf
     assert errors["default"].max() < 2.0
     assert yaw_errors["default"].max() < 2.5
     with pytest.raises(ValueError, match="tracking_iterations"):
-        Fitter(sfm, (640, 480), tracking_iterations=0)
+        make_fitter(sfm, FitterConfig(tracking_iterations=0), (640, 480))

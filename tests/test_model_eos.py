@@ -9,13 +9,12 @@ import numpy as np
 import pytest
 
 from facesculpt.nodes.fitter import eos_reader
+from facesculpt.nodes.fitter.eos_import import import_eos, sfm_files
 from facesculpt.nodes.fitter.model import (
     ModelFormatError,
     MorphableModel,
-    import_eos,
     load_model,
     save_model,
-    sfm_files,
 )
 
 

@@ -47,9 +47,9 @@ def detector(models_dir):
 
 @pytest.fixture(scope="module")
 def sfm(data_dir):
-    from facesculpt.nodes.fitter import sfm_from_shared
+    from facesculpt.nodes.fitter import load_model
 
-    return sfm_from_shared(data_dir)
+    return load_model("sfm")
 
 
 @pytest.fixture(scope="module", params=[(g, v) for g in GEOMETRY for v in VIDEOS], ids=lambda p: f"{p[0]}-{p[1]}")

@@ -41,9 +41,9 @@ class Feeder(Node):
 
 
 def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_path):
-    from facesculpt.nodes.fitter import sfm_from_shared
+    from facesculpt.nodes.fitter import load_model
 
-    model = sfm_from_shared(data_dir)
+    model = load_model("sfm")
     pose = place_marked(model, "s18")
     edit = issue_edit(pose).astype(np.float32)
     frames = read_frames(data_dir, "s18", count=5)

@@ -140,7 +140,7 @@ def test_sync_keeps_the_mesh_on_the_face_while_latest_lags_a_slow_fitter(data_di
     import numpy as np
     from renderer_scene import read_frames
 
-    from facesculpt.nodes.fitter import Fitter, facemesh_model
+    from facesculpt.nodes.fitter import FitterConfig, facemesh_model, make_fitter
     from facesculpt.nodes.landmarks import LandmarkDetector
     from facesculpt.nodes.renderer import Compositor
 
@@ -148,7 +148,7 @@ def test_sync_keeps_the_mesh_on_the_face_while_latest_lags_a_slow_fitter(data_di
     H, W = frames[0].shape[:2]
     model = facemesh_model()
     detector = LandmarkDetector(models_dir)
-    fitter = Fitter(model, image_size=(W, H), smoothing=False)
+    fitter = make_fitter(model, FitterConfig(smoothing=False), (W, H))
     states = [fitter.fit(detector.detect(f)[0].points, stamp=i / 30) for i, f in enumerate(frames)]
     comp = Compositor(W, H)
     latency = 3

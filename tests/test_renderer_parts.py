@@ -112,9 +112,9 @@ def test_uncovered_mask_is_the_dilated_difference_without_slivers():
 # -- camera -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def head(data_dir):
-    from facesculpt.nodes.fitter import sfm_from_shared
+    from facesculpt.nodes.fitter import load_model
 
-    model = sfm_from_shared(data_dir)
+    model = load_model("sfm")
     return model.mean.astype(np.float64), dict(zip(model.landmark_names, model.landmark_vertices))
 
 
@@ -162,9 +162,9 @@ def test_projection_needs_a_real_camera():
 
 # -- mesh -------------------------------------------------------------------------------------
 def test_close_holes_leaves_only_the_outline(data_dir):
-    from facesculpt.nodes.fitter import sfm_from_shared
+    from facesculpt.nodes.fitter import load_model
 
-    tri = sfm_from_shared(data_dir).triangles
+    tri = load_model("sfm").triangles
     loops = boundary_loops(tri)
     assert [len(loop) for loop in loops] == [112, 48]   # the outline and the mouth
     closed = close_holes(tri)

@@ -85,7 +85,7 @@ def poll_until(window, predicate, timeout=5.0):
 
 def test_window_shows_the_frame_and_reports_input_in_frame_pixels(display, data_dir, monkeypatch):
     monkeypatch.setenv("DISPLAY", display)
-    from facesculpt.nodes.fitter import sfm_from_shared
+    from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer import Compositor
     from facesculpt.nodes.renderer.window import Window, draw_overlay
 
@@ -95,7 +95,7 @@ def test_window_shows_the_frame_and_reports_input_in_frame_pixels(display, data_
     window = Window(W, H, title)
     try:
         # The compositor draws with the window's own context, as in the node.
-        pose = place_marked(sfm_from_shared(data_dir), "s18")
+        pose = place_marked(load_model("sfm"), "s18")
         comp = Compositor(W, H, ctx=window.ctx)
         out = comp.render(frame, pose.fitted, pose.projected, pose.triangles, pose.fitted)
         for _ in range(3):
@@ -153,9 +153,9 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     from facesculpt.msgs import Diagnostics, FaceModel, FaceState, Image, InputEvent
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
-    from facesculpt.nodes.fitter import sfm_from_shared
+    from facesculpt.nodes.fitter import load_model
 
-    model = sfm_from_shared(data_dir)
+    model = load_model("sfm")
     pose = place_marked(model, "s18")
     frame = read_frames(data_dir, "s18")[0]
     H, W = frame.shape[:2]

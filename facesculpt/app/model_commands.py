@@ -31,7 +31,8 @@ def register(subparsers) -> None:
 
 
 def _import_eos(args: argparse.Namespace) -> int:
-    from facesculpt.nodes.fitter.model import import_eos, save_model
+    from facesculpt.nodes.fitter.eos_import import import_eos
+    from facesculpt.nodes.fitter.model import save_model
 
     output = args.output if args.output.suffix == ".npz" else args.output.with_suffix(args.output.suffix + ".npz")
     model = import_eos(args.shape_bin, blendshapes=args.blendshapes, landmarks=args.landmarks,

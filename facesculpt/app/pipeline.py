@@ -3,9 +3,11 @@
 The graph's stages called one after the other on the same frame, in one process, with no
 sockets: the renderer's ``sync`` pairing by construction (the state fitted on a frame is
 rendered on that frame). ``facesculpt process`` runs it over a video; ``facesculpt bench`` times
-it stage by stage. Each stage is the room's own code: :class:`LandmarkDetector`,
-:class:`Fitter`, :func:`merge_deformation`, :class:`Compositor`; the edit is an
-:class:`EditStack` (ARAP) solved on the fitted person's neutral model.
+it stage by stage. Each stage is the room's own code, the same the nodes call
+(docs/architecture.md, "Stages"): :class:`LandmarkDetector`, :func:`fit_landmarks` (with a
+fitter configured by a :class:`FitterConfig`, as the fitter node's), :func:`merge_deformation`,
+:class:`Compositor`; the edit is an :class:`EditStack` (ARAP) solved on the fitted person's
+neutral model.
 
 Edits and the neutral. An edit (a deformer preset: handles by landmark name, model-space
 offsets in mm, ROI radii) is solved once, on the neutral model of the person in the video, and
@@ -21,17 +23,16 @@ filters and the landmark tracker start afresh. Same input, same options: same ou
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
-from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.geometry import merge_deformation
+from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.nodes.deformer import EditStack
-from facesculpt.nodes.fitter import FitError, Fitter, MorphableModel, load_model
-from facesculpt.geometry import to_ibug68
+from facesculpt.nodes.fitter import Fitter, FitterConfig, MorphableModel, fit_landmarks, load_model, make_fitter
 from facesculpt.nodes.landmarks import LandmarkDetector
 
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
@@ -105,18 +106,21 @@ class Pipeline:
     intra-op threads of each network; fov_deg: horizontal field of view of the pinhole K given to
     the fitter (as the camera node does; the fitter then fits in perspective); neutral_frames:
     frames the fitter averages into the dense neutral (and that :meth:`calibrate` runs);
-    inpaint, feather_px, dilate_px: the compositor's. The detector and the GL context are made
-    here; call :meth:`close` (or use ``with``) to free them.
+    iterations: the fitter's cold-start iterations; min_score: faces below this landmark score
+    are not fitted (the other fitter options are :class:`FitterConfig`'s defaults, the fitter
+    node's); inpaint, feather_px, dilate_px: the compositor's. The detector and the GL context
+    are made here; call :meth:`close` (or use ``with``) to free them.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
-                 neutral_frames: int = 30, iterations: int = 5, inpaint: str = "pushpull",
+                 neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.detector = LandmarkDetector(models_dir=models_dir, threads=threads)
         self.fov_deg = float(fov_deg)
         self.neutral_frames = int(neutral_frames)
-        self.iterations = int(iterations)
+        self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames)
+        self.min_score = float(min_score)
         self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px}
         self.fitter: Fitter | None = None
         self.compositor = None
@@ -133,8 +137,7 @@ class Pipeline:
             raise ValueError(f"frame size changed from {self.size[0]}x{self.size[1]} to {width}x{height}")
         self.size = (width, height)
         self.K = intrinsics_from_fov(width, height, self.fov_deg)
-        self.fitter = Fitter(self.model, image_size=self.size, K=self.K, iterations=self.iterations,
-                             neutral_frames=self.neutral_frames)
+        self.fitter = make_fitter(self.model, self.fitter_config, self.size, self.K)
 
     def _compositor(self):
         if self.compositor is None:
@@ -155,15 +158,9 @@ class Pipeline:
         timings["landmarks"] = (time.perf_counter() - t0) * 1e3
         if not faces:
             return None
-        points = faces[0].points  # the largest face
         t0 = time.perf_counter()
-        try:
-            if self.model.dense:
-                fit = self.fitter.fit(points, stamp=stamp_s)
-            else:
-                fit = self.fitter.fit(to_ibug68(points), stamp=stamp_s)  # ids 1..68 by default
-        except FitError:
-            fit = None
+        fit = fit_landmarks(self.fitter, [f.points for f in faces], [f.score for f in faces], stamp_s,
+                            self.min_score).fit
         timings["fit"] = (time.perf_counter() - t0) * 1e3
         if fit is not None:
             self.fitted_frames += 1
@@ -241,7 +238,7 @@ class Pipeline:
             self.compositor.release()
             self.compositor = None
 
-    def __enter__(self) -> "Pipeline":
+    def __enter__(self) -> Pipeline:
         return self
 
     def __exit__(self, *exc) -> None:

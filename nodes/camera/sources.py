@@ -159,23 +159,6 @@ class BagImageSource(FrameSource):
                 return
 
 
-def read_frames(path: str | Path, count: int, width: int = 0, height: int = 0) -> list[np.ndarray]:
-    """Up to ``count`` frames (H, W, 3) uint8 BGR of a video file, resized as :func:`resize_frame`
-    does (for benchmarks and tests that need frames in memory)."""
-    source = VideoSource(str(path))
-    try:
-        frames = []
-        for frame, _ in source.frames():
-            frames.append(resize_frame(frame, width, height))
-            if len(frames) >= count:
-                break
-    finally:
-        source.close()
-    if not frames:
-        raise SourceError(f"no frames could be read from {path}")
-    return frames
-
-
 # The head-and-shoulders part of astronaut.png (x0, y0, x1, y1), shown at 640x480.
 EMBEDDED_CROP = (100, 0, 420, 240)
 

@@ -292,7 +292,7 @@ def read_landmark_mapping(path: str | Path) -> LandmarkMapping:
             try:
                 mappings[key] = int(value.strip('"'))
             except ValueError:
-                raise ValueError(f"{path}:{number}: vertex index of landmark {key} is not an integer: {value!r}")
+                raise ValueError(f"{path}:{number}: vertex index of landmark {key} is not an integer: {value!r}") from None
         elif section == "contour_landmarks":
             if not (value.startswith("[") and value.endswith("]")):
                 raise ValueError(f"{path}:{number}: contour {key} must be an array, got {value!r}")

@@ -1,5 +1,6 @@
-"""The morphable-model file format (``.npz``), its loader/saver, the eos importer, and the
-built-in ``facemesh`` model.
+"""The morphable-model format: :class:`MorphableModel` in memory, its validation, and the ``.npz``
+file it is saved to and loaded from. Models come from eos files (:mod:`.eos_import`) or are
+built in (:mod:`.facemesh_model`).
 
 A model is  M(alpha, beta) = mean + shape_basis · (shape_std ∘ alpha) + expression_basis · (expression_std ∘ beta)
 (paper Eq. 1), with alpha and beta in units of standard deviations (alpha ~ N(0, I)).
@@ -50,10 +51,6 @@ from pathlib import Path
 
 import numpy as np
 
-from facesculpt.geometry.boundary_loops import boundary_loops
-from facesculpt.nodes.fitter import eos_reader
-from facesculpt.paths import model_file, shared_data_dir
-
 FORMAT_NAME = "facesculpt-morphable-model"
 FORMAT_VERSION = 1
 
@@ -63,25 +60,6 @@ SEMANTIC_LANDMARKS = (
     "left_eye_outer", "right_eye_outer", "left_eye_inner", "right_eye_inner",
     "left_brow", "right_brow", "nose_bridge",
 )
-
-#: iBUG-68 numbers (1-based) of the semantic landmarks that have an iBUG counterpart.
-IBUG_SEMANTIC = {
-    "nose_tip": "31", "chin": "9", "mouth_right": "49", "mouth_left": "55",
-    "right_eye_outer": "37", "right_eye_inner": "40", "left_eye_inner": "43", "left_eye_outer": "46",
-    "right_brow": "20", "left_brow": "25", "nose_bridge": "28",
-}
-
-#: MediaPipe face-mesh vertex of each semantic landmark (the mesh's published keypoint annotations).
-FACEMESH_SEMANTIC = {
-    "nose_tip": 1, "chin": 152, "forehead": 151, "right_cheek": 205, "left_cheek": 425,
-    "mouth_right": 61, "mouth_left": 291, "right_eye_outer": 33, "left_eye_outer": 263,
-    "right_eye_inner": 133, "left_eye_inner": 362, "right_brow": 105, "left_brow": 334,
-    "nose_bridge": 168,
-}
-
-#: The facemesh model is scaled so the outer eye corners are this far apart (an adult average, mm).
-FACEMESH_EYE_CORNER_MM = 90.0
-FACEMESH_VERTICES = 468
 
 
 class ModelFormatError(ValueError):
@@ -152,7 +130,7 @@ class MorphableModel:
             shape += self.expression_basis[:, :, : len(b)] @ (self.expression_std[: len(b)] * b)
         return shape
 
-    def with_mean(self, mean: np.ndarray, source: str | None = None) -> "MorphableModel":
+    def with_mean(self, mean: np.ndarray, source: str | None = None) -> MorphableModel:
         """A copy with another neutral mean (V, 3) (e.g. a learned per-person reference)."""
         return replace(self, mean=np.asarray(mean, np.float32), source=self.source if source is None else source)
 
@@ -321,16 +299,21 @@ def _load_npz(path: Path) -> MorphableModel:
 
 
 def load_model(name_or_path: str | Path = "facemesh") -> MorphableModel:
-    """Load a model: ``"facemesh"`` (built-in, needs `facesculpt setup`), ``"sfm"`` (imported on the
-    fly from the shared SFM files, for tests/benchmarks), or a path to a ``.npz`` model file.
+    """Load a model: ``"facemesh"`` (built-in, needs `facesculpt setup`), ``"sfm"`` (the Surrey Face
+    Model, imported on the fly from the shared data folder), or a path to a ``.npz`` model file.
     Raises FileNotFoundError / :class:`ModelFormatError` with a message saying what is wrong."""
+    # The two named models are built by modules that import this one: import them on demand.
     if isinstance(name_or_path, MorphableModel):
         return name_or_path
     text = str(name_or_path)
     if text == "facemesh":
+        from facesculpt.nodes.fitter.facemesh_model import facemesh_model
+
         return facemesh_model()
     if text == "sfm":
-        return sfm_from_shared()
+        from facesculpt.nodes.fitter.eos_import import import_eos, sfm_files
+
+        return import_eos(**sfm_files(), model_id="sfm_shape_3448")
     path = Path(text).expanduser()
     if not path.is_file():
         raise FileNotFoundError(
@@ -339,257 +322,3 @@ def load_model(name_or_path: str | Path = "facemesh") -> MorphableModel:
     if path.suffix == ".bin":
         raise ModelFormatError(f"{path} is an eos binary: convert it first with `facesculpt model import-eos {path} -o MODEL.npz`")
     return _load_npz(path)
-
-
-# --------------------------------------------------------------------------------------------
-# eos import
-
-
-def _pick_front_vertex(mean: np.ndarray, target_xy: np.ndarray, radius: float) -> int:
-    """Vertex nearest to ``target_xy`` (model-space x, y) among those on the front surface:
-    of the vertices within ``radius`` in x/y, the one furthest toward the viewer (+z)."""
-    d = np.linalg.norm(mean[:, :2] - target_xy, axis=1)
-    near = np.flatnonzero(d <= radius)
-    if near.size == 0:
-        return int(np.argmin(d))
-    return int(near[np.argmax(mean[near, 2])])
-
-
-def semantic_landmarks_from_ibug(mean: np.ndarray, ibug: dict[str, int]) -> dict[str, int]:
-    """The semantic landmarks (module docstring) of a model with iBUG-68 names: those with an iBUG
-    counterpart take its vertex; cheeks and forehead are placed geometrically from the eye, mouth
-    and brow landmarks (cheek: below the outer eye corner, level between eye and mouth corners;
-    forehead: on the midline, 60 % of the eye-brow-to-eye gap above the brows — front surface)."""
-    out = {name: ibug[num] for name, num in IBUG_SEMANTIC.items() if num in ibug}
-    need = ("37", "46", "49", "55", "20", "25", "28")
-    if all(k in ibug for k in need):
-        p = lambda k: mean[ibug[k]]  # noqa: E731
-        eye_outer_dist = np.linalg.norm(p("46") - p("37"))
-        radius = 0.06 * eye_outer_dist
-        for side, eye, mouth in (("right", "37", "49"), ("left", "46", "55")):
-            target = np.array([0.85 * p(eye)[0], 0.5 * (p(eye)[1] + p(mouth)[1])])
-            out[f"{side}_cheek"] = _pick_front_vertex(mean, target, radius)
-        brow_y = 0.5 * (p("20")[1] + p("25")[1])
-        target = np.array([0.5 * (p("20")[0] + p("25")[0]), brow_y + 1.6 * (brow_y - p("28")[1])])
-        out["forehead"] = _pick_front_vertex(mean, target, radius)
-    return out
-
-
-def import_eos(
-    shape_bin: str | Path,
-    blendshapes: str | Path | None = None,
-    landmarks: str | Path | None = None,
-    contours: str | Path | None = None,
-    model_id: str | None = None,
-) -> MorphableModel:
-    """Build a :class:`MorphableModel` from eos files, in memory.
-
-    shape_bin: eos ``MorphableModel`` binary (e.g. ``sfm_shape_3448.bin``); blendshapes: eos
-    blendshapes binary (used when the model file has no expression model of its own); landmarks:
-    eos landmark mapping (``ibug_to_sfm.txt``); contours: eos model-contour JSON. Units are the
-    model's (the SFM is in mm)."""
-    shape_bin = Path(shape_bin)
-    eos_model = eos_reader.read_morphable_model(shape_bin)
-    shape = eos_model.shape
-    V = shape.mean.size // 3
-    mean = shape.mean.reshape(V, 3)
-    # eos keeps xyzxyz… rows; (3V, S) -> (V, 3, S).
-    shape_basis = shape.basis.reshape(V, 3, -1)
-    kind, ebasis, estd, enames = "none", np.zeros((V, 3, 0), np.float32), np.zeros(0, np.float32), []
-    expression = eos_model.expression
-    if blendshapes is not None:
-        expression = eos_reader.read_blendshapes(blendshapes)
-    if isinstance(expression, list) and expression:
-        for b in expression:
-            if b.deformation.size != 3 * V:
-                raise ModelFormatError(
-                    f"blendshape {b.name!r} has {b.deformation.size // 3} vertices, the shape model {V}"
-                )
-        kind = "blendshapes"
-        ebasis = np.stack([b.deformation.reshape(V, 3) for b in expression], axis=2)
-        estd = np.ones(len(expression), np.float32)
-        enames = [b.name for b in expression]
-    elif isinstance(expression, eos_reader.EosPcaModel):
-        if expression.mean.size != 3 * V:
-            raise ModelFormatError(f"the expression PCA model has {expression.mean.size // 3} vertices, the shape model {V}")
-        kind = "pca"
-        # An expression PCA mean is an offset; fold it into the neutral mean.
-        mean = mean + expression.mean.reshape(V, 3)
-        ebasis = expression.basis.reshape(V, 3, -1)
-        estd = np.sqrt(np.maximum(expression.eigenvalues, 1e-12)).astype(np.float32)
-        enames = [f"expression_pca_{i}" for i in range(estd.size)]
-
-    names: dict[str, int] = {}
-    outline_lm_right: list[str] = []
-    outline_lm_left: list[str] = []
-    if eos_model.landmark_definitions:
-        names.update(eos_model.landmark_definitions)
-    if landmarks is not None:
-        mapping = eos_reader.read_landmark_mapping(landmarks)
-        names.update(mapping.mappings)
-        outline_lm_right, outline_lm_left = mapping.contour_right, mapping.contour_left
-        for k, v in mapping.mappings.items():
-            if not 0 <= v < V:
-                raise ModelFormatError(f"{landmarks}: landmark {k} maps to vertex {v}, the model has {V}")
-        # Semantic names for handles, when the mapping is iBUG-68.
-        for sem, vertex in semantic_landmarks_from_ibug(mean, mapping.mappings).items():
-            names.setdefault(sem, vertex)
-    outline_right = outline_left = np.zeros(0, np.int32)
-    if contours is not None:
-        outline_right, outline_left = eos_reader.read_model_contour(contours)
-    texcoords = eos_model.texcoords.astype(np.float32) if eos_model.texcoords.shape[0] == V else np.zeros((0, 2), np.float32)
-    sources = [str(p) for p in (shape_bin, blendshapes, landmarks, contours) if p is not None]
-    return MorphableModel(
-        model_id=model_id or shape_bin.stem,
-        mean=mean,
-        triangles=shape.triangles,
-        shape_basis=shape_basis,
-        shape_std=np.sqrt(np.maximum(shape.eigenvalues, 0)).astype(np.float32),
-        expression_kind=kind,
-        expression_basis=ebasis,
-        expression_std=estd,
-        expression_names=enames,
-        texcoords=texcoords,
-        landmark_names=list(names.keys()),
-        landmark_vertices=np.array(list(names.values()), np.int32),
-        outline_right=outline_right,
-        outline_left=outline_left,
-        outline_landmarks_right=outline_lm_right,
-        outline_landmarks_left=outline_lm_left,
-        units="mm",
-        source="eos import: " + ", ".join(Path(s).name for s in sources),
-    )
-
-
-def sfm_files(data_dir: str | Path | None = None) -> dict[str, Path]:
-    """Paths of the Surrey Face Model files in the shared data folder (``sfm/``)."""
-    base = Path(data_dir) if data_dir is not None else shared_data_dir()
-    if base is None:
-        raise FileNotFoundError("shared data not found: set FACESCULPT_DATA or place it at ../shared/data")
-    sfm = base / "sfm" if (base / "sfm").is_dir() else base
-    return {
-        "shape_bin": sfm / "sfm_shape_3448.bin",
-        "blendshapes": sfm / "expression_blendshapes_3448.bin",
-        "landmarks": sfm / "ibug_to_sfm.txt",
-        "contours": sfm / "sfm_model_contours.json",
-    }
-
-
-def sfm_from_shared(data_dir: str | Path | None = None) -> MorphableModel:
-    """The Surrey Face Model (3448 vertices, 63 shape components, 6 blendshapes, iBUG-68 landmarks,
-    outlines) imported straight from the shared data folder."""
-    return import_eos(**sfm_files(data_dir), model_id="sfm_shape_3448")
-
-
-# --------------------------------------------------------------------------------------------
-# built-in facemesh
-
-
-def facemesh_model(neutral: np.ndarray | None = None) -> MorphableModel:
-    """The built-in dense model: MediaPipe's 468-vertex face-mesh topology, tessellation from
-    ``facesculpt setup`` (``facemesh_triangles.npy``). No PCA bases: in dense mode every vertex is
-    observed. The neutral ``mean`` is ``neutral`` (V, 3) when given (e.g. learned from frames), else
-    ``facemesh_canonical.npy`` from setup when present, else a placeholder built from the
-    tessellation alone (flat, eye-corner distance 90 mm) until the fitter learns a neutral.
-    Model space is scaled so the outer-eye-corner distance is :data:`FACEMESH_EYE_CORNER_MM`."""
-    triangles = np.load(model_file("facemesh_triangles.npy"), allow_pickle=False)
-    source = "facemesh tessellation from facesculpt setup"
-    texcoords = np.zeros((0, 2), np.float32)
-    if neutral is None:
-        try:
-            canonical = np.load(model_file("facemesh_canonical.npy"), allow_pickle=False)
-            neutral = canonical[:, :3]
-            source += "; canonical neutral from setup"
-        except FileNotFoundError:
-            neutral = None
-    if neutral is None:
-        neutral = _placeholder_facemesh_neutral(triangles)
-        source += "; placeholder neutral (learned from frames when fitting)"
-    neutral = normalise_facemesh_neutral(np.asarray(neutral, np.float32))
-    sem = {k: v for k, v in FACEMESH_SEMANTIC.items()}
-    names = [str(i) for i in range(FACEMESH_VERTICES)] + list(sem.keys())
-    verts = list(range(FACEMESH_VERTICES)) + list(sem.values())
-    return MorphableModel(
-        model_id="facemesh",
-        mean=neutral,
-        triangles=triangles,
-        texcoords=texcoords,
-        landmark_names=names,
-        landmark_vertices=np.array(verts, np.int32),
-        dense=True,
-        units="mm",
-        source=source,
-    )
-
-
-def normalise_facemesh_neutral(points: np.ndarray) -> np.ndarray:
-    """Put a (468, 3) face-mesh shape into model space: centred on the mean of the vertices,
-    rotated so x runs from the right outer eye corner (33) to the left (263) and y up
-    (toward the forehead, 10), z toward the viewer, scaled to 90 mm between the eye corners."""
-    p = np.asarray(points, np.float64)
-    if p.shape != (FACEMESH_VERTICES, 3):
-        raise ModelFormatError(f"facemesh neutral must be ({FACEMESH_VERTICES}, 3), got {p.shape}")
-    if not np.isfinite(p).all():
-        raise ModelFormatError("facemesh neutral contains NaN or infinite values")
-    x = p[FACEMESH_SEMANTIC["left_eye_outer"]] - p[FACEMESH_SEMANTIC["right_eye_outer"]]
-    dist = np.linalg.norm(x)
-    if dist < 1e-9:
-        raise ModelFormatError("facemesh neutral is degenerate (eye corners coincide)")
-    x /= dist
-    up = p[10] - p[FACEMESH_SEMANTIC["chin"]]
-    y = up - x * (up @ x)
-    ny = np.linalg.norm(y)
-    if ny < 1e-9:
-        raise ModelFormatError("facemesh neutral is degenerate (forehead-chin axis along the eye axis)")
-    y /= ny
-    z = np.cross(x, y)
-    R = np.stack([x, y, z])
-    centred = (p - p.mean(axis=0)) @ R.T
-    # The nose must point to +z (toward the viewer); a mirrored input would put it behind.
-    if centred[FACEMESH_SEMANTIC["nose_tip"], 2] < centred[:, 2].mean():
-        raise ModelFormatError("facemesh neutral is mirrored (nose behind the face plane)")
-    return (centred * (FACEMESH_EYE_CORNER_MM / dist)).astype(np.float32)
-
-
-def _placeholder_facemesh_neutral(triangles: np.ndarray) -> np.ndarray:
-    """A stand-in neutral before any frame: a flat 2D layout of the tessellation (Tutte embedding
-    with the mesh boundary on an ellipse), bulged toward the viewer in the middle, so the model is
-    valid and roughly face-shaped. Replaced by the neutral learned from the first frames."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.linalg import spsolve
-
-    V = FACEMESH_VERTICES
-    tri = np.asarray(triangles, np.int64)
-    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    key = np.sort(edges, axis=1)
-    uniq = np.unique(key, axis=0)
-    # The longest boundary loop is the outline (the others: eye and mouth holes).
-    loops = boundary_loops(tri)
-    loop = loops[0] if loops else []
-    pos = np.zeros((V, 2))
-    fixed = np.zeros(V, bool)
-    if len(loop) >= 3:
-        ang = np.linspace(0, 2 * np.pi, len(loop), endpoint=False)
-        pos[loop] = np.stack([70 * np.cos(ang), 90 * np.sin(ang)], axis=1)
-        fixed[loop] = True
-    A = coo_matrix((np.ones(len(uniq) * 2), (np.r_[uniq[:, 0], uniq[:, 1]], np.r_[uniq[:, 1], uniq[:, 0]])), shape=(V, V)).tocsr()
-    deg = np.asarray(A.sum(axis=1)).ravel()
-    free = ~fixed
-    if free.any() and fixed.any():
-        from scipy.sparse import diags
-
-        L = (diags(deg) - A).tocsr()
-        rhs = -L[free][:, fixed] @ pos[fixed]
-        pos[free] = np.stack([spsolve(L[free][:, free], rhs[:, k]) for k in range(2)], axis=1)
-    r2 = (pos[:, 0] / 70) ** 2 + (pos[:, 1] / 90) ** 2
-    z = 40 * np.clip(1 - r2, 0, None)
-    pts = np.column_stack([pos, z])
-    # Orient like a face: eye corners on a horizontal line, forehead (10) up.
-    try:
-        return normalise_facemesh_neutral(pts)
-    except ModelFormatError:
-        pts[:, 0] *= -1
-        try:
-            return normalise_facemesh_neutral(pts)
-        except ModelFormatError:
-            return pts.astype(np.float32)

@@ -1,6 +1,7 @@
 """The fitter node: ``face/landmarks`` -> ``face/state``, and ``face/model`` (latched).
 
-A thin shell over :class:`facesculpt.nodes.fitter.Fitter`. The model is the ``model`` param:
+A thin shell over stage 2, :func:`facesculpt.nodes.fitter.fit_landmarks` (docs/architecture.md,
+"Stages"), which the in-process pipeline calls too. The model is the ``model`` param:
 ``facemesh`` (built-in, dense: the 468 network points are fitted directly) or a ``.npz`` made by
 ``facesculpt model import-eos`` (sparse: the 468 points are reduced to iBUG-68 with the landmark
 node's mapping and fitted with ids 1..68). ``face/model`` carries the neutral the deformer works
@@ -15,12 +16,14 @@ from __future__ import annotations
 import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
-from facesculpt.geometry import to_ibug68
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import LATCHED
 
-from .fitter import FitError, Fitter
+from .config import FitterConfig
+from .fitter import Fitter, make_fitter
 from .model import MorphableModel, load_model
+from .result import FitError
+from .stage import fit_landmarks
 
 
 def valid_intrinsics(K) -> bool:
@@ -81,10 +84,9 @@ class FitterNode(Node):
     def maybe_publish_model(self, stamp: int, now_s: float) -> None:
         """Publish the learned neutral when it moved by more than 0.5 mm somewhere, at most every
         ``model_period_s``; always once when a dense reference is complete. A sparse identity keeps
-        accumulating evidence (and jitter: 1.2-1.6 mm a second at its landmarks on s18) after it has
-        been learned: from 2 x ``neutral_frames`` frames on, only a landmark vertex moving past
-        ``model_change_mm`` is republished, since each new neutral makes the deformer solve the
-        edits again (and the edited face wobble)."""
+        accumulating evidence (and jitter) after it has been learned: from 2 x ``neutral_frames``
+        frames on, only a landmark vertex moving past ``model_change_mm`` is republished, since
+        each new neutral makes the deformer solve the edits again (and the edited face wobble)."""
         f = self.fitter
         neutral = f.neutral
         done = f.model.dense and f.neutral_ready
@@ -96,7 +98,7 @@ class FitterNode(Node):
             moved = np.inf
         elif learned:
             # Judge the face itself (its landmark vertices, measured per vertex), not the skull
-            # behind it, which the landmarks barely constrain (it swings by 3-5 mm a second).
+            # behind it, which the landmarks barely constrain (it swings much more).
             change = neutral[f.model.landmark_vertices] - self.published_neutral[f.model.landmark_vertices]
             moved = float(np.linalg.norm(change, axis=1).max())
         else:
@@ -107,32 +109,31 @@ class FitterNode(Node):
             self.final_published = done
 
     # -- frames --------------------------------------------------------------------------------
-    def make_fitter(self, image_size, K) -> Fitter:
-        projection = self.params.projection
-        if projection == "auto":
-            projection = "perspective" if K is not None else "orthographic"
-        return Fitter(
-            self.model, image_size=image_size, K=K if projection == "perspective" else None, projection=projection,
-            iterations=self.params.iterations, tracking_iterations=self.params.tracking_iterations,
-            shape_lambda=self.params.shape_lambda,
-            expression_lambda=self.params.expression_lambda, outline=self.params.outline,
-            smoothing=self.params.smoothing, smooth_min_cutoff=self.params.min_cutoff,
-            neutral_frames=self.params.neutral_frames,
+    def fitter_config(self) -> FitterConfig:
+        """The fitter's options from this node's params (the others at their defaults)."""
+        p = self.params
+        return FitterConfig(
+            projection=p.projection, iterations=p.iterations, tracking_iterations=p.tracking_iterations,
+            shape_lambda=p.shape_lambda, expression_lambda=p.expression_lambda, outline=p.outline,
+            smoothing=p.smoothing, smooth_min_cutoff=p.min_cutoff, neutral_frames=p.neutral_frames,
         )
+
+    def prepare_fitter(self, size: tuple[int, int], K: np.ndarray | None) -> None:
+        """A fitter for this camera (image size, K), made anew when the camera changed; the
+        frame's K is ignored when the projection is orthographic. Raises FitError."""
+        key = (size, None if K is None else K.round(6).tobytes())
+        if self.fitter is not None and key == self.camera_key:
+            return
+        if self.fitter is not None:
+            self.count("camera_changed")
+        K = None if self.params.projection == "orthographic" else K
+        self.fitter = make_fitter(self.model, self.fitter_config(), size, K)
+        self.camera_key = key
 
     def on_landmarks(self, msg: FaceLandmarks):
         if self.model is None:
             self.count("no_model")
             return
-        points = np.asarray(msg.points)
-        if points.ndim != 3 or points.shape[0] == 0:
-            self.count("no_face")
-            return
-        best = int(np.argmax(msg.scores)) if len(msg.scores) == points.shape[0] else 0
-        if len(msg.scores) == points.shape[0] and float(msg.scores[best]) < self.params.min_score:
-            self.count("low_score")
-            return
-        pts = points[best].astype(np.float64)
         try:
             size = (int(msg.image_size[0]), int(msg.image_size[1]))
         except (TypeError, ValueError, IndexError):
@@ -144,27 +145,20 @@ class FitterNode(Node):
         if self.params.projection == "perspective" and K is None:
             self.count("bad_intrinsics")
             return
-        key = (size, None if K is None else K.round(6).tobytes())
         try:
-            if self.fitter is None or key != self.camera_key:
-                if self.fitter is not None:
-                    self.count("camera_changed")
-                self.fitter = self.make_fitter(size, K)
-                self.camera_key = key
-            ids = None
-            if not self.model.dense:
-                if pts.shape[0] == 468:
-                    pts = to_ibug68(pts)
-                if pts.shape[0] != 68:
-                    self.count("bad_landmark_count")
-                    return
-                ids = [str(i) for i in range(1, 69)]
-            with self.stage("fit"):
-                result = self.fitter.fit(pts, ids, stamp=msg.stamp * 1e-9)
+            self.prepare_fitter(size, K)
         except FitError as exc:
             self.count("fit_refused")
             self.last_error = str(exc)
             return
+        with self.stage("fit"):
+            outcome = fit_landmarks(self.fitter, msg.points, msg.scores, msg.stamp * 1e-9, self.params.min_score)
+        if outcome.fit is None:
+            self.count(outcome.skipped)
+            if outcome.error:
+                self.last_error = outcome.error
+            return
+        result = outcome.fit
         self.state_pub.publish(FaceState(
             stamp=msg.stamp, frame_id=msg.frame_id, model_id=self.model.model_id,
             R=np.asarray(result.R, np.float64), t=np.asarray(result.t, np.float64), scale=float(result.scale),

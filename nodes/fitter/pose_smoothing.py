@@ -1,0 +1,45 @@
+"""Temporal smoothing of a fitted face: One Euro filters (:mod:`.smoothing`) on the head pose,
+the expression and (dense) the fitted shape.
+
+The rotation is filtered as a rotation vector relative to the frontal pose, the translation in
+model millimetres (an orthographic t is in pixels: it is divided by the scale first, so the
+filter's speed threshold means the same at any face size).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facesculpt.nodes.fitter import pose
+from facesculpt.nodes.fitter.smoothing import OneEuroFilter
+
+
+class PoseSmoother:
+    """min_cutoff Hz; beta Hz per unit/s for rotation (rad), scale and expression; beta_mm Hz
+    per mm/s for translation and vertices; orthographic: t is in pixels, s in px per mm."""
+
+    def __init__(self, min_cutoff: float, beta: float, beta_mm: float, orthographic: bool):
+        self.orthographic = orthographic
+        self._filters = {k: OneEuroFilter(min_cutoff, beta) for k in ("rot", "s", "beta")}
+        for k in ("t", "shape"):  # millimetre-valued signals
+            self._filters[k] = OneEuroFilter(min_cutoff, beta_mm)
+
+    def reset(self) -> None:
+        """Forget the past: the next values pass through unfiltered."""
+        for f in self._filters.values():
+            f.reset()
+
+    def pose(self, R: np.ndarray, t: np.ndarray, s: float, beta: np.ndarray, now: float):
+        """The smoothed (R (3, 3), t (3,), s, beta (E,)) at time ``now`` (s)."""
+        rot = pose.rotation_log(R @ pose.FRONTAL.T)
+        rot = self._filters["rot"](rot, now)
+        unit = s if self.orthographic else 1.0
+        s_new = float(self._filters["s"](np.array([s]), now)[0])
+        t = self._filters["t"](t / unit, now) * (s_new if self.orthographic else 1.0)
+        if len(beta):
+            beta = self._filters["beta"](beta, now)
+        return pose.rodrigues(rot) @ pose.FRONTAL, t, s_new, beta
+
+    def shape(self, vertices: np.ndarray, now: float) -> np.ndarray:
+        """The smoothed shape (V, 3), model space (mm), at time ``now`` (s)."""
+        return self._filters["shape"](vertices, now)

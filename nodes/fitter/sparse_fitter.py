@@ -1,0 +1,224 @@
+"""The sparse fitter: a morphable model with shape and expression bases (e.g. the Surrey Face
+Model) fitted to named landmarks (e.g. the 68 iBUG points).
+
+Per frame:
+
+1. pose from the current shape at the landmark correspondences (scaled orthographic, or
+   perspective with the intrinsics K; warm-started from the previous frame);
+2. outline correspondences for the outline landmarks (:mod:`.outline`: visible outline
+   candidates, ray-triangle point);
+3. expression beta by bounded regularised least squares given alpha (:mod:`.fitting`);
+4. shape alpha likewise given beta, with the identity evidence of earlier frames;
+
+alternated ``iterations`` times (``tracking_iterations`` when warm-started), then a last pose
+update. Identity alpha accumulates across frames (:class:`.fitting.IdentityAccumulator`) while
+pose and beta follow each frame; the pose and beta of the result are smoothed over time
+(:mod:`.pose_smoothing`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facesculpt.nodes.fitter import fitting
+from facesculpt.nodes.fitter import outline as outline_corr
+from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.nodes.fitter.fit_camera import FitCamera
+from facesculpt.nodes.fitter.fitter import Fitter
+from facesculpt.nodes.fitter.model import MorphableModel
+from facesculpt.nodes.fitter.result import FitError, FitResult
+
+
+class SparseFitter(Fitter):
+    """Fits ``model`` (with bases, not dense) to named landmarks; see the module docstring."""
+
+    def __init__(self, model: MorphableModel, config: FitterConfig, camera: FitCamera):
+        super().__init__(model, config, camera)
+        self.iterations = config.iterations
+        self.tracking_iterations = (config.iterations if config.tracking_iterations is None
+                                    else min(config.iterations, config.tracking_iterations))
+        m = model
+        S = m.num_shape if config.num_shape is None else min(config.num_shape, m.num_shape)
+        self.num_shape = S
+        # Bases pre-scaled by their standard deviations: a coefficient of 1 is one sigma.
+        self._shape_basis = (m.shape_basis[:, :, :S] * m.shape_std[:S]).astype(np.float64)
+        self._expr_basis = (m.expression_basis * m.expression_std).astype(np.float64)
+        self._mean = m.mean.astype(np.float64)
+        V = m.num_vertices
+        self._full_basis = np.concatenate([self._shape_basis, self._expr_basis], axis=2).reshape(3 * V, -1).astype(np.float32)
+        self._outline_side: dict[str, int] = {}
+        for n in m.outline_landmarks_right:
+            self._outline_side[n] = 0
+        for n in m.outline_landmarks_left:
+            self._outline_side[n] = 1
+        self._bands: list[np.ndarray] = []
+        self._geometry = None
+        if len(m.outline_right) and len(m.outline_left):
+            self._prepare_outline()
+        self.identity = fitting.IdentityAccumulator(S, config.identity_decay, config.identity_max_frames)
+        self.reset()
+
+    def _prepare_outline(self) -> None:
+        """The outline candidate bands (without the nose) and their occlusion geometry."""
+        m = self.model
+        nose = outline_corr.nose_region(m.mean, self._names)
+        self._bands = [outline_corr.outline_band(m.mean, m.outline_right, nose),
+                       outline_corr.outline_band(m.mean, m.outline_left, nose)]
+        cands = np.unique(np.r_[self._bands[0], self._bands[1]])
+        self._geometry = outline_corr.OutlineGeometry(m.triangles, cands, m.num_vertices, transparent=nose)
+        self._band_pos = [np.searchsorted(cands, b) for b in self._bands]
+        edges = m.mean[m.triangles[:, [1, 2, 0]]] - m.mean[m.triangles]
+        self._edge_mm = float(np.linalg.norm(edges, axis=2).mean())
+
+    def reset(self) -> None:
+        """Forget everything learned from earlier frames: warm start, identity, filters."""
+        self.identity.reset()
+        self._alpha = np.zeros(self.num_shape)
+        self._beta = np.zeros(self.model.num_expression)
+        super().reset()
+
+    @property
+    def neutral(self) -> np.ndarray:
+        """(V, 3) float32 the model mean plus the accumulated identity, model space (mm)."""
+        return self.model.instance(self._alpha.astype(np.float32))
+
+    # ------------------------------------------------------------------ one frame
+    def _fit(self, pts, ids, w, finite, now) -> FitResult:
+        fixed_idx, fixed_vert, out_idx, out_side = self._select_landmarks(ids, finite)
+        x_fixed, w_fixed = pts[fixed_idx, :2], w[fixed_idx]
+        x_out, w_out = pts[out_idx, :2], w[out_idx] * self.config.outline_weight
+        # Correspondences: fixed ones are (v, v, v) with weights (1, 0, 0).
+        fv = np.repeat(np.asarray(fixed_vert, int)[:, None], 3, axis=1)
+        fw = np.tile([1.0, 0.0, 0.0], (len(fixed_idx), 1))
+        cv, cw, x_all, w_all = fv, fw, x_fixed, w_fixed
+
+        alpha, beta, init = self._alpha.copy(), self._beta.copy(), self._pose
+        accumulate = self.config.accumulate_identity
+        prior = (self.identity.H, self.identity.g) if (accumulate and not self.identity.empty) else (None, None)
+        rows = self._rows(cv, cw)
+        R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, init)
+        for _ in range(self.iterations if init is None else self.tracking_iterations):
+            if len(out_idx):
+                cv, cw, x_all, w_all = self._with_outline(fv, fw, x_fixed, w_fixed, x_out, w_out, out_side, alpha, beta, R, t, s)
+                rows = self._rows(cv, cw)
+            # With the correspondences fixed, pose and coefficients are alternated a few times:
+            # cheap small solves that take most of the slow pose-shape coupling out of each iteration.
+            for _ in range(self.config.inner_steps):
+                C, u0 = self.camera.to_camera(self._points(rows, alpha, beta), R, t, s)
+                J, rho = self.camera.linearisation(C, R, s)
+                alpha, beta = self._solve_coefficients(J, rho, rows[1], rows[2], x_all, w_all, u0, alpha, beta, prior)
+                R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, (R, t, s))
+        residual = self._finish_frame(rows, x_all, w_all, alpha, beta, R, t, s)
+        self._alpha, self._beta, self._pose = alpha, beta, (R, t, s)
+        result = self._result(alpha, beta, R, t, s, now, residual)
+        result.landmarks_used = len(fixed_idx) + len(out_idx)
+        result.correspondences = (cv, cw)
+        return result
+
+    def _select_landmarks(self, ids: list[str], finite: np.ndarray):
+        """The usable points: (indices, model vertices) of those with a fixed vertex, and
+        (indices, side 0 right / 1 left) of the outline ones; FitError when too few are fixed."""
+        fixed_idx, fixed_vert, out_idx, out_side = [], [], [], []
+        for i, name in enumerate(ids):
+            if not finite[i]:
+                continue
+            if name in self._outline_side:
+                if self.config.outline != "off" and self._geometry is not None:
+                    out_idx.append(i)
+                    out_side.append(self._outline_side[name])
+            elif name in self._names:
+                fixed_idx.append(i)
+                fixed_vert.append(self._names[name])
+        if len(fixed_idx) < self.config.min_landmarks:
+            known = sum(1 for i, n in enumerate(ids) if finite[i] and (n in self._names or n in self._outline_side))
+            raise FitError(
+                f"only {len(fixed_idx)} usable landmarks with fixed model vertices ({known} valid of {len(ids)} given; "
+                f"at least {self.config.min_landmarks} are needed)"
+            )
+        return np.asarray(fixed_idx, int), fixed_vert, np.asarray(out_idx, int), np.asarray(out_side, int)
+
+    def _rows(self, verts: np.ndarray, weights: np.ndarray):
+        """The correspondence points' mean (L, 3) and their rows of the shape and expression bases."""
+        base = fitting.correspondence_points(self._mean, verts, weights)
+        rows_s = fitting.correspondence_rows(self._shape_basis, verts, weights)
+        rows_e = fitting.correspondence_rows(self._expr_basis, verts, weights)
+        return base, rows_s, rows_e
+
+    @staticmethod
+    def _points(rows, alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
+        """The correspondence points (L, 3), model space, of shape ``alpha`` and expression ``beta``."""
+        base, rows_s, rows_e = rows
+        return base + rows_s @ alpha + rows_e @ beta
+
+    def _finish_frame(self, rows, x_all, w_all, alpha, beta, R, t, s) -> float:
+        """The frame's RMS landmark residual (px) at the final pose and coefficients; its
+        identity evidence goes to the accumulator."""
+        C, u0 = self.camera.to_camera(self._points(rows, alpha, beta), R, t, s)
+        residual = float(np.sqrt(((u0 - x_all) ** 2).sum(1).mean()))
+        if self.config.accumulate_identity and self.num_shape:
+            J, rho = self.camera.linearisation(C, R, s)
+            A = fitting.design(J, rows[1], rho, w_all)
+            b = fitting.whiten(x_all - u0, rho, w_all) + A @ alpha
+            self.identity.add(A, b)
+        return residual
+
+    def _result(self, alpha, beta, R, t, s, now, residual) -> FitResult:
+        """The whole fitted mesh, posed (smoothed when asked) and projected; residual: RMS px."""
+        if self.config.smoothing:
+            R, t, s, beta = self.smoother.pose(R, t, s, beta, now)
+        coef = np.r_[alpha, beta].astype(np.float32)
+        model_vertices = (self.model.mean.reshape(-1) + self._full_basis @ coef).reshape(-1, 3)
+        Cv, proj = self.camera.to_camera(model_vertices.astype(np.float64), R, t, s)
+        return FitResult(
+            vertices=Cv.astype(np.float32), projected=proj.astype(np.float32), R=R, t=t, scale=float(s),
+            alpha=alpha.astype(np.float32), beta=np.asarray(beta, np.float32), residual_px=residual,
+            projection=self.projection, K=self.K, model_vertices=model_vertices.astype(np.float32),
+        )
+
+    def _solve_coefficients(self, J, rho, rows_s, rows_e, x_all, w_all, u0, alpha, beta, prior):
+        """alpha, beta for fixed camera and correspondences (joint, or one beta-then-alpha step)."""
+        m, c = self.model, self.config
+        As = fitting.design(J, rows_s, rho, w_all)
+        Ae = fitting.design(J, rows_e, rho, w_all)
+        r = fitting.whiten(x_all - u0, rho, w_all)
+        if c.coefficients == "joint":
+            return fitting.solve_joint(As, Ae, r + As @ alpha + Ae @ beta, c.shape_lambda, c.expression_lambda,
+                                       *prior, lower=m.expression_lower, upper=m.expression_upper)
+        if m.num_expression:
+            new_beta = fitting.solve_regularised(Ae, r + Ae @ beta, c.expression_lambda,
+                                                 lower=m.expression_lower, upper=m.expression_upper)
+            r = r - Ae @ (new_beta - beta)  # exact for orthographic, first order for perspective
+            beta = new_beta
+        if self.num_shape:
+            alpha = fitting.solve_regularised(As, r + As @ alpha, c.shape_lambda, *prior)
+        return alpha, beta
+
+    def _with_outline(self, fv, fw, x_fixed, w_fixed, x_out, w_out, out_side, alpha, beta, R, t, s):
+        """Correspondences with the outline landmarks added for the current shape and pose."""
+        coef = np.r_[alpha, beta].astype(np.float32)
+        Vm = (self.model.mean.reshape(-1) + self._full_basis @ coef).reshape(-1, 3).astype(np.float64)
+        C, P = self.camera.to_camera(Vm, R, t, s)
+        perspective = self.camera.perspective
+        # Occluders must be 20 mm nearer (the nose over the cheek, not the cheek's own grazing curve
+        # within one cell); the splat grid is one mean edge length wide.
+        px_per_mm = s if not perspective else self.camera.focal_px / float(np.median(C[:, 2]))
+        tol = 20.0 * (s if not perspective else 1.0)
+        cell = max(1.0, self._edge_mm * px_per_mm)
+        vis = outline_corr.visible_candidates(self._geometry, C, P, perspective, tol, cell)
+        verts, wts, xs, ws = [fv], [fw], [x_fixed], [w_fixed]
+        for side in (0, 1):
+            sel = out_side == side
+            if not sel.any():
+                continue
+            band = self._bands[side]
+            cand = band[vis[self._band_pos[side]]]
+            if len(cand) == 0:
+                continue
+            v, b = outline_corr.outline_correspondences(
+                x_out[sel], cand, P, C[:, 2] if perspective else None, self.config.outline
+            )
+            verts.append(v)
+            wts.append(b)
+            xs.append(x_out[sel])
+            ws.append(w_out[sel])
+        return np.concatenate(verts), np.concatenate(wts), np.concatenate(xs), np.concatenate(ws)
