@@ -146,18 +146,14 @@ def test_window_shows_the_frame_and_reports_input_in_frame_pixels(display, data_
         window.close()
 
 
-def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph, data_dir):
-    """The graph: this test plays camera + fitter (real frame, posed SFM); the renderer (window)
-    and the deformer run as real processes. A drag sent with xdotool on the nose reaches the
-    deformer as input/events, and the window then shows a changed nose."""
+def _scene_feeder(model, pose, frame):
+    """A node that plays camera + fitter for the window graph: the frame and its posed face
+    state at 15 Hz, the model latched; it keeps the input events it hears and how many
+    input/events subscribers the renderer reports (its diagnostics)."""
     from facesculpt.msgs import Diagnostics, FaceModel, FaceState, Image, InputEvent
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
-    from facesculpt.nodes.fitter import load_model
 
-    model = load_model("sfm")
-    pose = place_marked(model, "s18")
-    frame = read_frames(data_dir, "s18")[0]
     H, W = frame.shape[:2]
 
     class Feeder(Node):
@@ -172,14 +168,12 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
             self.listeners = 0  # the renderer's input/events subscribers, from its diagnostics
             self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, qos=EVERY_MESSAGE)
             self.timer(1 / 15, self.tick)
-            self.n = 0
 
         def on_diagnostics(self, msg):
             if msg.node == "renderer":
                 self.listeners = msg.values.get("subscribers", {}).get("input/events", 0)
 
         def tick(self):
-            self.n += 1
             stamp = time.time_ns()
             self.image_pub.publish(Image(stamp=stamp, image=frame, K=pose.K))
             self.state_pub.publish(FaceState(
@@ -187,13 +181,31 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
                 vertices=pose.fitted.astype(np.float32), projected=pose.projected.astype(np.float32),
                 image_size=[W, H], projection="perspective"))
 
+        def publish_model(self):
+            self.model_pub.publish(FaceModel(stamp=1, model_id=model.model_id,
+                                             vertices=model.mean.astype(np.float32),
+                                             triangles=model.triangles.astype(np.int32)))
+
+    return Feeder()
+
+
+def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph, data_dir):
+    """The graph: this test plays camera + fitter (real frame, posed SFM); the renderer (window)
+    and the deformer run as real processes. A drag sent with xdotool on the nose reaches the
+    deformer as input/events, and the window then shows a changed nose."""
+    from facesculpt.nodes.fitter import load_model
+
+    model = load_model("sfm")
+    pose = place_marked(model, "s18")
+    frame = read_frames(data_dir, "s18")[0]
+    H, W = frame.shape[:2]
+
     title = f"facesculpt-graph-{os.getpid()}"
     graph.env["DISPLAY"] = display
     graph.spawn("run", "renderer", "window=true", "overlay=false", f"title={title}")
     graph.spawn("run", "deformer")
-    feeder = graph.node(Feeder())
-    feeder.model_pub.publish(FaceModel(stamp=1, model_id=model.model_id, vertices=model.mean.astype(np.float32),
-                                       triangles=model.triangles.astype(np.int32)))
+    feeder = graph.node(_scene_feeder(model, pose, frame))
+    feeder.publish_model()
     found = []
 
     def window_up():
