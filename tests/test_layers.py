@@ -1,0 +1,125 @@
+"""The layering rules of docs/architecture.md ("Layers"), read from the source with ast.
+
+* the runtime imports nothing from the application, the CLI or the nodes;
+* the shared geometry imports nothing of ours but itself;
+* a node room never imports another room, nor the application;
+* paths.py (below every layer) imports no node;
+* no source file over 600 lines and no function over 80 lines outside benchmarks/.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+# Repository folder -> the package it installs as (pyproject.toml's package-dir).
+PACKAGE_OF = {"facesculpt": "facesculpt", "nodes": "facesculpt.nodes", "msgs": "facesculpt.msgs",
+              "launch": "facesculpt.launch"}
+MAX_FILE_LINES = 600
+MAX_FUNCTION_LINES = 80
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(REPO).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join([PACKAGE_OF[parts[0]], *parts[1:]])
+
+
+def _sources(*folders: str) -> list[Path]:
+    return sorted(p for folder in folders for p in (REPO / folder).rglob("*.py"))
+
+
+def imported_modules(path: Path, source: str | None = None) -> set[str]:
+    """Absolute names of every module ``path`` (or ``source`` as if it were that file) imports,
+    relative imports resolved, at any depth."""
+    module = _module_name(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text() if source is None else source, str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            found.add(name)
+            found.update(f"{name}.{alias.name}" for alias in node.names)
+    return found
+
+
+def _violations(paths: list[Path], forbidden) -> list[str]:
+    return [f"{p.relative_to(REPO)} imports {m}" for p in paths for m in sorted(imported_modules(p)) if forbidden(p, m)]
+
+
+def _under(module: str, prefix: str) -> bool:
+    return module == prefix or module.startswith(prefix + ".")
+
+
+def test_the_runtime_imports_no_node_no_command_and_not_the_cli():
+    bad = _violations(_sources("facesculpt/runtime"), lambda p, m: any(
+        _under(m, x) for x in ("facesculpt.nodes", "facesculpt.app", "facesculpt.cli", "facesculpt.geometry")))
+    assert not bad, bad
+
+
+def test_the_shared_geometry_imports_only_itself():
+    bad = _violations(_sources("facesculpt/geometry"), lambda p, m: _under(m, "facesculpt")
+                      and not _under(m, "facesculpt.geometry"))
+    assert not bad, bad
+
+
+def test_paths_imports_no_node():
+    above = ("facesculpt.nodes", "facesculpt.app", "facesculpt.cli", "facesculpt.runtime", "facesculpt.geometry")
+    bad = _violations([REPO / "facesculpt" / "paths.py"], lambda p, m: any(_under(m, x) for x in above))
+    assert not bad, bad
+
+
+def test_node_rooms_never_import_each_other_nor_the_application():
+    def forbidden(path: Path, module: str) -> bool:
+        room = path.relative_to(REPO / "nodes").parts[0]
+        if _under(module, "facesculpt.app") or _under(module, "facesculpt.cli"):
+            return True
+        if not _under(module, "facesculpt.nodes") or module == "facesculpt.nodes":
+            return False
+        other = module.split(".")[2]
+        return other != room and other != "BUILTIN_NODES"
+
+    bad = _violations([p for p in _sources("nodes") if p.parent != REPO / "nodes"], forbidden)
+    assert not bad, bad
+
+
+def test_the_check_itself_sees_cross_room_imports():
+    """The checks above must be able to fail: relative and absolute imports into another room."""
+    probe = REPO / "nodes" / "camera" / "probe.py"
+    assert "facesculpt.nodes.deformer" in imported_modules(probe, "from ..deformer import EditStack\n")
+    assert "facesculpt.nodes.deformer.arap" in imported_modules(probe, "def f():\n    import facesculpt.nodes.deformer.arap\n")
+    assert "facesculpt.nodes.camera.sources" in imported_modules(probe, "from .sources import open_source\n")
+
+
+SOURCE_FOLDERS = ("facesculpt", "nodes", "msgs", "launch", "tests", "examples")
+
+
+@pytest.mark.parametrize("folder", SOURCE_FOLDERS)
+def test_no_source_file_is_over_600_lines(folder):
+    long = [f"{p.relative_to(REPO)}: {n}" for p in _sources(folder)
+            if (n := p.read_text().count("\n")) > MAX_FILE_LINES]
+    assert not long, long
+
+
+@pytest.mark.parametrize("folder", SOURCE_FOLDERS)
+def test_no_function_is_over_80_lines(folder):
+    long = []
+    for p in _sources(folder):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long.append(f"{p.relative_to(REPO)}:{node.lineno} {node.name}: {n} lines")
+    assert not long, long
