@@ -65,7 +65,7 @@ def main() -> int:
 
     from facesculpt.nodes.deformer.node import DeformerNode
 
-    params = DeformerNode.PARAMS
+    params = DeformerNode.default_params()
     ours = {
         "ours_plain10": ArapDeformer(V, F, iterations=10, tolerance=0.0, acceleration="none"),
         "ours_default": ArapDeformer(V, F, iterations=params["iterations"], tolerance=params["tolerance"],

@@ -12,12 +12,12 @@ It finds the running graph through the master (FACESCULPT_MASTER), receives
 import numpy as np
 
 from facesculpt.msgs import Image
-from facesculpt.runtime import Node
+from facesculpt.runtime import Node, Param
 
 
 class Brightness(Node):
     NAME = "brightness"
-    PARAMS = {"gain": 1.5}
+    PARAMS = {"gain": Param(1.5, "brightness factor", range=(0.0, 10.0))}
 
     def setup(self):
         self.out = self.advertise("camera/bright", Image)

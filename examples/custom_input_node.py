@@ -16,12 +16,16 @@ import time
 import numpy as np
 
 from facesculpt.msgs import InputEvent
-from facesculpt.runtime import Node
+from facesculpt.runtime import Node, Param
 
 
 class Wiggle(Node):
     NAME = "wiggle"
-    PARAMS = {"landmark": "nose_tip", "amplitude_mm": 6.0, "period_s": 2.0}
+    PARAMS = {
+        "landmark": Param("nose_tip", "the landmark to move"),
+        "amplitude_mm": Param(6.0, "how far to either side, mm along model x", range=(0.0, 50.0)),
+        "period_s": Param(2.0, "one left-right cycle, s", range=(0.1, 60.0)),
+    }
 
     def setup(self):
         self.events = self.advertise("input/events", InputEvent)

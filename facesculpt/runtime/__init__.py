@@ -4,9 +4,11 @@ This layer imports :mod:`facesculpt.msgs` and :mod:`facesculpt.paths` only: neve
 (:mod:`facesculpt.nodes`) nor a command (:mod:`facesculpt.app`); tests/test_layers.py checks it.
 Writing a node::
 
-    from facesculpt.runtime import Node
+    from facesculpt.runtime import EVENTS, Node, Param
 """
 
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA, QoSProfile
 
-__all__ = ["Node"]
+__all__ = ["EVENTS", "EVERY_MESSAGE", "LATCHED", "Node", "Param", "QoSProfile", "SENSOR_DATA"]

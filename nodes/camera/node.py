@@ -9,6 +9,7 @@ import numpy as np
 
 from facesculpt.msgs import Image
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
 
 from .intrinsics import intrinsics_from_fov
 from .sources import SourceError, open_source, resize_frame
@@ -19,17 +20,18 @@ class CameraNode(Node):
 
     NAME = "camera"
     PARAMS = {
-        "source": "0",        # webcam index, video file, image file, bag:FILE, or embedded
-        "width": 0,           # resize to this width (0: keep; aspect kept if height is 0)
-        "height": 0,
-        "fps": 0.0,           # pacing; 0: the source's own rate; -1: as fast as possible
-        "loop": False,        # restart a video or bag at its end
-        "motion": False,      # still image: move a virtual camera over it
-        "fov_deg": 60.0,      # horizontal field of view for K, unless K is given
-        "K": [],              # 9 numbers, row-major, for the output size
-        "max_frames": 0,      # stop after this many frames (0: no limit)
-        "wait_subscribers": 0,  # hold the first frame until this many subscribers listen (recording)
-        "wait_timeout_s": 10.0,
+        "source": Param("0", "webcam index, video file, image file, bag:FILE, or embedded"),
+        "width": Param(0, "resize to this width, px (0: keep; aspect kept if height is 0)", range=(0, 16384)),
+        "height": Param(0, "resize to this height, px (0: keep; aspect kept if width is 0)", range=(0, 16384)),
+        "fps": Param(0.0, "pacing, frames/s; 0: the source's own rate; -1: as fast as possible", range=(-1.0, 1000.0)),
+        "loop": Param(False, "restart a video or bag at its end"),
+        "motion": Param(False, "still image: move a virtual camera over it"),
+        "fov_deg": Param(60.0, "horizontal field of view for K, degrees, unless K is given", range=(1.0, 179.0)),
+        "K": Param([], "9 numbers, row-major, for the output size (empty: from fov_deg)"),
+        "max_frames": Param(0, "stop after this many frames (0: no limit)", range=(0, None)),
+        "wait_subscribers": Param(0, "hold the first frame until this many subscribers listen (recording)",
+                                  range=(0, 1000)),
+        "wait_timeout_s": Param(10.0, "longest hold for wait_subscribers, s", range=(0.0, 3600.0)),
     }
 
     def setup(self):

@@ -18,7 +18,9 @@ import numpy as np
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
 from facesculpt.geometry import axes_velocity, merge_deformation, project
+from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import EVENTS, LATCHED
 from facesculpt.paths import preset_file
 
@@ -35,16 +37,21 @@ MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
 class DeformerNode(Node):
     NAME = "deformer"
     PARAMS = {
-        "roi_radius": 40.0,  # mm on the neutral mesh, default ROI of a new handle
-        "roi_metric": "geodesic",  # or "euclidean"
-        "iterations": 4,  # ARAP local/global iterations per solve (Anderson-accelerated: closer than libigl's 10 plain)
-        "tolerance": 1e-5,  # stop early below this per-iteration motion, x bounding-box diagonal
-        "acceleration": "anderson",  # or "none": the plain local/global iteration
-        "clamp_weights": True,  # clamp obtuse-angle cotangents at 0
-        "round_s": 0.005,  # how often queued events are applied and solved
-        "joystick_speed": 40.0,  # mm/s at full axis deflection
-        "joystick_deadzone": 0.1,
-        "preset_dir": "",  # where relative preset paths live (default: current directory)
+        "roi_radius": Param(40.0, "default ROI of a new handle, mm on the neutral mesh", range=(0.1, 1000.0)),
+        "roi_metric": Param("geodesic", "distance the ROI radius is measured in",
+                            choices=("geodesic", "euclidean")),
+        "iterations": Param(4, "ARAP local/global iterations per solve (Anderson-accelerated)", range=(1, 100)),
+        "tolerance": Param(1e-5, "stop early below this per-iteration motion, x bounding-box diagonal (0: never)",
+                           range=(0.0, 1.0)),
+        "acceleration": Param("anderson", "how a solve converges: anderson (accelerated) or none (plain local/global)",
+                              choices=("anderson", "none")),
+        "clamp_weights": Param(True, "clamp obtuse-angle cotangents at 0"),
+        "round_s": Param(0.005, "how often queued events are applied and solved, s", range=(0.001, 1.0)),
+        "joystick_speed": Param(SPEED_MM_S, "axes events: mm/s of the handle at full deflection",
+                                range=SPEED_MM_S_RANGE),
+        "joystick_deadzone": Param(DEADZONE, "axes events: fraction of full deflection read as 0",
+                                   range=DEADZONE_RANGE),
+        "preset_dir": Param("", "where relative preset paths live (\"\": the current directory)"),
     }
 
     def setup(self):

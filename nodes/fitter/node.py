@@ -17,6 +17,7 @@ import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import LATCHED
 
 from .config import FitterConfig
@@ -34,19 +35,25 @@ def valid_intrinsics(K) -> bool:
 class FitterNode(Node):
     NAME = "fitter"
     PARAMS = {
-        "model": "facemesh",  # "facemesh", or a .npz model file (facesculpt model import-eos)
-        "iterations": 5,  # pose / correspondence / coefficient iterations per frame (cold start)
-        "tracking_iterations": 1,  # iterations when warm-started from the previous frame
-        "projection": "auto",  # "perspective" (with the frame's K), "orthographic", or auto: K if valid
-        "shape_lambda": 3.0,  # Eq. 2 regularisation, mm²
-        "expression_lambda": 4.0,
-        "outline": "ray",  # "ray" (paper), "nearest", "off"
-        "smoothing": True,  # One Euro filter on pose and expression
-        "min_cutoff": 1.5,  # Hz, One Euro
-        "neutral_frames": 30,  # dense: frames averaged into the neutral reference
-        "model_period_s": 1.0,  # least time between face/model updates while the neutral is learned
-        "model_change_mm": 2.0,  # sparse, once learned (2 x neutral_frames frames): republish when a landmark vertex moved this much
-        "min_score": 0.5,  # faces below this landmark score are not fitted
+        "model": Param("facemesh", "\"facemesh\" (built in), or a .npz model file (facesculpt model import-eos)"),
+        "iterations": Param(5, "pose / correspondence / coefficient iterations per frame (cold start)",
+                            range=(1, 50)),
+        "tracking_iterations": Param(1, "iterations when warm-started from the previous frame", range=(1, 50)),
+        "projection": Param("auto", "perspective (with the frame's K), orthographic, or auto: K if valid",
+                            choices=("auto", "perspective", "orthographic")),
+        "shape_lambda": Param(3.0, "Eq. 2 regularisation of the shape coefficients, mm²", range=(0.0, None)),
+        "expression_lambda": Param(4.0, "Eq. 2 regularisation of the expression coefficients, mm²",
+                                   range=(0.0, None)),
+        "outline": Param("ray", "contour correspondences: ray (paper), nearest, or off",
+                         choices=("ray", "nearest", "off")),
+        "smoothing": Param(True, "One Euro filter on pose and expression"),
+        "min_cutoff": Param(1.5, "One Euro minimum cutoff frequency, Hz", range=(0.001, 100.0)),
+        "neutral_frames": Param(30, "dense: frames averaged into the neutral reference", range=(1, 100000)),
+        "model_period_s": Param(1.0, "least time between face/model updates while the neutral is learned, s",
+                                range=(0.0, 3600.0)),
+        "model_change_mm": Param(2.0, "sparse, once learned (2 x neutral_frames frames): republish when a "
+                                      "landmark vertex moved this much, mm", range=(0.0, None)),
+        "min_score": Param(0.5, "faces below this landmark score are not fitted", range=(0.0, 1.0)),
     }
 
     def setup(self):

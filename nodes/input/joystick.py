@@ -25,7 +25,9 @@ import time
 
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
 from facesculpt.geometry import axes_velocity
+from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
 
 from .face_targets import InputError, nearest_landmark, roi_centre
 from .joystick_protocol import JoystickMapper, LineSplitter, ProtocolError, axis_signs, parse_line
@@ -128,27 +130,27 @@ class JoystickNode(Node):
 
     NAME = "joystick"
     PARAMS = {
-        "port": "",  # device path or pyserial URL (loop://, socket://host:port, rfc2217://host:port)
-        "baudrate": 115200,
-        "deadzone": 0.1,  # fraction of full deflection read as 0
-        "speed_mm_s": 40.0,  # model-space mm/s of the handle at full deflection
-        "invert": "",  # axes to invert, e.g. "y" or "xz"
-        "grab_button": 0,  # bit of BUTTONS that grabs (press) the landmark nearest the face ROI centre; -1: none
-        "release_button": 1,  # bit that releases it; -1: none
-        "reset_button": 2,  # bit that sends `command reset`; -1: none
-        "grab_landmark": "",  # grab this landmark instead of the nearest one
-        "handle": 1,  # pointer id of the joystick's handle (the mouse is 0)
-        "max_dt_s": 0.25,  # longest interval one sample's velocity is applied over
-        "reconnect_min_s": 0.1,  # first retry after the device disappears; doubles each time
-        "reconnect_max_s": 2.0,  # longest wait between retries
-        "poll_s": 0.005,  # how often the node's thread takes the reader's samples
+        "port": Param("", "device path or pyserial URL (loop://, socket://host:port, rfc2217://host:port)"),
+        "baudrate": Param(115200, "serial speed, bit/s", range=(50, 4000000)),
+        "deadzone": Param(DEADZONE, "fraction of full deflection read as 0", range=DEADZONE_RANGE),
+        "speed_mm_s": Param(SPEED_MM_S, "model-space mm/s of the handle at full deflection", range=SPEED_MM_S_RANGE),
+        "invert": Param("", "axes to invert, e.g. \"y\" or \"xz\""),
+        "grab_button": Param(0, "bit of BUTTONS that grabs (press) the landmark nearest the face ROI centre; -1: none",
+                             range=(-1, 30)),
+        "release_button": Param(1, "bit that releases it; -1: none", range=(-1, 30)),
+        "reset_button": Param(2, "bit that sends `command reset`; -1: none", range=(-1, 30)),
+        "grab_landmark": Param("", "grab this landmark instead of the nearest one"),
+        "handle": Param(1, "pointer id of the joystick's handle (the mouse is 0)", range=(0, None)),
+        "max_dt_s": Param(0.25, "longest interval one sample's velocity is applied over, s", range=(0.001, 10.0)),
+        "reconnect_min_s": Param(0.1, "first retry after the device disappears, s; doubles each time",
+                                 range=(0.001, 60.0)),
+        "reconnect_max_s": Param(2.0, "longest wait between retries, s (>= reconnect_min_s)", range=(0.001, 600.0)),
+        "poll_s": Param(0.005, "how often the node's thread takes the reader's samples, s", range=(0.001, 1.0)),
     }
 
     def setup(self):
         p = self.params
         check_port(p.port)
-        if not 0.0 <= p.deadzone < 1.0:
-            raise ValueError(f"joystick: deadzone must be in [0, 1), got {p.deadzone}")
         if not (p.reconnect_min_s > 0 and p.reconnect_max_s >= p.reconnect_min_s):
             raise ValueError("joystick: need 0 < reconnect_min_s <= reconnect_max_s")
         self.mapper = JoystickMapper(

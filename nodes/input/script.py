@@ -19,6 +19,7 @@ import time
 
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import EVENTS
 
 from .face_targets import InputError
@@ -30,14 +31,15 @@ class ScriptNode(Node):
 
     NAME = "script"
     PARAMS = {
-        "script": "",  # path of the gesture script (YAML)
-        "loop": False,  # start again when it ends (end the script with `command: reset` to undo each pass)
-        "start_delay_s": 0.0,  # after the waits below, before the first step
-        "wait_for_face": True,  # start only once a face/state with a fitted face has been seen
-        "wait_subscribers": 1,  # start only once this many nodes listen to input/events (0: don't wait)
-        "handle": 2,  # pointer id of steps that name none (the mouse is 0, the joystick 1)
-        "exit_when_done": False,  # stop the node when the script has played (batch edits, tests)
-        "poll_s": 0.005,  # how often due events are sent
+        "script": Param("", "path of the gesture script (YAML)"),
+        "loop": Param(False, "start again when it ends (end the script with `command: reset` to undo each pass)"),
+        "start_delay_s": Param(0.0, "after the waits below, before the first step, s", range=(0.0, 3600.0)),
+        "wait_for_face": Param(True, "start only once a face/state with a fitted face has been seen"),
+        "wait_subscribers": Param(1, "start only once this many nodes listen to input/events (0: don't wait)",
+                                  range=(0, 1000)),
+        "handle": Param(2, "pointer id of steps that name none (the mouse is 0, the joystick 1)", range=(0, None)),
+        "exit_when_done": Param(False, "stop the node when the script has played (batch edits, tests)"),
+        "poll_s": Param(0.005, "how often due events are sent, s", range=(0.001, 1.0)),
     }
 
     def setup(self):

@@ -11,6 +11,7 @@ import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, Image
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
 
 from .detector import NUM_POINTS, LandmarkDetector
 
@@ -20,14 +21,16 @@ class LandmarksNode(Node):
 
     NAME = "landmarks"
     PARAMS = {
-        "models_dir": "",             # directory filled by `facesculpt setup` ("" = FACESCULPT_HOME / cache)
-        "threads": 1,                 # onnxruntime intra-op threads per network
-        "max_faces": 1,               # largest faces first
-        "min_detection_score": 0.5,   # detector score threshold
-        "min_tracking_score": 0.5,    # face-presence score below which the detector reruns
-        "min_face": 0.15,             # smallest face to detect, fraction of the short image side
-        "redetect_interval": 15,      # frames between detector runs while fewer than max_faces are tracked
-        "track": True,                # false: run the detector on every frame
+        "models_dir": Param("", "directory filled by `facesculpt setup` (\"\": FACESCULPT_HOME / cache)"),
+        "threads": Param(1, "onnxruntime intra-op threads per network (0: onnxruntime's default)", range=(0, 64)),
+        "max_faces": Param(1, "faces tracked, largest first", range=(1, 16)),
+        "min_detection_score": Param(0.5, "detector score threshold", range=(0.0, 1.0)),
+        "min_tracking_score": Param(0.5, "face-presence score below which the detector reruns", range=(0.0, 1.0)),
+        "min_face": Param(0.15, "smallest face to detect, fraction of the short image side (0: whole image only)",
+                          range=(0.0, 1.0)),
+        "redetect_interval": Param(15, "frames between detector runs while fewer than max_faces are tracked",
+                                   range=(1, 1000)),
+        "track": Param(True, "track faces from frame to frame (false: run the detector on every frame)"),
     }
 
     def setup(self):

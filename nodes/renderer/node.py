@@ -20,6 +20,7 @@ import numpy as np
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
+from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
 from facesculpt.geometry import merge_deformation
 
@@ -32,19 +33,23 @@ class RendererNode(Node):
 
     NAME = "renderer"
     PARAMS = {
-        "window": False,
-        "pairing": "latest",
-        "buffer": 30,
-        "sync_timeout_s": 0.5,
-        "max_state_age_s": 0.5,
-        "inpaint": "pushpull",
-        "feather_px": 3.0,
-        "dilate_px": 2,
-        "output": "",
-        "fps": 30.0,
-        "publish": True,
-        "overlay": True,
-        "title": "facesculpt",
+        "window": Param(False, "open a window (shows the result, mouse drags become input/events)"),
+        "pairing": Param("latest", "frames with face states: latest (the newest state) or sync (each frame's own)",
+                         choices=("latest", "sync")),
+        "buffer": Param(30, "frames kept while waiting for their state (sync)", range=(1, 1000)),
+        "sync_timeout_s": Param(0.5, "sync: a frame this much older than the newest is shown without a face, s",
+                                range=(0.0, 60.0)),
+        "max_state_age_s": Param(0.5, "latest: the oldest state (relative to the frame) still drawn, s",
+                                 range=(0.0, 60.0)),
+        "inpaint": Param("pushpull", "fill of the background the deformed face uncovers",
+                         choices=("pushpull", "telea")),
+        "feather_px": Param(3.0, "soft edge inside the deformed outline, px", range=(0.0, 100.0)),
+        "dilate_px": Param(2, "growth of the region to inpaint, px", range=(0, 100)),
+        "output": Param("", "video file to write (\"\": none)"),
+        "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
+        "publish": Param(True, "publish render/image"),
+        "overlay": Param(True, "draw fps, stage times, handles and ROI in the window"),
+        "title": Param("facesculpt", "window title"),
     }
 
     def setup(self):
@@ -52,8 +57,6 @@ class RendererNode(Node):
         qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))
-        if p.inpaint not in ("pushpull", "telea"):
-            raise ValueError(f"renderer: unknown inpaint {p.inpaint!r} (pushpull | telea)")
         self.image_pub = self.advertise("render/image", Image) if p.publish else None
         self.events_pub = self.advertise("input/events", InputEvent) if p.window else None
         self.subscribe("camera/image", Image, self.on_image, qos=qos)
