@@ -68,7 +68,7 @@ def run_raw(transport: str, n: int, rate_hz: float) -> dict:
         proc.start()
         ready.wait()
         time.sleep(0.5)
-        for i in range(n):
+        for _ in range(n):
             if rate:
                 time.sleep(1.0 / rate)
             pub.send_multipart([b"img", struct.pack("<q", time.time_ns()), img], copy=False)

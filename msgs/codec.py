@@ -15,8 +15,9 @@ counts such messages.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Sequence
+from typing import Any, ClassVar
 
 import msgpack
 import numpy as np
@@ -88,7 +89,7 @@ class Message:
                 else:
                     scalars.append((f.name, _scalar_type(f.type)))
             cached = (tuple(arrays), tuple(scalars))
-            setattr(cls, "_schema_cache", cached)
+            cls._schema_cache = cached
         return cached
 
     @classmethod
@@ -100,7 +101,7 @@ class Message:
             arrays, scalars = cls._schema()
             cached = ({name: (spec.dtype, np.dtype(spec.dtype).itemsize, spec.shape) for name, spec in arrays},
                       scalars, tuple(name for name, spec in arrays if not spec.optional))
-            setattr(cls, "_decode_plan_cache", cached)
+            cls._decode_plan_cache = cached
         return cached
 
     def check(self) -> None:

@@ -4,6 +4,14 @@ into temporary folders)."""
 
 from __future__ import annotations
 
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -28,16 +36,6 @@ def models_dir() -> Path:
         pytest.skip(f"no converted networks in {path}: run `facesculpt setup` first")
     return path
 
-
-# -- a running graph for tests: a master on a free port, processes cleaned up -----------------------
-import os
-import shutil
-import signal
-import socket
-import subprocess
-import sys
-import tempfile
-import time
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
@@ -83,6 +81,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+# -- a running graph for tests: a master on a free port, processes cleaned up -----------------------
 class Graph:
     """Processes of one test's graph; every one is stopped at teardown."""
 

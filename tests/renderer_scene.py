@@ -95,8 +95,8 @@ def place_marked(model, name: str) -> Placement:
 def place_fitted(model, frame: np.ndarray, detector) -> Placement:
     """The model fitted to ``frame`` by the real pipeline: the landmark detector (468 points;
     their iBUG-68 subset for a sparse model) and the fitter (orthographic by default)."""
-    from facesculpt.nodes.fitter import FitterConfig, make_fitter
     from facesculpt.geometry import to_ibug68
+    from facesculpt.nodes.fitter import FitterConfig, make_fitter
 
     faces = detector.detect(frame)
     assert faces, "no face detected in the frame"

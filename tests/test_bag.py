@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import json
 import random
-import shutil
 import struct
-import time
 
 import cv2
 import numpy as np
 import pytest
 
-from facesculpt.runtime.bag import MAGIC, BagError, BagReader, BagWriter
 from facesculpt.msgs import Image, decode, encode
+from facesculpt.runtime.bag import MAGIC, BagError, BagReader, BagWriter
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVERY_MESSAGE
 

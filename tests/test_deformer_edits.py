@@ -209,9 +209,9 @@ def test_merge_turns_displacement_into_pose():
 def fit_video(model, data_dir, models_dir, name, frames=12):
     """Fit the SFM to the first frames of a shared video: (FitResult, person's neutral (V, 3))."""
     cv2 = pytest.importorskip("cv2")
+    from facesculpt.geometry import to_ibug68
     from facesculpt.nodes.fitter import FitterConfig, make_fitter
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
-    from facesculpt.geometry import to_ibug68
 
     detector = LandmarkDetector(models_dir)
     cap = cv2.VideoCapture(str(data_dir / "video" / f"{name}.mp4"))

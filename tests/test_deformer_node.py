@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from facesculpt.geometry import merge_deformation, project
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
-from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.deformer.node import DeformerNode
-from facesculpt.geometry import project
 
 K = np.array([[900.0, 0.0, 320.0], [0.0, 900.0, 240.0], [0.0, 0.0, 1.0]])
 

@@ -7,12 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from facesculpt.geometry import merge_deformation
+from facesculpt.geometry import axes_velocity, merge_deformation, pixel_ray, project
 from facesculpt.nodes.deformer import ArapDeformer
 from facesculpt.nodes.deformer.anchors import roi_within_radius
-from facesculpt.geometry import axes_velocity
 from facesculpt.nodes.deformer.dragging import camera_to_model_vector, depth_delta, drag_delta
-from facesculpt.geometry import pixel_ray, project
 from facesculpt.nodes.deformer.picking import pick_vertex
 
 W, H = 640, 480

@@ -10,8 +10,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
-
-from conftest import REPO_ROOT, free_port
+from conftest import free_port
 
 
 @pytest.mark.timing

@@ -8,13 +8,12 @@ import sys
 
 import numpy as np
 import yaml
+from conftest import REPO_ROOT
+from test_input_script import sfm, sfm_model_msg, sfm_state_msg  # noqa: F401  (sfm is a fixture)
 
 from facesculpt.msgs import Deformation, FaceModel, FaceState
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
-
-from conftest import REPO_ROOT
-from test_input_script import sfm, sfm_model_msg, sfm_state_msg  # noqa: F401  (sfm is a fixture)
 
 
 def test_example_custom_node_joins_a_launched_graph_and_moves_the_nose(graph, sfm, tmp_path):  # noqa: F811

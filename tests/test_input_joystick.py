@@ -12,11 +12,11 @@ import time
 import numpy as np
 import pytest
 
+from facesculpt.geometry import axes_velocity
 from facesculpt.msgs import Diagnostics, FaceModel, FaceState, InputEvent
+from facesculpt.nodes.input.joystick import JoystickNode
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE
-from facesculpt.geometry import axes_velocity
-from facesculpt.nodes.input.joystick import JoystickNode
 
 
 class Pty:
@@ -175,7 +175,7 @@ class LineServer:
         if self.conn is None:
             try:
                 self.conn, _ = self.listen.accept()
-            except socket.timeout:
+            except TimeoutError:
                 raise OSError("not connected yet") from None
         self.conn.sendall(data)
 

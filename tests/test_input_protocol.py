@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT
 
-from facesculpt.msgs import InputEvent
 from facesculpt.geometry import axes_velocity
+from facesculpt.msgs import InputEvent
 from facesculpt.nodes.input.face_targets import InputError, nearest_landmark, roi_centre
 from facesculpt.nodes.input.gesture_script import ScriptError, ScriptPlayer, load_script, parse_script
 from facesculpt.nodes.input.joystick_protocol import (
@@ -20,8 +21,6 @@ from facesculpt.nodes.input.joystick_protocol import (
     axis_signs,
     parse_line,
 )
-
-from conftest import REPO_ROOT
 
 GESTURES = REPO_ROOT / "examples" / "gestures"
 

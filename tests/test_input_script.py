@@ -8,14 +8,13 @@ import time
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT
 from scipy.spatial.transform import Rotation
 
+from facesculpt.geometry import project
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
-from facesculpt.geometry import project
-
-from conftest import REPO_ROOT
 
 GESTURES = REPO_ROOT / "examples" / "gestures"
 K = np.array([[900.0, 0.0, 320.0], [0.0, 900.0, 240.0], [0.0, 0.0, 1.0]])
@@ -148,9 +147,9 @@ def _record_bag(video, path, frames: int) -> None:
     """A bag of `camera/image` from a real video, as `facesculpt bag record` writes it."""
     import cv2
 
-    from facesculpt.runtime.bag import BagWriter
     from facesculpt.msgs import Image
     from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
+    from facesculpt.runtime.bag import BagWriter
 
     cap = cv2.VideoCapture(str(video))
     with BagWriter(path, compression="jpeg") as bag:
@@ -174,8 +173,8 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
     one-vertex handle)."""
     import cv2
 
-    from facesculpt.msgs import Image
     from facesculpt.geometry import merge_deformation
+    from facesculpt.msgs import Image
 
     bag = tmp_path / "d3.bag"
     _record_bag(data_dir / "video" / "d3.mp4", bag, 120)

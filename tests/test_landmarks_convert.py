@@ -10,11 +10,17 @@ import numpy as np
 import onnx
 import pytest
 
-from facesculpt.nodes.landmarks.detector import (DETECTOR_SIZE, MESH_SIZE, LandmarkDetector, LiteRtNetwork,
-                                                 OnnxNetwork, crop_image)
+from facesculpt.app.setup_models import DOWNLOADS_DIR, WHEEL_NAME
+from facesculpt.nodes.landmarks.detector import (
+    DETECTOR_SIZE,
+    MESH_SIZE,
+    LandmarkDetector,
+    LiteRtNetwork,
+    OnnxNetwork,
+    crop_image,
+)
 from facesculpt.nodes.landmarks.tflite_reader import TfliteFormatError, read_tflite
 from facesculpt.nodes.landmarks.tflite_to_onnx import UnsupportedOperatorError, convert_tflite
-from facesculpt.app.setup_models import DOWNLOADS_DIR, WHEEL_NAME
 
 Interpreter = pytest.importorskip("ai_edge_litert.interpreter").Interpreter
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facesculpt.nodes.landmarks import LandmarkDetector
-from facesculpt.nodes.landmarks.detector import RIGHT_EYE_OUTER, LEFT_EYE_OUTER
+from facesculpt.nodes.landmarks.detector import LEFT_EYE_OUTER, RIGHT_EYE_OUTER
 
 NOSE_BRIDGE = 168  # mesh point between the eyes (iBUG 28, 1-based)
 

@@ -10,16 +10,14 @@ import subprocess
 import sys
 import time
 
-import numpy as np
 import psutil
 import pytest
 import yaml
-
-from facesculpt.runtime.launcher import load_launch
-from facesculpt.msgs import Image
-from facesculpt.runtime.node import Node
-
 from conftest import REPO_ROOT
+
+from facesculpt.msgs import Image
+from facesculpt.runtime.launcher import load_launch
+from facesculpt.runtime.node import Node
 
 
 def _launch_file(tmp_path, video) -> str:

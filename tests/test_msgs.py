@@ -6,8 +6,20 @@ import msgpack
 import numpy as np
 import pytest
 
-from facesculpt.msgs import (REGISTRY, Deformation, Diagnostics, DecodeError, FaceLandmarks, FaceModel, FaceState,
-                             Image, InputEvent, decode, encode, summarize)
+from facesculpt.msgs import (
+    REGISTRY,
+    DecodeError,
+    Deformation,
+    Diagnostics,
+    FaceLandmarks,
+    FaceModel,
+    FaceState,
+    Image,
+    InputEvent,
+    decode,
+    encode,
+    summarize,
+)
 from facesculpt.runtime.parameters import coerce_param, parse_assignments
 
 rng = np.random.default_rng(3)

@@ -186,7 +186,7 @@ def test_interrupt_keeps_partial_output(data_dir, models_dir, tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130, stderr
-    line = [l for l in stderr.splitlines() if l.startswith("interrupted:")]
+    line = [text for text in stderr.splitlines() if text.startswith("interrupted:")]
     assert line and line[0].endswith(f"frames in {output}"), stderr
     kept = int(line[0].split("kept ")[1].split(" frames")[0])
     total, _ = read_video(data_dir / "video" / "d3.mp4", keep=set())
@@ -197,9 +197,9 @@ def test_interrupt_keeps_partial_output(data_dir, models_dir, tmp_path):
 
 @pytest.mark.parametrize("name", ["nose_longer", "chin", "cheeks"])
 def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, models_dir):
+    from facesculpt.app.pipeline import read_preset
     from facesculpt.nodes.deformer import EditStack
     from facesculpt.nodes.fitter import load_model
-    from facesculpt.app.pipeline import read_preset
 
     preset = read_preset(PRESETS / f"{name}.json")
     for model in (load_model("facemesh"), load_model("sfm")):
@@ -215,8 +215,8 @@ def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, mo
 
 
 def test_shipped_presets_resolve_by_name_and_a_missing_one_lists_them(tmp_path):
-    from facesculpt.paths import preset_file
     from facesculpt.app.pipeline import read_preset
+    from facesculpt.paths import preset_file
 
     assert preset_file("chin") == preset_file("chin.json") == (PRESETS / "chin.json").resolve()
     own = tmp_path / "chin.json"  # a file the user names wins over the shipped preset

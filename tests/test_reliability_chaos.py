@@ -13,13 +13,12 @@ import time
 
 import numpy as np
 import psutil
-import yaml
 import pytest
+import yaml
+from conftest import REPO_ROOT
 
 from facesculpt.msgs import FaceState, Image
 from facesculpt.runtime.node import Node
-
-from conftest import REPO_ROOT
 
 KILL_EVERY_S = 4.0
 VICTIMS = ["camera", "landmarks", "fitter", "deformer", "renderer"]

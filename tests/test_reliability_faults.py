@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from facesculpt.runtime.bag import BagReader, BagWriter
 from facesculpt.msgs import Diagnostics, FaceState, Image, decode
+from facesculpt.nodes.renderer.video_out import VideoOutput
+from facesculpt.runtime.bag import BagReader, BagWriter
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVERY_MESSAGE
-from facesculpt.nodes.renderer.video_out import VideoOutput
 
 
 @pytest.fixture

@@ -5,14 +5,22 @@ message is rejected and counted, every valid one is delivered, memory stays boun
 from __future__ import annotations
 
 import random
-import time
 
 import msgpack
 import numpy as np
 import zmq
 
-from facesculpt.msgs import (REGISTRY, Deformation, Diagnostics, FaceLandmarks, FaceModel, FaceState, Image,
-                             InputEvent, decode)
+from facesculpt.msgs import (
+    REGISTRY,
+    Deformation,
+    Diagnostics,
+    FaceLandmarks,
+    FaceModel,
+    FaceState,
+    Image,
+    InputEvent,
+    decode,
+)
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE
 

@@ -4,6 +4,7 @@ output rate (by more than 5 %): the camera never waits for its slowest subscribe
 from __future__ import annotations
 
 import time
+
 import pytest
 
 from facesculpt.msgs import Diagnostics, Image

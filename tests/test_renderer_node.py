@@ -3,16 +3,15 @@ frames out on render/image and in a video file, per-stage times in diagnostics."
 
 from __future__ import annotations
 
-
 import cv2
 import numpy as np
 from renderer_scene import issue_edit, place_marked, read_frames
 
+from facesculpt.geometry import merge_deformation
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, Image
+from facesculpt.nodes.renderer import Compositor
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
-from facesculpt.geometry import merge_deformation
-from facesculpt.nodes.renderer import Compositor
 
 MS = 1_000_000
 

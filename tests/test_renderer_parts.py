@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from renderer_scene import read_frames
 
+from facesculpt.geometry import boundary_loops
 from facesculpt.nodes.renderer.camera import estimate_projection, project
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
-from facesculpt.geometry import boundary_loops
 from facesculpt.nodes.renderer.mesh import close_holes
 from facesculpt.nodes.renderer.video_out import VideoOutput
 

@@ -3,7 +3,6 @@ a stranger publisher is never heard, a stranger cannot talk to the master."""
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -13,14 +12,13 @@ import numpy as np
 import pytest
 import yaml
 import zmq
+from conftest import REPO_ROOT, free_port
 
-from facesculpt.runtime.master import MasterClient, master_alive
 from facesculpt.msgs import Image, InputEvent
+from facesculpt.runtime.master import MasterClient, master_alive
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVENTS
 from facesculpt.runtime.security import Security, SecurityError, generate_keypair
-
-from conftest import REPO_ROOT, free_port
 
 
 @pytest.fixture

@@ -14,8 +14,17 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from facesculpt.app.setup_models import (DOWNLOADS_DIR, MANIFEST_FILE, TRIANGLES_FILE, WHEEL_NAME, WHEEL_SHA256,
-                                     SetupError, manifest_is_valid, run_setup, sha256_file)
+from facesculpt.app.setup_models import (
+    DOWNLOADS_DIR,
+    MANIFEST_FILE,
+    TRIANGLES_FILE,
+    WHEEL_NAME,
+    WHEEL_SHA256,
+    SetupError,
+    manifest_is_valid,
+    run_setup,
+    sha256_file,
+)
 
 # pip pointed at a closed local port: any download attempt fails at once.
 NO_NETWORK = {"PIP_INDEX_URL": "http://127.0.0.1:9/simple", "PIP_NO_CACHE_DIR": "1", "PIP_FIND_LINKS": "",

@@ -279,31 +279,74 @@ def _cpu_seconds(procs: dict) -> dict:
     return out
 
 
-def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
-                  warmup_s: float, start_timeout_s: float = 90.0) -> dict:
-    """Frames out per second and end-to-end latency of the graph as separate processes."""
+def node_figures(diagnostics: dict[str, list[dict]]) -> dict[str, dict]:
+    """Per node (tools' own listeners, named ``_...``, aside): mean stage times (ms) over the
+    window's diagnostics, and the last rates, drops and error count."""
+    nodes = {}
+    for name, values in diagnostics.items():
+        if name.startswith("_"):
+            continue
+        stages: dict[str, list[float]] = {}
+        for v in values:
+            for k, ms in (v.get("stages_ms") or {}).items():
+                stages.setdefault(k, []).append(float(ms))
+        last = values[-1]
+        nodes[name] = {
+            "stages_ms": {k: round(float(np.mean(v)), 3) for k, v in stages.items()},
+            "rate_hz": last.get("rate_hz", {}),
+            "dropped": last.get("dropped", {}),
+            "errors": last.get("errors", 0),
+        }
+    return nodes
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """SIGTERM the launcher (it stops its nodes), SIGKILL it after 15 s."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _launch(workdir: Path, address: str, spec: dict) -> tuple[subprocess.Popen, object]:
+    """`facesculpt launch` of ``spec`` with its own master at ``address``, sockets and
+    ``launch.log`` in ``workdir``; returns (process, open log) once the master answers
+    (RuntimeError after 20 s)."""
     import yaml
 
     from facesculpt.runtime.master import master_alive
+
+    spec_file = workdir / "bench.yaml"
+    spec_file.write_text(yaml.safe_dump(spec))
+    log = open(workdir / "launch.log", "w")
+    env = dict(os.environ, FACESCULPT_MASTER=address, FACESCULPT_RUN_DIR=str(workdir), PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", "launch", str(spec_file)], env=env,
+                            stdout=log, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 20
+    while not master_alive(address, 0.2):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            _stop(proc)
+            log.close()
+            raise RuntimeError(f"the graph did not start (see {log.name})")
+    return proc, log
+
+
+def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
+                  warmup_s: float, start_timeout_s: float = 90.0) -> dict:
+    """Frames out per second and end-to-end latency of the graph as separate processes."""
     from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVERY_MESSAGE
 
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
     address = f"tcp://127.0.0.1:{_free_port()}"
-    spec_file = workdir / "bench.yaml"
-    spec_file.write_text(yaml.safe_dump(launch_spec(source, model, camera_fps)))
-    env = dict(os.environ, FACESCULPT_MASTER=address, FACESCULPT_RUN_DIR=str(workdir), PYTHONUNBUFFERED="1")
     log_path = workdir / "launch.log"
-    log = open(log_path, "w")
-    proc = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", "launch", str(spec_file)], env=env,
-                            stdout=log, stderr=subprocess.STDOUT)
+    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps))
     listener = None
     try:
-        deadline = time.monotonic() + 20
-        while not master_alive(address, 0.2):
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"the graph did not start (see {log_path})")
         arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns)
         diagnostics: dict[str, list[dict]] = {}
         deformed = []
@@ -351,33 +394,13 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     finally:
         if listener is not None:
             listener.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        _stop(proc)
         log.close()
     if len(window) < 2:
         raise RuntimeError(f"the graph gave {len(window)} frames in {window_s} s (see {log_path})")
     shutil.rmtree(workdir, ignore_errors=True)  # kept when something failed: its launch.log says why
     latency = np.array([(a - s) / 1e6 for a, s in window])
-    nodes = {}
-    for name, values in diagnostics.items():
-        if name.startswith("_"):
-            continue
-        stages: dict[str, list[float]] = {}
-        for v in values:
-            for k, ms in (v.get("stages_ms") or {}).items():
-                stages.setdefault(k, []).append(float(ms))
-        last = values[-1]
-        nodes[name] = {
-            "stages_ms": {k: round(float(np.mean(v)), 3) for k, v in stages.items()},
-            "rate_hz": last.get("rate_hz", {}),
-            "dropped": last.get("dropped", {}),
-            "errors": last.get("errors", 0),
-        }
+    nodes = node_figures(diagnostics)
     for name in cpu1:
         if name in cpu0:
             nodes.setdefault(name, {})["cpu_percent"] = round(100.0 * (cpu1[name] - cpu0[name]) / elapsed, 1)

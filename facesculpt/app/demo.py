@@ -97,8 +97,8 @@ def timing_table(listener: DemoListener) -> tuple[str, dict]:
 
 
 def cmd_demo(args) -> int:
-    from facesculpt.runtime.launcher import Launcher, load_launch
     from facesculpt.paths import launch_file
+    from facesculpt.runtime.launcher import Launcher, load_launch
 
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)

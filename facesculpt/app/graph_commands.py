@@ -90,8 +90,8 @@ def cmd_run(args) -> int:
 
 
 def cmd_launch(args) -> int:
-    from facesculpt.runtime.launcher import Launcher, load_launch
     from facesculpt.paths import launch_file
+    from facesculpt.runtime.launcher import Launcher, load_launch
 
     specs = load_launch(launch_file(args.file), args.overrides)
     return Launcher(specs, status=lambda line: print(line, flush=True)).run()

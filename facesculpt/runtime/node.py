@@ -48,16 +48,24 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import zmq
 
-from facesculpt.runtime.master import MasterClient, master_address
-from facesculpt.runtime.process_limits import limit_threads
 from facesculpt.msgs import Diagnostics, Message
-from facesculpt.runtime.parameters import (EXIT_BAD_PARAMETER, ParameterError, Params, declared, default_values,
-                                           parse_assignments, resolve_params)
+from facesculpt.runtime.master import MasterClient, master_address
+from facesculpt.runtime.parameters import (
+    EXIT_BAD_PARAMETER,
+    ParameterError,
+    Params,
+    declared,
+    default_values,
+    parse_assignments,
+    resolve_params,
+)
+from facesculpt.runtime.process_limits import limit_threads
 from facesculpt.runtime.pubsub import Publisher, Receiver, Subscription, new_endpoint
 from facesculpt.runtime.qos import SENSOR_DATA, QoSProfile
 
@@ -71,7 +79,7 @@ class MasterLink(threading.Thread):
     # Heartbeat and lookup period: also how late a subscriber may notice a respawned publisher.
     PERIOD_S = 0.1
 
-    def __init__(self, node: "Node"):
+    def __init__(self, node: Node):
         super().__init__(name="facesculpt-master-link", daemon=True)
         self.node = node
         self.client = MasterClient(node.master, timeout_s=1.0, security=node.security)

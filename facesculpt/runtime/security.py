@@ -86,7 +86,7 @@ class Security:
 
     @classmethod
     def from_dir(cls, keys_dir: str | os.PathLike, server: str = SERVER_KEY_NAME,
-                 client: str | None = None) -> "Security":
+                 client: str | None = None) -> Security:
         keys_dir = Path(keys_dir).expanduser().resolve()
         if not keys_dir.is_dir():
             raise SecurityError(f"keys directory {keys_dir} not found (make one with `facesculpt keys generate`)")
@@ -99,7 +99,7 @@ class Security:
         return cls(keys_dir, server_public, server_secret, client_public, client_secret)
 
     @classmethod
-    def from_env(cls, environ=os.environ) -> "Security | None":
+    def from_env(cls, environ=os.environ) -> Security | None:
         """From ``$FACESCULPT_KEYS`` (+ ``$FACESCULPT_SERVER_KEY``, ``$FACESCULPT_CLIENT_KEY`` names); None when unset."""
         keys = environ.get(ENV_KEYS)
         if not keys:

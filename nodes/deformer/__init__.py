@@ -5,10 +5,10 @@ Library: :class:`ArapDeformer` (Sorkine & Alexa 2007), edit layers and presets (
 """
 
 from .arap import ArapDeformer
+from .edits import EditStack
 from .energy import arap_energy, cotangent_weights
 from .errors import DeformerError
 from .rotations import fit_rotations
-from .edits import EditStack
 
 __all__ = [
     "ArapDeformer",

@@ -16,19 +16,18 @@ from pathlib import Path
 
 import numpy as np
 
-from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
 from facesculpt.geometry import axes_velocity, merge_deformation, project
 from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
+from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
+from facesculpt.paths import preset_file
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import EVENTS, LATCHED
-from facesculpt.paths import preset_file
 
-from .errors import DeformerError
 from .dragging import depth_delta, drag_delta
 from .edits import EditStack
+from .errors import DeformerError
 from .picking import pick_vertex
-
 
 MAX_PENDING_WITHOUT_MODEL = 10000
 MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit

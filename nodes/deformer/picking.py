@@ -12,6 +12,7 @@ import numpy as np
 
 from facesculpt.geometry.projection import pixel_ray
 
+
 @dataclass
 class Pick:
     """A hit: ``vertex`` (the handle), ``triangle`` index, ``point`` (3,) camera space,

@@ -7,9 +7,9 @@ times (seconds) in, and get plain dicts of ``InputEvent`` fields out
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import yaml

@@ -23,11 +23,11 @@ import importlib
 import threading
 import time
 
+from facesculpt.geometry import axes_velocity
+from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
-from facesculpt.geometry import axes_velocity
-from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
 
 from .face_targets import InputError, nearest_landmark, roi_centre
 from .joystick_protocol import JoystickMapper, LineSplitter, ProtocolError, axis_signs, parse_line

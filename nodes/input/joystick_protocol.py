@@ -16,8 +16,8 @@ it are unaffected. Blank lines are ignored. ``\\r\\n`` endings are accepted.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 

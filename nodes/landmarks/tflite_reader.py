@@ -139,7 +139,7 @@ class _Table:
     def _indirect(self, p: int) -> int:
         return p + struct.unpack_from("<I", self.buf, p)[0]
 
-    def table(self, slot: int) -> "_Table | None":
+    def table(self, slot: int) -> _Table | None:
         p = self._field(slot)
         return _Table(self.buf, self._indirect(p)) if p else None
 
@@ -164,7 +164,7 @@ class _Table:
             raise TfliteFormatError("vector runs past the end of the file")
         return np.frombuffer(self.buf, dtype, n, start + 4).copy()
 
-    def tables(self, slot: int) -> list["_Table"]:
+    def tables(self, slot: int) -> list[_Table]:
         """A vector of tables."""
         p = self._field(slot)
         if not p:

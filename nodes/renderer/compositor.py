@@ -387,7 +387,7 @@ class Compositor:
             self.ctx.release()
             self.ctx = None
 
-    def __enter__(self) -> "Compositor":
+    def __enter__(self) -> Compositor:
         return self
 
     def __exit__(self, *exc) -> None:

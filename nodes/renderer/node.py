@@ -18,11 +18,11 @@ import time
 
 import numpy as np
 
+from facesculpt.geometry import merge_deformation
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
-from facesculpt.geometry import merge_deformation
 
 from .compositor import Compositor
 from .pairing import FramePairer

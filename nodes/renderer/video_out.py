@@ -78,7 +78,7 @@ class VideoOutput:
             self._writer.release()
             self._writer = None
 
-    def __enter__(self) -> "VideoOutput":
+    def __enter__(self) -> VideoOutput:
         return self
 
     def __exit__(self, *exc) -> None:
