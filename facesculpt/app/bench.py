@@ -26,6 +26,7 @@ The machine is what it is (2 cores, no GPU here): the load average is reported w
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -105,25 +106,40 @@ def bench_source(video: str) -> tuple[str, str]:
     data = shared_data_dir()
     if data is not None and (data / "video" / "s18.mp4").is_file():
         return str(data / "video" / "s18.mp4"), "s18.mp4 (shared data)"
-    return "embedded", "embedded face photo (astronaut.png, 512x512 stretched) under a moving virtual camera"
+    return "embedded", "embedded face photo (astronaut.png, 512x512) under a moving virtual camera"
 
 
-def read_frames(spec: str, count: int) -> tuple[list[np.ndarray], float]:
-    """The first ``count`` frames of a camera source, resized to 856x480 (a video loops), and its fps."""
+def bench_size(width: int, height: int) -> tuple[int, int]:
+    """The size (px) a ``width`` x ``height`` input is measured at: the paper's 856x480 for an
+    input of that aspect ratio (within 1 %), else the paper's pixel count at the input's own
+    aspect ratio (even sides), so a portrait video is not squashed."""
+    aspect = width / height
+    if abs(aspect / (SIZE[0] / SIZE[1]) - 1.0) <= 0.01:
+        return SIZE
+    pixels = SIZE[0] * SIZE[1]
+    w = 2 * max(1, round(math.sqrt(pixels * aspect) / 2))
+    return w, 2 * max(1, round(pixels / w / 2))
+
+
+def read_frames(spec: str, count: int) -> tuple[list[np.ndarray], float, tuple[int, int]]:
+    """The first ``count`` frames of a camera source (a video loops) at :func:`bench_size`, its fps
+    and that size."""
     from facesculpt.nodes.camera.sources import open_source, resize_frame
 
     source = open_source(spec, loop=True)
+    size = None
     try:
         frames = []
         for frame, _ in source.frames():
-            frames.append(resize_frame(frame, *SIZE))
+            size = size or bench_size(frame.shape[1], frame.shape[0])
+            frames.append(resize_frame(frame, *size, mode="stretch"))  # the size has the input's aspect
             if len(frames) >= count:
                 break
     finally:
         source.close()
     if not frames:
         raise ValueError(f"cannot read frames from {spec}")
-    return frames, source.native_fps or 30.0
+    return frames, source.native_fps or 30.0, size
 
 
 def preset_paths() -> list[Path]:
@@ -233,11 +249,12 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def launch_spec(source: str, model: str, camera_fps: float) -> dict:
-    """The launch file of the measured graph."""
+def launch_spec(source: str, model: str, camera_fps: float, size: tuple[int, int] = SIZE) -> dict:
+    """The launch file of the measured graph; the camera delivers ``size`` (px, :func:`bench_size`)."""
     return {"nodes": [
         {"name": "camera", "node": "camera", "required": True,
-         "params": {"source": source, "width": SIZE[0], "height": SIZE[1], "fps": camera_fps, "loop": True}},
+         "params": {"source": source, "width": size[0], "height": size[1], "resize": "stretch",
+                    "fps": camera_fps, "loop": True}},
         {"name": "landmarks", "node": "landmarks"},
         {"name": "fitter", "node": "fitter", "params": {"model": model}},
         {"name": "deformer", "node": "deformer"},
@@ -335,7 +352,7 @@ def _launch(workdir: Path, address: str, spec: dict) -> tuple[subprocess.Popen, 
 
 
 def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
-                  warmup_s: float, start_timeout_s: float = 90.0) -> dict:
+                  warmup_s: float, size: tuple[int, int] = SIZE, start_timeout_s: float = 90.0) -> dict:
     """Frames out per second and end-to-end latency of the graph as separate processes."""
     from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
     from facesculpt.runtime.node import Node
@@ -344,7 +361,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
     address = f"tcp://127.0.0.1:{_free_port()}"
     log_path = workdir / "launch.log"
-    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps))
+    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size))
     listener = None
     try:
         arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns)
@@ -471,12 +488,12 @@ def cmd_bench(args) -> int:
     preset = combine_presets([read_preset(p) for p in paths])
     preset_file = Path(tempfile.mkdtemp(prefix="fs-bench-preset-")) / "fig6e.json"
     preset_file.write_text(json.dumps(preset))
-    frames, fps = read_frames(source, args.frames)
+    frames, fps, size = read_frames(source, args.frames)
     load_start = os.getloadavg()
-    print(f"facesculpt bench: {description}, {SIZE[0]}x{SIZE[1]}, {len(frames)} frames; "
+    print(f"facesculpt bench: {description}, {size[0]}x{size[1]}, {len(frames)} frames; "
           f"{os.cpu_count()} CPUs, load average {load_start[0]:.2f}", file=sys.stderr, flush=True)
     result = {
-        "input": description, "size": list(SIZE), "frames": len(frames),
+        "input": description, "size": list(size), "frames": len(frames),
         "edit": [p.stem for p in paths], "camera_fps": args.camera_fps, "pairing": "sync",
         "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
@@ -489,7 +506,7 @@ def cmd_bench(args) -> int:
             if not args.no_graph:
                 print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
                       file=sys.stderr, flush=True)
-                entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup))
+                entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size))
             result["models"][model] = entry
     finally:
         shutil.rmtree(preset_file.parent, ignore_errors=True)

@@ -12,7 +12,7 @@ from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 
 from .intrinsics import intrinsics_from_fov
-from .sources import SourceError, open_source, resize_frame
+from .sources import RESIZE_MODES, SourceError, open_source, resize_frame
 
 
 class CameraNode(Node):
@@ -23,6 +23,8 @@ class CameraNode(Node):
         "source": Param("0", "webcam index, video file, image file, bag:FILE, or embedded"),
         "width": Param(0, "resize to this width, px (0: keep; aspect kept if height is 0)", range=(0, 16384)),
         "height": Param(0, "resize to this height, px (0: keep; aspect kept if width is 0)", range=(0, 16384)),
+        "resize": Param("fit", "with width and height both set: fit (largest size inside, aspect kept), "
+                               "fill (cover and crop the centre, aspect kept) or stretch", choices=RESIZE_MODES),
         "fps": Param(0.0, "pacing, frames/s; 0: the source's own rate; -1: as fast as possible", range=(-1.0, 1000.0)),
         "loop": Param(False, "restart a video or bag at its end"),
         "motion": Param(False, "still image: move a virtual camera over it"),
@@ -78,7 +80,7 @@ class CameraNode(Node):
             self.log.error("%s", exc)
             self.shutdown()
             return
-        frame = resize_frame(frame, self.params.width, self.params.height)
+        frame = resize_frame(frame, self.params.width, self.params.height, self.params.resize)
         h, w = frame.shape[:2]
         self.sent += 1
         self.pub.publish(Image(stamp=stamp, seq=self.sent, frame_id="camera",

@@ -19,17 +19,47 @@ class SourceError(RuntimeError):
     """A source that cannot be opened or read; the message names it."""
 
 
-def resize_frame(frame: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Resize to width x height; a zero keeps the aspect ratio; both zero keep the frame."""
-    h, w = frame.shape[:2]
+RESIZE_MODES = ("fit", "fill", "stretch")
+
+
+def resized_size(w: int, h: int, width: int, height: int, mode: str = "fit") -> tuple[int, int]:
+    """The (width, height) px a w x h frame is resized to for a requested ``width`` x ``height``.
+
+    A zero keeps the aspect ratio from the other side; both zero keep the frame's size. With both
+    given, ``mode`` says what happens to an aspect ratio that differs: ``fit`` scales to the
+    largest size inside the box (aspect kept, one side may come out shorter), ``fill`` scales to
+    cover the box and :func:`resize_frame` crops the centre (aspect kept, exactly the box),
+    ``stretch`` distorts to the box.
+    """
+    if mode not in RESIZE_MODES:
+        raise ValueError(f"resize mode {mode!r} is not one of {', '.join(RESIZE_MODES)}")
     if width <= 0 and height <= 0:
-        return frame
+        return w, h
     if width <= 0:
-        width = max(1, round(w * height / h))
+        return max(1, round(w * height / h)), height
     if height <= 0:
-        height = max(1, round(h * width / w))
-    if (width, height) == (w, h):
-        return frame
+        return width, max(1, round(h * width / w))
+    if mode == "stretch":
+        return width, height
+    scale = (min if mode == "fit" else max)(width / w, height / h)
+    return max(1, round(w * scale)), max(1, round(h * scale))
+
+
+def resize_frame(frame: np.ndarray, width: int, height: int, mode: str = "fit") -> np.ndarray:
+    """The frame (H, W, 3) resized for a requested ``width`` x ``height`` px under ``mode``
+    (:func:`resized_size`); ``fill`` crops the centre of the scaled frame to exactly the box."""
+    h, w = frame.shape[:2]
+    out_w, out_h = resized_size(w, h, width, height, mode)
+    if (out_w, out_h) != (w, h):
+        frame = _scaled(frame, out_w, out_h)
+    if mode == "fill" and width > 0 and height > 0 and (out_w, out_h) != (width, height):
+        x0, y0 = (out_w - width) // 2, (out_h - height) // 2
+        frame = frame[y0:y0 + height, x0:x0 + width]
+    return frame
+
+
+def _scaled(frame: np.ndarray, width: int, height: int) -> np.ndarray:
+    w = frame.shape[1]
     # INTER_AREA costs several times INTER_LINEAR: it only pays for itself on strong reductions.
     interp = cv2.INTER_AREA if width * 2 <= w else cv2.INTER_LINEAR
     return cv2.resize(frame, (width, height), interpolation=interp)
