@@ -168,10 +168,13 @@ def serve(address: str | None = None, *, ready=None, stop=None, security=None) -
 
     With ``security`` (or ``$FACESCULPT_KEYS``) the socket is a CURVE server that only
     authorised clients reach: a stranger cannot register nodes or fake publishers."""
-    from facesculpt.runtime.security import Security
+    from facesculpt.runtime.security import Security, check_exposure, insecure_allowed
 
     address = address or master_address()
     security = security if security is not None else Security.from_env()
+    warning = check_exposure("the master", address, security, insecure_allowed())  # SecurityError: refused
+    if warning:
+        log.warning("%s", warning)
     ctx = zmq.Context.instance()
     auth = security.start_authenticator(ctx) if security else None
     sock = ctx.socket(zmq.ROUTER)

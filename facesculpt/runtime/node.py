@@ -68,6 +68,7 @@ from facesculpt.runtime.parameters import (
 from facesculpt.runtime.process_limits import limit_threads
 from facesculpt.runtime.pubsub import Publisher, Receiver, Subscription, new_endpoint
 from facesculpt.runtime.qos import SENSOR_DATA, QoSProfile
+from facesculpt.runtime.security import SecurityError, check_exposure, insecure_allowed
 
 DIAGNOSTICS_TOPIC = "diagnostics"
 
@@ -225,6 +226,7 @@ class Node:
         from facesculpt.runtime.security import Security
 
         self.security = security if security is not None else Security.from_env()
+        self._check_exposure()
         self.ctx = zmq.Context()
         # The ZAP handler must run before the first bind, or CURVE servers would admit anyone.
         self._authenticator = self.security.start_authenticator(self.ctx) if self.security else None
@@ -248,6 +250,19 @@ class Node:
     def default_params(cls) -> dict[str, Any]:
         """``{name: default}`` of this node's parameters."""
         return default_values(cls.PARAMS)
+
+    def _check_exposure(self) -> None:
+        """Secure by default: no publisher on a network address and no link to a master on
+        another host without CURVE keys, unless ``$FACESCULPT_INSECURE`` says so (then one
+        warning line). Raises SecurityError with the reason."""
+        insecure = insecure_allowed()
+        checks = [(f"node {self.name}'s link to the master", self.master)]
+        if self.transport == "tcp":
+            checks.append((f"node {self.name}'s publishers", f"tcp://{self.host}:*"))
+        for what, address in checks:
+            warning = check_exposure(what, address, self.security, insecure)
+            if warning:
+                self.log.warning("%s", warning)
 
     def resolve(self, topic: str) -> str:
         """Apply this node's remaps to a topic name."""
@@ -536,7 +551,7 @@ def run_node(cls: type[Node], argv: list[str]) -> int:
     try:
         node = cls(name=args.name or config.get("name"), params=params, remap=remap,
                    transport=config.get("transport", "ipc"), host=config.get("host", "127.0.0.1"))
-    except ParameterError as exc:
+    except (ParameterError, SecurityError) as exc:
         print(f"facesculpt: {exc}", file=sys.stderr)
         return EXIT_BAD_PARAMETER
     return node.run()

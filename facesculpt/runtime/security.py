@@ -27,6 +27,7 @@ No sockets are opened here: these helpers configure sockets others own.
 
 from __future__ import annotations
 
+import ipaddress
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,3 +140,46 @@ def env_for(keys_dir: str | os.PathLike | None, server: str | None = None, clien
     if client:
         env[ENV_CLIENT] = client
     return env
+
+
+# -- secure by default ----------------------------------------------------------------------------
+ENV_INSECURE = "FACESCULPT_INSECURE"
+
+
+def is_loopback(address: str) -> bool:
+    """Whether a ZeroMQ endpoint or a bare host (``tcp://127.0.0.1:5555``, ``ipc://...``,
+    ``0.0.0.0``, ``localhost``) stays on this machine. ``*`` and ``0.0.0.0`` bind every interface."""
+    if address.startswith(("ipc://", "inproc://")):
+        return True
+    host = address.split("://", 1)[-1]
+    if host.startswith("["):                      # tcp://[::1]:5555
+        host = host[1:host.find("]")]
+    elif host.count(":") == 1:                    # tcp://host:port
+        host = host.rsplit(":", 1)[0]
+    if host in ("localhost", "::1"):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False                              # a host name or *: reachable from the network
+
+
+def insecure_allowed(environ=os.environ) -> bool:
+    """``$FACESCULPT_INSECURE`` is set to 1/true/yes: the user accepts a graph without keys on the network."""
+    return environ.get(ENV_INSECURE, "").strip().lower() in ("1", "true", "yes")
+
+
+def check_exposure(what: str, address: str, security: Security | None, insecure: bool) -> str | None:
+    """Refuse to expose ``what`` (e.g. "the master", "node camera's publishers") on a non-loopback
+    ``address`` without CURVE keys: anyone on the network could read the camera stream of a
+    person's face and write fake input or models. With ``insecure`` the binding goes ahead and
+    the returned warning line says what is exposed; None when nothing is exposed."""
+    if security is not None or is_loopback(address):
+        return None
+    if not insecure:
+        raise SecurityError(
+            f"refusing to expose {what} on {address} without CURVE keys: anyone on that network could read "
+            f"the camera stream and send input; add a security: block to the launch file (docs/security.md), "
+            f"or set insecure: true (or {ENV_INSECURE}=1) to allow it")
+    return (f"insecure: {what} on {address} is open to anyone on that network (no CURVE keys): "
+            f"camera frames, faces and input events can be read and forged")
