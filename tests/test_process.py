@@ -175,8 +175,12 @@ def test_interrupt_keeps_partial_output(data_dir, models_dir, tmp_path):
                             stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60
-        # The file appears at the first frame; let some more frames through, then Ctrl-C.
-        while not (output.exists() and output.stat().st_size > 50_000):
+        # The file appears (under a temporary name beside the target) at the first frame; let some
+        # more frames through, then Ctrl-C.
+        def written() -> int:
+            return sum(p.stat().st_size for p in tmp_path.glob(".partial.*.writing.mp4"))
+
+        while written() <= 50_000:
             assert proc.poll() is None, proc.communicate()[1]
             assert time.monotonic() < deadline, "no output appeared"
             time.sleep(0.05)
@@ -186,13 +190,15 @@ def test_interrupt_keeps_partial_output(data_dir, models_dir, tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130, stderr
+    partial = tmp_path / "partial.partial.mp4"  # its own clear name: never mistaken for a finished output
     line = [text for text in stderr.splitlines() if text.startswith("interrupted:")]
-    assert line and line[0].endswith(f"frames in {output}"), stderr
+    assert line and line[0].endswith(f"frames in {partial}"), stderr
     kept = int(line[0].split("kept ")[1].split(" frames")[0])
     total, _ = read_video(data_dir / "video" / "d3.mp4", keep=set())
     assert 0 < kept < total
-    readable, _ = read_video(output, keep=set())
+    readable, _ = read_video(partial, keep=set())
     assert readable == kept  # a finished, playable file with every frame it reported
+    assert not output.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["partial.partial.mp4"]
 
 
 @pytest.mark.parametrize("name", ["nose_longer", "chin", "cheeks"])

@@ -84,12 +84,15 @@ class ImageSequenceOutput:
 
 
 def open_output(spec: str, fps: float):
-    """An image-sequence writer when ``spec`` holds a ``%`` field, else a video writer (by suffix)."""
+    """An image-sequence writer when ``spec`` holds a ``%`` field, else a video writer (by suffix)
+    staged under a temporary name until it is complete (:class:`.safe_output.StagedVideo`)."""
     if "%" in spec:
         return ImageSequenceOutput(spec)
+    from facesculpt.app.safe_output import StagedVideo
     from facesculpt.nodes.renderer.video_out import VideoOutput
 
-    return VideoOutput(spec, fps)
+    VideoOutput(spec, fps)  # checks the suffix and the rate now, before anything is written
+    return StagedVideo(spec, lambda path: VideoOutput(path, fps))
 
 
 def open_input(path: str):
@@ -142,13 +145,45 @@ def _progress(total: int | None, desc: str, quiet: bool):
                 leave=True)
 
 
+def _calibrate(pipeline, args, total, fps: float, stop, preset: dict) -> None:
+    """First pass: the person's neutral from the first frames, then the edit solved on it once."""
+    calib = open_input(args.input)
+    try:
+        with _progress(min(args.neutral_frames, total or args.neutral_frames), "neutral", args.quiet) as bar:
+            def tick(_read):
+                bar.update(1)
+                if stop.signal:
+                    raise KeyboardInterrupt
+            pipeline.calibrate(_frames(calib, args.width, args.max_frames), fps, progress=tick)
+    finally:
+        calib.close()
+    if pipeline.fitter is None or pipeline.fitted_frames == 0:
+        print(f"facesculpt: no face found in the first frames of {args.input}: the edits are not applied",
+              file=sys.stderr)
+    else:
+        pipeline.set_edits(preset)
+
+
+def _finish(output, completed: bool) -> None:
+    """A staged video is renamed onto its target when the run completed, kept under its partial
+    name when it was interrupted; an image sequence is already where it belongs."""
+    if not hasattr(output, "commit"):
+        output.close()
+    elif completed:
+        output.commit()
+    else:
+        output.keep_partial()
+
+
 def cmd_process(args) -> int:
     from facesculpt.app.pipeline import Pipeline, combine_presets, read_preset
+    from facesculpt.app.safe_output import refuse_output_over_input
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)  # one thread per stage is faster here (see facesculpt.runtime.process_limits)
     if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:
         raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
+    refuse_output_over_input(args.input, args.output)  # before anything is opened
     source = open_input(args.input)
     fps = source.native_fps
     total = source.frame_count or None
@@ -168,23 +203,7 @@ def cmd_process(args) -> int:
     try:
         with _Stop() as stop:
             if preset is not None:
-                # First pass: the person's neutral, then the edit solved on it once.
-                calib = open_input(args.input)
-                try:
-                    with _progress(min(args.neutral_frames, total or args.neutral_frames), "neutral",
-                                   args.quiet) as bar:
-                        def tick(_read):
-                            bar.update(1)
-                            if stop.signal:
-                                raise KeyboardInterrupt
-                        pipeline.calibrate(_frames(calib, args.width, args.max_frames), fps, progress=tick)
-                finally:
-                    calib.close()
-                if pipeline.fitter is None or pipeline.fitted_frames == 0:
-                    print(f"facesculpt: no face found in the first frames of {args.input}: the edits are not applied",
-                          file=sys.stderr)
-                else:
-                    pipeline.set_edits(preset)
+                _calibrate(pipeline, args, total, fps, stop, preset)
             with _progress(total, "process", args.quiet) as bar:
                 for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
                     result = pipeline.process(frame, i / fps)
@@ -195,15 +214,22 @@ def cmd_process(args) -> int:
                     if stop.signal:
                         raise KeyboardInterrupt
     except KeyboardInterrupt:
-        output.close()
+        _finish(output, completed=False)
         print(f"interrupted: kept {output.frames} frames in {output.path!s}", file=sys.stderr, flush=True)
         return 130
+    except BaseException:
+        if hasattr(output, "discard"):
+            output.discard()  # the unfinished file is ours; the target keeps what it held
+        raise
     finally:
-        output.close()
         source.close()
         pipeline.close()
     if output.frames == 0:
+        if hasattr(output, "discard"):
+            output.discard()
         raise ValueError(f"cannot read {args.input}: it holds no frames")
+    _finish(output, completed=True)
+    edited = pipeline.displacement is not None
     print(f"wrote {output.frames} frames to {output.path!s} ({faces} with a face"
-          + (f", edits from {', '.join(args.edits)})" if args.edits else ")"), file=sys.stderr)
+          + (f", edits from {', '.join(args.edits)})" if edited else ")"), file=sys.stderr)
     return 0
