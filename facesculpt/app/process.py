@@ -5,13 +5,14 @@
 
 Every frame is rendered with the face fitted on that very frame (the renderer's ``sync``
 pairing); a frame without a face is written unchanged. The output is a video (by its suffix:
-.mp4, .mov, .m4v, .avi, .mkv) or, when OUT holds a printf pattern (``out/%05d.png``), a lossless
-image sequence numbered from 0 like the input's frames. Edits are deformer presets (JSON; several
+.mp4, .mov, .m4v, .avi, .mkv; H.264 by default, with the input's sound copied in sync) or, when
+OUT holds a printf pattern (``out/%05d.png``), a lossless image sequence numbered from 0 like the
+input's frames. Edits are deformer presets (JSON; several
 accumulate in order); they are solved once on the person's neutral model, which a first pass over
 the first frames learns (see :mod:`facesculpt.app.pipeline`), and applied to every frame. The result
 is deterministic: the same input and options give the same output, bit for bit (PNG; a video
 codec is deterministic too, but lossy). Ctrl-C or SIGTERM stops after the current frame and keeps
-what was written, a playable file.
+what was written, a playable file (:mod:`.safe_output`).
 """
 
 from __future__ import annotations
@@ -44,6 +45,12 @@ def register(sub) -> None:
                    help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
                         "non-commercial) or a .npz from `facesculpt model import-eos`")
     p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
+    p.add_argument("--codec", default=None, metavar="NAME",
+                   help="video encoder (default by suffix: libx264 (H.264) for .mp4/.mov/.m4v/.mkv, mjpeg for .avi; "
+                        "others: libx265, mpeg4, ffv1, ...)")
+    p.add_argument("--crf", type=int, default=18, metavar="Q",
+                   help="H.264/H.265 quality, 0 (lossless) to 51; lower is better and larger (default 18)")
+    p.add_argument("--no-audio", action="store_true", help="do not copy the input's sound into the output video")
     p.add_argument("--width", type=int, default=0, metavar="W", help="resize frames to this width first (aspect kept)")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N frames (0: all)")
     p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
@@ -83,16 +90,20 @@ class ImageSequenceOutput:
         pass
 
 
-def open_output(spec: str, fps: float):
-    """An image-sequence writer when ``spec`` holds a ``%`` field, else a video writer (by suffix)
-    staged under a temporary name until it is complete (:class:`.safe_output.StagedVideo`)."""
+def open_output(spec: str, fps: float, codec: str | None = None, crf: int = 18, audio_from: str | None = None):
+    """An image-sequence writer when ``spec`` holds a ``%`` field, else a video writer (by suffix;
+    ``codec``, ``crf``, the sound of ``audio_from`` copied in) staged under a temporary name until
+    it is complete (:class:`.safe_output.StagedVideo`)."""
     if "%" in spec:
         return ImageSequenceOutput(spec)
     from facesculpt.app.safe_output import StagedVideo
     from facesculpt.nodes.renderer.video_out import VideoOutput
 
-    VideoOutput(spec, fps)  # checks the suffix and the rate now, before anything is written
-    return StagedVideo(spec, lambda path: VideoOutput(path, fps))
+    def writer(path):
+        return VideoOutput(path, fps, codec=codec, crf=crf, audio_from=audio_from)
+
+    writer(spec)  # checks suffix, codec, quality and rate now, before anything is written
+    return StagedVideo(spec, writer)
 
 
 def open_input(path: str):
@@ -189,7 +200,7 @@ def cmd_process(args) -> int:
     total = source.frame_count or None
     if total and args.max_frames:
         total = min(total, args.max_frames)
-    output = open_output(args.output, fps)
+    output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input)
     preset = combine_presets([read_preset(p) for p in args.edits]) if args.edits else None
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames)
     if preset is not None:

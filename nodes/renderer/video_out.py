@@ -1,46 +1,96 @@
-"""Writing the rendered frames to a video file (OpenCV's VideoWriter)."""
+"""Writing the rendered frames to a video file with PyAV (FFmpeg), optionally with the sound of
+the input video copied in sync."""
 
 from __future__ import annotations
 
 import os
+from fractions import Fraction
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-# Codecs OpenCV's bundled FFmpeg writes without extra libraries.
-FOURCC_BY_SUFFIX = {".mp4": "mp4v", ".m4v": "mp4v", ".mov": "mp4v", ".avi": "MJPG", ".mkv": "MJPG"}
+# The encoder a suffix gets unless told otherwise: H.264 where the container takes it; Motion
+# JPEG in .avi (what players expect there).
+CODEC_BY_SUFFIX = {".mp4": "libx264", ".m4v": "libx264", ".mov": "libx264", ".mkv": "libx264", ".avi": "mjpeg"}
+# Encoders that take a constant-rate-factor quality (lower: better, larger; 18 is visually lossless).
+CRF_CODECS = ("libx264", "libx265")
+DEFAULT_CRF = 18
+
+
+def available_codecs() -> list[str]:
+    """Video encoders this FFmpeg build has among the usual ones (names for ``codec``)."""
+    import av
+
+    names = ("libx264", "libx265", "mpeg4", "mjpeg", "ffv1", "libvpx-vp9", "libaom-av1", "prores_ks")
+    out = []
+    for name in names:
+        try:
+            av.codec.Codec(name, "w")
+        except Exception:  # not in this build
+            continue
+        out.append(name)
+    return out
 
 
 class VideoOutput:
     """Appends (H, W, 3) uint8 BGR frames to ``path`` at ``fps`` frames per second.
 
-    The file is opened at the first frame (its size fixes the video's); the codec follows
-    the suffix (FOURCC_BY_SUFFIX). Raises ValueError for an unknown suffix or a frame of
-    another size, RuntimeError when the file cannot be opened for writing.
+    The file is opened at the first frame (its size fixes the video's; an odd side is padded by
+    one replicated row or column, as 4:2:0 needs even sides). ``codec``: an FFmpeg encoder name
+    (default by suffix, :data:`CODEC_BY_SUFFIX`), ``crf``: its quality where it has one.
+    ``audio_from``: a media file whose first audio track is copied into the output, in sync with
+    the frames and cut to their duration. Raises ValueError for an unknown suffix, codec or a
+    frame of another size, RuntimeError when the file cannot be opened for writing.
 
-    OpenCV's writer fails silently on a full disk and would leave a file without its index
-    (unplayable). So before each frame the free space is checked: below ``reserve_bytes``
-    (default: one raw frame, at least 1 MiB) the file is finalised -- what was written stays
-    playable -- and OSError(ENOSPC) is raised once; later frames are dropped (``dropped``).
+    Before each frame the free space is checked: below ``reserve_bytes`` (default: one raw frame,
+    at least 1 MiB) the file is finalised -- what was written stays playable -- and
+    OSError(ENOSPC) is raised once; later frames are dropped (``dropped``).
     """
 
-    def __init__(self, path: str | Path, fps: float = 30.0, reserve_bytes: int | None = None):
+    def __init__(self, path: str | Path, fps: float = 30.0, reserve_bytes: int | None = None, *,
+                 codec: str | None = None, crf: int = DEFAULT_CRF, audio_from: str | Path | None = None):
         self.path = Path(path).expanduser()
         suffix = self.path.suffix.lower()
-        if suffix not in FOURCC_BY_SUFFIX:
+        if suffix not in CODEC_BY_SUFFIX:
             raise ValueError(f"video output {self.path}: unknown suffix {suffix!r} "
-                             f"(known: {', '.join(sorted(FOURCC_BY_SUFFIX))})")
+                             f"(known: {', '.join(sorted(CODEC_BY_SUFFIX))})")
         if not fps > 0:
             raise ValueError(f"video output fps must be > 0, got {fps}")
+        self.codec = codec or CODEC_BY_SUFFIX[suffix]
+        if self.codec not in available_codecs():
+            raise ValueError(f"video codec {self.codec!r} is not available here "
+                             f"(choose one of {', '.join(available_codecs())})")
+        if not 0 <= crf <= 51:
+            raise ValueError(f"crf must be in [0, 51], got {crf}")
         self.fps = float(fps)
-        self.fourcc = FOURCC_BY_SUFFIX[suffix]
+        self.crf = int(crf)
+        self.audio_from = Path(audio_from) if audio_from else None
         self.size: tuple[int, int] | None = None
         self.frames = 0
         self.dropped = 0
         self.failed = ""
         self.reserve_bytes = reserve_bytes
-        self._writer: cv2.VideoWriter | None = None
+        self._container = None
+        self._stream = None
+        self._audio = None  # _AudioCopy while a sound track is copied
+
+    def _open(self, w: int, h: int) -> None:
+        import av
+
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._container = av.open(str(self.path), "w")
+        except (OSError, av.error.FFmpegError) as exc:
+            raise RuntimeError(f"cannot open {self.path} for writing: {getattr(exc, 'strerror', exc)}") from None
+        self._rate = Fraction(self.fps).limit_denominator(1001)
+        stream = self._container.add_stream(self.codec, rate=self._rate)
+        stream.width, stream.height = w + w % 2, h + h % 2
+        stream.pix_fmt = "yuvj420p" if self.codec == "mjpeg" else "yuv420p"
+        if self.codec in CRF_CODECS:
+            stream.options = {"crf": str(self.crf)}
+        self._stream = stream
+        self._audio = _AudioCopy.open(self.audio_from, self._container) if self.audio_from else None
+        self.size = (w, h)
 
     def write(self, frame_bgr: np.ndarray) -> None:
         if not (isinstance(frame_bgr, np.ndarray) and frame_bgr.dtype == np.uint8 and frame_bgr.ndim == 3
@@ -50,16 +100,8 @@ class VideoOutput:
         if self.failed:
             self.dropped += 1
             return
-        if self._writer is None:
-            try:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-            except OSError as exc:
-                raise RuntimeError(f"cannot open {self.path} for writing: {exc.strerror}") from None
-            self._writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*self.fourcc), self.fps, (w, h))
-            if not self._writer.isOpened():
-                self._writer = None
-                raise RuntimeError(f"cannot open {self.path} for writing ({self.fourcc}, {w}x{h})")
-            self.size = (w, h)
+        if self._container is None:
+            self._open(w, h)
         elif (w, h) != self.size:
             raise ValueError(f"video output {self.path} is {self.size[0]}x{self.size[1]}; got a {w}x{h} frame")
         reserve = self.reserve_bytes if self.reserve_bytes is not None else max(1 << 20, frame_bgr.nbytes)
@@ -70,19 +112,83 @@ class VideoOutput:
                            f"those frames are saved, later ones are dropped")
             self.dropped += 1
             raise OSError(28, self.failed)
-        self._writer.write(frame_bgr)
+        self._encode(frame_bgr)
+
+    def _encode(self, frame_bgr: np.ndarray) -> None:
+        import av
+
+        if frame_bgr.shape[1] % 2 or frame_bgr.shape[0] % 2:
+            frame_bgr = np.pad(frame_bgr, ((0, frame_bgr.shape[0] % 2), (0, frame_bgr.shape[1] % 2), (0, 0)),
+                               mode="edge")
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame_bgr), format="bgr24")
+        frame.pts = self.frames
+        frame.time_base = 1 / self._rate
+        for packet in self._stream.encode(frame):
+            self._container.mux(packet)
         self.frames += 1
+        if self._audio is not None:
+            self._audio.mux_until(self.frames / self.fps)
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.release()
-            self._writer = None
+        if self._container is None:
+            return
+        try:
+            for packet in self._stream.encode(None):  # flush the encoder's delayed frames
+                self._container.mux(packet)
+            if self._audio is not None:
+                self._audio.mux_until(self.frames / self.fps)
+                self._audio.close()
+        finally:
+            self._container.close()
+            self._container = None
 
     def __enter__(self) -> VideoOutput:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class _AudioCopy:
+    """The first audio track of a media file, copied packet by packet (no re-encoding) into an
+    output container as the video grows; ``mux_until(t)`` copies what starts before t seconds."""
+
+    def __init__(self, source, in_stream, out_stream, container):
+        self.source, self.in_stream, self.out_stream, self.container = source, in_stream, out_stream, container
+        self.packets = source.demux(in_stream)
+        self.pending = None
+        self.start = in_stream.start_time or 0
+
+    @classmethod
+    def open(cls, path: Path, container) -> _AudioCopy | None:
+        import av
+
+        source = av.open(str(path))
+        if not source.streams.audio:
+            source.close()
+            return None
+        in_stream = source.streams.audio[0]
+        out_stream = container.add_stream_from_template(in_stream)
+        return cls(source, in_stream, out_stream, container)
+
+    def mux_until(self, t_s: float) -> None:
+        while True:
+            packet = self.pending if self.pending is not None else next(self.packets, None)
+            self.pending = None
+            if packet is None or packet.dts is None:
+                if packet is None:
+                    return
+                continue
+            if float((packet.pts - self.start) * packet.time_base) >= t_s:
+                self.pending = packet  # belongs after the frames written so far
+                return
+            packet.pts -= self.start
+            packet.dts -= self.start
+            packet.stream = self.out_stream
+            self.container.mux(packet)
+
+    def close(self) -> None:
+        self.source.close()
 
 
 def _free_bytes(directory: Path) -> int | None:
