@@ -148,14 +148,14 @@ def test_a_learned_sparse_identity_is_republished_only_for_a_real_change(monkeyp
     assert late[0.5] and not late[1000.0], late
 
 
-def test_missing_model_keeps_the_node_up(monkeypatch, tmp_path, frames):
+def test_missing_model_stops_the_node_at_setup(monkeypatch, tmp_path):
+    from facesculpt.runtime.parameters import ConfigurationError
+
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     node = FitterNode(params={"model": str(tmp_path / "nope.npz")})
-    node.setup()
     try:
-        node.on_landmarks(frames[0])
-        assert node.counters["model_error"] == 1 and node.counters["no_model"] == 1
-        assert "nope.npz" in node.last_error
+        with pytest.raises(ConfigurationError, match="fitter: cannot load model .*nope.npz"):
+            node.setup()
     finally:
         node.close()
 

@@ -114,12 +114,14 @@ def test_a_bad_value_stops_a_real_node_in_one_sentence_with_exit_code_2():
 
 
 def test_the_launcher_does_not_respawn_a_node_that_exited_2(graph, tmp_path):
-    """Both nodes are marked respawn: the one that cannot open its video (exit 1) comes back,
-    the one with a parameter out of range (exit 2) does not, and says so once."""
+    """Both nodes are marked respawn: the one that crashes (exit 1) comes back, the one with a
+    parameter out of range (exit 2) does not, and says so once."""
+    (tmp_path / "crasher.py").write_text("from facesculpt.runtime import Node\n\n\nclass Crasher(Node):\n"
+                                         "    def setup(self):\n        raise RuntimeError('crash')\n")
     launch = tmp_path / "graph.yaml"
     launch.write_text(yaml.safe_dump({"nodes": [
         {"name": "bad_param", "node": "camera", "respawn": True, "params": {"fov_deg": 500}},
-        {"name": "bad_file", "node": "camera", "respawn": True, "params": {"source": str(tmp_path / "none.mp4")}},
+        {"name": "bad_file", "node": f"{tmp_path / 'crasher.py'}:Crasher", "respawn": True, "respawn_delay_s": 0.1},
     ]}))
     log = tmp_path / "launch.txt"
     with open(log, "w") as f:

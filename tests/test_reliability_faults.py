@@ -49,7 +49,7 @@ def test_corrupt_and_truncated_videos_are_reported_and_end_cleanly(graph, data_d
     cut = tmp_path / "cut.mp4"
     cut.write_bytes(bytes(data[: len(data) // 2]))
     out = graph.run("run", "camera", f"source={cut}")
-    assert out.returncode == 1 and f"cannot open video file {cut}" in out.stderr
+    assert out.returncode == 2 and f"cannot open video file {cut}" in out.stderr  # a configuration error
 
 
 def test_frames_of_a_new_size_flow_through_the_graph(graph, data_dir, models_dir, tmp_path):

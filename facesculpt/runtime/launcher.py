@@ -25,8 +25,12 @@ starting with ``./`` is a path relative to the launch file. Children are
 killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
 SIGINT/SIGTERM every child gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``.
 
-A node that exits with ``EXIT_BAD_PARAMETER`` (2: a parameter out of its range or choices,
-see facesculpt.runtime.parameters) is not respawned: the same values would stop it again.
+A node that exits with ``EXIT_BAD_PARAMETER`` (2: a parameter out of its range or choices, or a
+resource it names that cannot be used, see facesculpt.runtime.parameters) is not respawned: the
+same values would stop it again. A node that keeps crashing quickly is respawned with a growing
+delay and given up after ``MAX_QUICK_FAILURES`` quick deaths in a row. When a required node ends,
+the graph stops; if it failed, ``launch`` exits non-zero and its last line names the node and
+the last line the node wrote to stderr (its reason).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,6 +57,8 @@ STOP_GRACE_S = 2.5
 # (otherwise occasional crashes over hours would end at the 5 s cap).
 HEALTHY_RUN_S = 5.0
 MAX_RESPAWN_DELAY_S = 5.0
+# Quick deaths in a row (each within HEALTHY_RUN_S of its start) after which a node is given up.
+MAX_QUICK_FAILURES = 8
 log = logging.getLogger("facesculpt.launch")
 
 
@@ -155,8 +162,23 @@ def _die_with_parent() -> None:
         pass
 
 
-def _spawn(argv: list[str], env: dict) -> subprocess.Popen:
-    return subprocess.Popen(argv, env=env, preexec_fn=_die_with_parent)
+def _spawn(argv: list[str], env: dict, stderr=None) -> subprocess.Popen:
+    return subprocess.Popen(argv, env=env, stderr=stderr, preexec_fn=_die_with_parent)
+
+
+def _forward_stderr(child: Child) -> None:
+    """Pass the child's stderr through to ours, line by line, remembering its last line."""
+    def forward(stream, out=sys.stderr):
+        for raw in iter(stream.readline, b""):
+            line = raw.decode(errors="replace")
+            if line.strip():
+                child.last_line = line.strip()
+            out.write(line)
+            out.flush()
+        stream.close()
+
+    threading.Thread(target=forward, args=(child.proc.stderr,), daemon=True,
+                     name=f"stderr-{child.spec.name}").start()
 
 
 def node_argv(spec: NodeSpec) -> list[str]:
@@ -176,6 +198,7 @@ class Child:
     state: str = "starting"
     next_start: float = 0.0
     exit_code: int | None = None
+    last_line: str = ""      # the last line the process wrote to stderr (a failure's reason)
 
 
 class Launcher:
@@ -188,6 +211,7 @@ class Launcher:
         self.children = [Child(s) for s in specs]
         self.master_proc: subprocess.Popen | None = None
         self.stopping = False
+        self.stop_reason = ""
         self.env = dict(os.environ, FACESCULPT_MASTER=self.master, PYTHONUNBUFFERED="1")
         if specs:
             self.env.update(specs[0].graph_env)
@@ -207,7 +231,8 @@ class Launcher:
             time.sleep(0.05)
 
     def _start(self, child: Child) -> None:
-        child.proc = _spawn(node_argv(child.spec), dict(self.env, **child.spec.env))
+        child.proc = _spawn(node_argv(child.spec), dict(self.env, **child.spec.env), stderr=subprocess.PIPE)
+        _forward_stderr(child)
         child.started_at = time.monotonic()
         child.state = "running"
         self.status(f"[{child.spec.name}] running (pid {child.proc.pid}"
@@ -231,15 +256,22 @@ class Launcher:
                 if child.spec.required:
                     self.status(f"[{child.spec.name}] ended ({how}); it is required, so the graph stops")
                     child.state = "done"
+                    if code != 0:
+                        self._reason(child, how)
                     return False
                 if child.spec.respawn and code == EXIT_BAD_PARAMETER:
                     child.state = "done"
-                    self.status(f"[{child.spec.name}] ended ({how}): a parameter it cannot run with "
+                    self.status(f"[{child.spec.name}] ended ({how}): a parameter, or what it names, cannot be used "
                                 f"(its message above); not respawning")
                 elif child.spec.respawn and not self.stopping:
                     # A node that ran healthily comes back at once (the graph waits on it); back off
                     # only while it keeps dying quickly (a crash loop): delay, 2 x delay, ... capped.
                     child.failures = 0 if now - child.started_at >= HEALTHY_RUN_S else child.failures + 1
+                    if child.failures >= MAX_QUICK_FAILURES:
+                        child.state = "done"
+                        self.status(f"[{child.spec.name}] died ({how}) {child.failures} times in a row within "
+                                    f"{HEALTHY_RUN_S:.0f} s of starting; giving up on it")
+                        continue
                     delay = 0.0 if child.failures == 0 else min(
                         MAX_RESPAWN_DELAY_S, child.spec.respawn_delay_s * 2 ** min(child.failures - 1, 5))
                     child.state, child.next_start = "waiting", now + delay
@@ -254,6 +286,11 @@ class Launcher:
             self.status("[master] died; restarting it")
             self.start_master()
         return alive
+
+    def _reason(self, child: Child, how: str) -> None:
+        """Remember why the graph stopped: printed as ``launch``'s last line."""
+        self.stop_reason = f"the graph stopped: required node {child.spec.name} failed ({how})" + (
+            f": {child.last_line.removeprefix('facesculpt: ')}" if child.last_line else "")
 
     def run(self) -> int:
         """Start everything and supervise until SIGINT/SIGTERM or until every node ended."""
@@ -270,8 +307,12 @@ class Launcher:
             self.stop()
             for s, handler in old.items():
                 signal.signal(s, handler)
+        if self.stop_reason:
+            time.sleep(0.05)  # let the forwarders write the nodes' last lines first
+            self.status(self.stop_reason)
         failed = [c for c in self.children if c.exit_code not in (None, 0)
-                  and (not c.spec.respawn or c.exit_code == EXIT_BAD_PARAMETER)]
+                  and (not c.spec.respawn or c.exit_code == EXIT_BAD_PARAMETER
+                       or c.failures >= MAX_QUICK_FAILURES)]
         return 1 if failed else 0
 
     def stop(self) -> None:

@@ -437,7 +437,11 @@ class Node:
             signal.signal(signal.SIGINT, _on_signal)
             signal.signal(signal.SIGTERM, _on_signal)
         try:
-            self.start()
+            try:
+                self.start()
+            except ParameterError as exc:  # e.g. ConfigurationError from setup: one sentence, no respawn
+                print(f"facesculpt: {exc}", file=sys.stderr, flush=True)
+                return EXIT_BAD_PARAMETER
             self.spin()
         finally:
             self.close()

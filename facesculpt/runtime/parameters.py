@@ -33,6 +33,12 @@ class ParameterError(ValueError):
     """A parameter a node cannot run with (unknown, wrong type, out of range, not a choice)."""
 
 
+class ConfigurationError(ParameterError):
+    """What a parameter names cannot be used (a missing model file, no display for a window, no
+    camera at that index): raised by a node's setup; the node stops with
+    :data:`EXIT_BAD_PARAMETER` and is not respawned, since running it again cannot help."""
+
+
 @dataclass(frozen=True)
 class Param:
     """One declared parameter: its default (whose type is the parameter's type), what it does

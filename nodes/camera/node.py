@@ -9,7 +9,7 @@ import numpy as np
 
 from facesculpt.msgs import Image
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import Param
+from facesculpt.runtime.parameters import ConfigurationError, Param
 
 from .intrinsics import intrinsics_from_fov
 from .sources import RESIZE_MODES, SourceError, open_source, resize_frame
@@ -39,7 +39,10 @@ class CameraNode(Node):
     def setup(self):
         p = self.params
         self.pub = self.advertise("camera/image", Image)
-        self.source = open_source(p.source, loop=p.loop, motion=p.motion, fps=p.fps if p.fps > 0 else 30.0)
+        try:
+            self.source = open_source(p.source, loop=p.loop, motion=p.motion, fps=p.fps if p.fps > 0 else 30.0)
+        except (SourceError, FileNotFoundError) as exc:  # no such camera or file: a respawn cannot help
+            raise ConfigurationError(f"camera: {exc}") from None
         self.frames = self.source.frames()
         rate = p.fps if p.fps > 0 else (self.source.native_fps if p.fps == 0 else 0.0)
         self.period = 1.0 / rate if rate > 0 else 0.0

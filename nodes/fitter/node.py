@@ -17,7 +17,7 @@ import numpy as np
 
 from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import Param
+from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import LATCHED
 
 from .config import FitterConfig
@@ -69,11 +69,8 @@ class FitterNode(Node):
         self.final_published = False
         try:
             self.model = load_model(self.params.model)
-        except Exception as exc:  # missing setup files, bad .npz: report, stay up, fit nothing
-            self.log.error("cannot load model %r: %s", self.params.model, exc)
-            self.count("model_error")
-            self.last_error = str(exc)
-            return
+        except Exception as exc:  # missing setup files, bad .npz: running on would fit nothing
+            raise ConfigurationError(f"fitter: cannot load model {self.params.model!r}: {exc}") from None
         self.publish_model(self.model.mean, stamp=0)
 
     # -- model ---------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ feather_px, dilate_px, output (video path), fps (of the video file), publish, ov
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -21,7 +22,7 @@ import numpy as np
 from facesculpt.geometry import merge_deformation
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import Param
+from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
 
 from .compositor import Compositor
@@ -54,6 +55,9 @@ class RendererNode(Node):
 
     def setup(self):
         p = self.params
+        if p.window and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise ConfigurationError("renderer: window=true needs a display (DISPLAY is not set); "
+                                     "use output=FILE.mp4 or publish=true to run headless")
         qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))
