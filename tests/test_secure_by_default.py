@@ -69,3 +69,27 @@ def test_a_node_that_would_talk_to_a_remote_master_without_keys_stops_with_the_r
     result = _cli("run", "deformer", env=env)
     assert result.returncode == 2, result.stderr
     assert f"refusing to expose node deformer's link to the master on {address}" in result.stderr
+
+
+def test_a_launch_file_binding_every_interface_needs_keys_or_insecure_true(tmp_path):
+    import yaml
+
+    from facesculpt.runtime.launcher import load_launch
+
+    doc = {"transport": "tcp", "host": "0.0.0.0", "nodes": [{"name": "camera", "node": "camera"}]}
+    open_file = tmp_path / "open.yaml"
+    open_file.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ValueError, match=r"open.yaml: refusing to expose the graph's publishers on tcp://0.0.0.0:\*"):
+        load_launch(open_file)
+    env = {k: v for k, v in os.environ.items() if k not in ("FACESCULPT_KEYS", "FACESCULPT_INSECURE")}
+    env.update(FACESCULPT_MASTER=f"tcp://127.0.0.1:{free_port()}", FACESCULPT_RUN_DIR=str(tmp_path))
+    refused = _cli("launch", str(open_file), env=env)
+    assert refused.returncode == 1 and "refusing to expose the graph's publishers" in refused.stderr.strip().splitlines()[-1]
+    said = tmp_path / "said.yaml"
+    said.write_text(yaml.safe_dump(dict(doc, insecure=True)))
+    specs = load_launch(said)
+    assert specs[0].graph_env.get("FACESCULPT_INSECURE") == "1"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(dict(doc, insecure="maybe")))
+    with pytest.raises(ValueError, match="insecure must be true or false, not 'maybe'"):
+        load_launch(bad)

@@ -88,13 +88,14 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
         raise ValueError(f"launch file {path} is not valid YAML: {exc}") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("nodes"), list):
         raise ValueError(f"launch file {path}: expected a mapping with a 'nodes' list")
-    extra = set(doc) - {"nodes", "security", "transport", "host"}
+    extra = set(doc) - {"nodes", "security", "transport", "host", "insecure"}
     if extra:
         raise ValueError(f"launch file {path}: unknown top-level keys {sorted(extra)}")
     transport, host = str(doc.get("transport", "ipc")), str(doc.get("host", "127.0.0.1"))
     if transport not in ("ipc", "tcp"):
         raise ValueError(f"launch file {path}: transport must be ipc or tcp, not {transport!r}")
     graph_env = _security_env(path, doc.get("security"))
+    graph_env.update(_exposure_env(path, doc, transport, host))
     specs: list[NodeSpec] = []
     allowed = {"name", "node", "params", "remap", "respawn", "required", "respawn_delay_s", "key"}
     for i, entry in enumerate(doc["nodes"]):
@@ -103,13 +104,14 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
         extra = set(entry) - allowed
         if extra:
             raise ValueError(f"launch file {path}: node #{i + 1} has unknown keys {sorted(extra)}")
+        _check_node_fields(path, i, entry)
         spec = NodeSpec(name=str(entry.get("name", entry["node"])), node=str(entry["node"]),
                         params=dict(entry.get("params") or {}), remap=dict(entry.get("remap") or {}),
                         respawn=bool(entry.get("respawn", False)), required=bool(entry.get("required", False)),
                         respawn_delay_s=float(entry.get("respawn_delay_s", 0.2)),
                         transport=transport, host=host, graph_env=graph_env)
         if "key" in entry:
-            if not graph_env:
+            if "FACESCULPT_KEYS" not in graph_env:
                 raise ValueError(f"launch file {path}: node {spec.name} names a key but there is no security block")
             from facesculpt.runtime.security import ENV_CLIENT, Security
 
@@ -132,6 +134,41 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
                              f"{', '.join(by_name)}")
         by_name[node_name].params[param] = value
     return specs
+
+
+def _check_node_fields(path: Path, i: int, entry: dict) -> None:
+    """One sentence naming the field, the value and what is allowed, for a node entry's fields."""
+    where = f"launch file {path}: node #{i + 1} ({entry.get('name', entry['node'])})"
+    for key in ("respawn", "required"):
+        if key in entry and not isinstance(entry[key], bool):
+            raise ValueError(f"{where}: {key} must be true or false, not {entry[key]!r}")
+    delay = entry.get("respawn_delay_s", 0.2)
+    if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not 0 <= delay <= 60:
+        raise ValueError(f"{where}: respawn_delay_s must be a number of seconds in [0, 60], not {delay!r}")
+    for key in ("params", "remap"):
+        if entry.get(key) is not None and not isinstance(entry[key], dict):
+            raise ValueError(f"{where}: {key} must be a mapping (name: value), not {entry[key]!r}")
+
+
+def _exposure_env(path: Path, doc: dict, transport: str, host: str) -> dict:
+    """Secure by default: publishers on a network address need a ``security:`` block, or
+    ``insecure: true`` said explicitly (then every process may bind in the open, and one warning
+    line says what is exposed). Returns the environment the processes need for it."""
+    from facesculpt.runtime.security import ENV_INSECURE, check_exposure
+
+    insecure = doc.get("insecure", False)
+    if not isinstance(insecure, bool):
+        raise ValueError(f"launch file {path}: insecure must be true or false, not {insecure!r}")
+    if transport != "tcp" or doc.get("security"):
+        return {}
+    try:
+        warning = check_exposure("the graph's publishers", f"tcp://{host}:*", None, insecure)
+    except ValueError as exc:
+        raise ValueError(f"launch file {path}: {exc}") from None
+    if warning:
+        log.warning("%s", warning)
+        return {ENV_INSECURE: "1"}
+    return {}
 
 
 def _security_env(path: Path, block) -> dict:
