@@ -39,11 +39,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from facesculpt.runtime.node import LOG_FORMAT
+
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(asctime)s %(levelname).1s [%(name)s] %(message)s",
+        format=LOG_FORMAT,
         datefmt="%H:%M:%S",
     )
     if not getattr(args, "func", None):

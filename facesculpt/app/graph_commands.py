@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -18,7 +19,8 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_master)
 
     p = sub.add_parser("run", help="run one node: facesculpt run NODE [param=value ...]", add_help=False)
-    p.add_argument("node", help="built-in name (camera, landmarks, fitter, ...) or module:Class")
+    p.add_argument("-h", "--help", action="store_true", dest="run_help", help="list the built-in nodes")
+    p.add_argument("node", nargs="?", help="built-in name (camera, landmarks, fitter, ...) or module:Class")
     p.add_argument("args", nargs="...", help="[--name N] [--remap from=to] [param=value ...]; NODE --help lists params")
     p.set_defaults(func=cmd_run)
 
@@ -82,10 +84,23 @@ def cmd_master(args) -> int:
     return 0
 
 
+RUN_USAGE = """usage: facesculpt run NODE [--name N] [--remap FROM=TO] [param=value ...]
+
+Runs one node of the graph as this process. NODE is a built-in name, module:Class, or
+path/to/file.py:Class (your own node). `facesculpt run NODE --help` lists its parameters.
+
+built-in nodes:
+"""
+
+
 def cmd_run(args) -> int:
     from facesculpt.nodes import BUILTIN_NODES
     from facesculpt.runtime.node import load_node_class, run_node
 
+    if args.node is None:
+        width = max(map(len, BUILTIN_NODES))
+        print(RUN_USAGE + "\n".join(f"  {name:<{width}}  {target}" for name, target in BUILTIN_NODES.items()))
+        return 0 if args.run_help else 2
     return run_node(load_node_class(args.node, BUILTIN_NODES), args.args)
 
 
@@ -106,6 +121,19 @@ def _master_call(op: str) -> dict:
         return client.call(op)
     finally:
         client.close()
+
+
+def _require_master(wait_s: float = 3.0) -> None:
+    """RuntimeError in one sentence when no master answers within ``wait_s`` seconds."""
+    from facesculpt.runtime.master import master_address, master_alive
+    from facesculpt.runtime.security import Security
+
+    security = Security.from_env()
+    deadline = time.monotonic() + wait_s
+    while not master_alive(master_address(), 0.3, security=security):
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"no master answers at {master_address()} after {wait_s:.0f} s: start a graph "
+                               f"(`facesculpt launch ...`) or a master (`facesculpt master`), or set FACESCULPT_MASTER")
 
 
 def cmd_node_list(args) -> int:
@@ -151,19 +179,32 @@ def _run_tool(node: Node, until) -> None:
 
 
 def cmd_topic_echo(args) -> int:
+    _require_master()
     node = _ToolNode("echo")
     seen = [0]
 
     def on_msg(msg):
         seen[0] += 1
         summary = summarize(msg)
-        print(json.dumps(summary, default=str) if args.json else _pretty(summary), flush=True)
+        print(json.dumps(_json_safe(summary), default=str, allow_nan=False) if args.json else _pretty(summary),
+              flush=True)
 
     node.subscribe(args.topic, None, on_msg, qos=EVERY_MESSAGE)
     start = time.monotonic()
     _run_tool(node, lambda: (args.count and seen[0] >= args.count)
               or (args.timeout and time.monotonic() - start > args.timeout))
     return 0 if seen[0] or not args.timeout else 1
+
+
+def _json_safe(value):
+    """NaN and infinities are not JSON: they become null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
 
 
 def _pretty(summary: dict) -> str:
@@ -174,6 +215,7 @@ def _pretty(summary: dict) -> str:
 
 
 def cmd_topic_hz(args) -> int:
+    _require_master()
     node = _ToolNode("hz")
     arrivals: list[float] = []
     node.subscribe(args.topic, None, lambda msg: arrivals.append(time.monotonic()), qos=EVERY_MESSAGE)

@@ -56,18 +56,25 @@ def load_face_model(name_or_path: str) -> MorphableModel:
 def read_preset(path: str | Path) -> dict:
     """A deformer preset file (JSON, as :meth:`EditStack.save_preset` writes), or the name of a
     shipped one (:func:`facesculpt.paths.preset_file`), as a dict; FileNotFoundError or ValueError
-    naming the file when it is missing, cannot be read or is not JSON."""
+    naming the file when it is missing, cannot be read, is not JSON or not a JSON object."""
     import json
 
     from facesculpt.paths import preset_file
 
     path = preset_file(str(path))
     try:
-        return json.loads(path.read_text())
+        doc = json.loads(path.read_text())
     except FileNotFoundError:
         raise FileNotFoundError(f"preset {path} not found") from None
     except (OSError, ValueError) as exc:
         raise ValueError(f"cannot read preset {path}: {exc}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("edits", []), list):
+        kinds = {list: "a JSON list", str: "a JSON string", int: "a JSON number", float: "a JSON number",
+                 bool: "a JSON boolean", type(None): "null"}
+        what = kinds.get(type(doc), "an object whose 'edits' is not a list")
+        raise ValueError(f"preset {path} is {what}, not a deformer preset (a JSON object with 'format', "
+                         f"'version' and a list of 'edits', as the window's S key saves)")
+    return doc
 
 
 def combine_presets(presets: list[dict]) -> dict:

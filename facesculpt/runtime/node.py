@@ -71,6 +71,8 @@ from facesculpt.runtime.qos import SENSOR_DATA, QoSProfile
 from facesculpt.runtime.security import SecurityError, check_exposure, insecure_allowed
 
 DIAGNOSTICS_TOPIC = "diagnostics"
+# One log format for every process of the graph (facesculpt.cli uses it too).
+LOG_FORMAT = "%(asctime)s %(levelname).1s [%(name)s] %(message)s"
 
 
 # -- the master link ----------------------------------------------------------------------
@@ -449,7 +451,10 @@ class Node:
 
     @classmethod
     def main(cls, argv: list[str] | None = None) -> None:
-        """Entry point for a node in its own script: ``python my_node.py gain=2 --name n``."""
+        """Entry point for a node in its own script: ``python my_node.py gain=2 --name n``. Logs as
+        `facesculpt run` does (INFO and up, with time and node name) unless logging is set up."""
+        if not logging.getLogger().handlers:
+            logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, datefmt="%H:%M:%S")
         sys.exit(run_node(cls, sys.argv[1:] if argv is None else argv))
 
     # -- diagnostics -----------------------------------------------------------------------------
