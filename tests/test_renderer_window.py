@@ -255,3 +255,34 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     after = shots[-1]
     # Far from the face nothing changed.
     assert np.array_equal(after[:, :300], before[:, :300])
+
+
+def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
+    """Q in the window ends the renderer with the stop-the-graph status; the launcher stops every
+    node (the renderer is marked respawn, and does not come back) and exits 0."""
+    import yaml
+
+    title = f"facesculpt-quit-{os.getpid()}"
+    launch = tmp_path / "window.yaml"
+    launch.write_text(yaml.safe_dump({"nodes": [
+        {"name": "camera", "node": "camera", "params": {"source": "embedded", "fps": 15.0}},
+        {"name": "renderer", "node": "renderer", "respawn": True,
+         "params": {"window": True, "overlay": False, "title": title}},
+    ]}))
+    graph.env["DISPLAY"] = display
+    log = tmp_path / "launch.txt"
+    with open(log, "w") as out:
+        proc = graph.spawn("launch", str(launch), stdout=out, stderr=subprocess.STDOUT)
+    env = dict(os.environ, DISPLAY=display)
+    deadline = time.monotonic() + 60
+    wid = b""
+    while not wid:
+        assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+        wid = subprocess.run(["xdotool", "search", "--onlyvisible", "--name", title], env=env,
+                             capture_output=True).stdout.split(b"\n")[0]
+        time.sleep(0.2)
+    time.sleep(1.0)  # a few frames shown
+    xtool(display, "xdotool", "key", "--window", wid.decode(), "q")
+    assert proc.wait(20) == 0, log.read_text()
+    text = log.read_text()
+    assert "[renderer] asked the graph to stop" in text and text.count("[renderer] running") == 1, text

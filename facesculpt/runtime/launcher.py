@@ -50,7 +50,7 @@ from pathlib import Path
 import yaml
 
 from facesculpt.runtime.master import master_address, master_alive
-from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER, parse_assignments
+from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER, EXIT_STOP_GRAPH, parse_assignments
 
 STOP_GRACE_S = 2.5
 # A node that ran this long before dying was healthy: its next respawn starts without backoff
@@ -290,6 +290,10 @@ class Launcher:
                     continue
                 child.exit_code = code
                 how = f"exit code {code}" if code >= 0 else f"killed by {signal.Signals(-code).name}"
+                if code == EXIT_STOP_GRAPH:
+                    self.status(f"[{child.spec.name}] asked the graph to stop (its window was closed)")
+                    child.state = "done"
+                    return False
                 if child.spec.required:
                     self.status(f"[{child.spec.name}] ended ({how}); it is required, so the graph stops")
                     child.state = "done"
@@ -347,7 +351,7 @@ class Launcher:
         if self.stop_reason:
             time.sleep(0.05)  # let the forwarders write the nodes' last lines first
             self.status(self.stop_reason)
-        failed = [c for c in self.children if c.exit_code not in (None, 0)
+        failed = [c for c in self.children if c.exit_code not in (None, 0, EXIT_STOP_GRAPH)
                   and (not c.spec.respawn or c.exit_code == EXIT_BAD_PARAMETER
                        or c.failures >= MAX_QUICK_FAILURES)]
         return 1 if failed else 0

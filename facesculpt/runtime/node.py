@@ -58,6 +58,7 @@ from facesculpt.msgs import Diagnostics, Message
 from facesculpt.runtime.master import MasterClient, master_address
 from facesculpt.runtime.parameters import (
     EXIT_BAD_PARAMETER,
+    EXIT_STOP_GRAPH,
     ParameterError,
     Params,
     declared,
@@ -241,6 +242,7 @@ class Node:
         self.stage_times: dict[str, list[float]] = {}
         self.errors = 0
         self.last_error = ""
+        self.exit_code = 0            # what run() returns (EXIT_STOP_GRAPH after stop_graph())
         self.running = False
         self._stopped = threading.Event()
         self.link = MasterLink(self)
@@ -316,6 +318,11 @@ class Node:
     def count(self, name: str, n: int = 1) -> None:
         """Increase a named counter reported in diagnostics."""
         self.counters[name] = self.counters.get(name, 0) + n
+
+    def stop_graph(self) -> None:
+        """End this node with :data:`EXIT_STOP_GRAPH`: the user asked the whole graph to stop."""
+        self.exit_code = EXIT_STOP_GRAPH
+        self.shutdown()
 
     def shutdown(self) -> None:
         """Ask the node to stop (safe from any thread and from signal handlers)."""
@@ -447,7 +454,7 @@ class Node:
             self.spin()
         finally:
             self.close()
-        return 0
+        return self.exit_code
 
     @classmethod
     def main(cls, argv: list[str] | None = None) -> None:

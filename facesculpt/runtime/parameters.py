@@ -27,6 +27,9 @@ import yaml
 
 # Exit status of a node stopped by a parameter it cannot run with.
 EXIT_BAD_PARAMETER = 2
+# Exit status of a node that ends because the user asked the whole graph to stop (the window's
+# Q, Escape or close button): the launcher stops every node and exits 0, and never respawns it.
+EXIT_STOP_GRAPH = 3
 
 
 class ParameterError(ValueError):

@@ -200,8 +200,8 @@ class RendererNode(Node):
         for event in self.window.poll():
             self.events_pub.publish(InputEvent(stamp=time.time_ns(), source="window", **event))
         if self.window.closed:
-            self.log.info("window closed")
-            self.shutdown()
+            self.log.info("window closed: stopping the graph")
+            self.stop_graph()
 
     def teardown(self) -> None:
         if self.video is not None:
