@@ -282,7 +282,13 @@ def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
                              capture_output=True).stdout.split(b"\n")[0]
         time.sleep(0.2)
     time.sleep(1.0)  # a few frames shown
-    xtool(display, "xdotool", "key", "--window", wid.decode(), "q")
-    assert proc.wait(20) == 0, log.read_text()
+    # The window may still be settling (mapped, resized): send Q to every matching window until
+    # the launcher ends, rather than once to an id that may already be stale.
+    deadline = time.monotonic() + 30
+    while proc.poll() is None and time.monotonic() < deadline:
+        subprocess.run(["xdotool", "search", "--onlyvisible", "--name", title, "key", "--window", "%@", "q"],
+                       env=env, capture_output=True, timeout=20)
+        time.sleep(0.5)
+    assert proc.wait(10) == 0, log.read_text()
     text = log.read_text()
     assert "[renderer] asked the graph to stop" in text and text.count("[renderer] running") == 1, text
