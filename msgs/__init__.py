@@ -9,12 +9,13 @@ from .types import (
     FaceLandmarks,
     FaceModel,
     FaceState,
+    FrameDone,
     Image,
     InputEvent,
 )
 
 __all__ = [
     "REGISTRY", "DecodeError", "Message", "decode", "encode", "summarize",
-    "Image", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics",
+    "Image", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
     "INPUT_KINDS", "INPUT_COMMANDS",
 ]

@@ -161,3 +161,14 @@ class Diagnostics(Message):
     node: str = ""
     pid: int = 0
     values: dict = field(default_factory=dict)
+
+
+@register
+@dataclass
+class FrameDone(Message):
+    """The renderer has handled the camera frame stamped ``stamp`` (seq: that frame's seq), on
+    `render/done`: an offline camera waits for it before sending the next frame.
+    rendered: the face was drawn (False: the frame passed through, e.g. without a face)."""
+
+    TYPE = "FrameDone"
+    rendered: bool = False
