@@ -35,13 +35,15 @@ class FaceLandmarks(Message):
     points: (F, N, 3) float32: x, y in image pixels, z relative depth in the same scale.
     scores: (F,) float32 face presence in 0..1.
     rois:   (F, 5) float32 crop of each face: cx, cy, w, h (pixels), angle (radians).
-    image_size: [W, H] of the source frame.  K: (3, 3) float64 its intrinsics.
+    track_ids: (F,) int32 the same number for the same tracked face across frames (optional:
+    absent means 0, 1, ...).  image_size: [W, H] of the source frame.  K: (3, 3) float64 its intrinsics.
     """
 
     TYPE = "FaceLandmarks"
     points: np.ndarray = array("f4", "F", "N", 3)
     scores: np.ndarray = array("f4", "F")
     rois: np.ndarray = array("f4", "F", 5)
+    track_ids: np.ndarray = array("i4", "F", optional=True)
     image_size: list = field(default_factory=lambda: [0, 0])
     K: np.ndarray = array("f8", 3, 3)
 
@@ -54,6 +56,8 @@ class FaceModel(Message):
     vertices: (V, 3) float32, model space (``units``).  triangles: (T, 3) int32.
     landmark_names[i] is the name of vertex landmark_vertices[i] ((L,) int32).
     ``version`` grows when the model or its learned neutral reference changes.
+    Several faces: face_ids (P,) int32 and neutrals (P, V, 3) float32 give each fitted face's own
+    neutral (FaceState.face_id); a face not listed (or no lists) uses ``vertices``.
     """
 
     TYPE = "FaceModel"
@@ -64,6 +68,16 @@ class FaceModel(Message):
     landmark_vertices: np.ndarray = array("i4", "L")
     units: str = "mm"
     version: int = 0
+    face_ids: np.ndarray = array("i4", "P", optional=True)
+    neutrals: np.ndarray = array("f4", "P", "V", 3, optional=True)
+
+    def neutral_of(self, face_id: int) -> np.ndarray:
+        """(V, 3) the neutral of face ``face_id``: its own when listed, else ``vertices``."""
+        if self.face_ids is not None and self.neutrals is not None:
+            hit = np.flatnonzero(self.face_ids == int(face_id))
+            if hit.size:
+                return self.neutrals[hit[0]]
+        return self.vertices
 
 
 @register
@@ -75,6 +89,9 @@ class FaceState(Message):
     (x_cam = scale * R @ x_model + t).  K (3, 3) float64 intrinsics.
     alpha (S,) / beta (E,) float32 shape and expression coefficients.
     vertices: (V, 3) float32 fitted mesh in camera space; projected: (V, 2) float32 pixels.
+    face_id: which face (0 when one face is fitted, else the landmark tracker's track id);
+    faces: how many states the fitter publishes for this frame (0: an empty state, V = 0, saying
+    the frame has no fitted face, so a renderer pairing frames never waits for one).
     """
 
     TYPE = "FaceState"
@@ -90,6 +107,8 @@ class FaceState(Message):
     residual_px: float = 0.0
     image_size: list = field(default_factory=lambda: [0, 0])
     projection: str = "perspective"
+    face_id: int = 0
+    faces: int = 1
 
 
 INPUT_KINDS = ("press", "drag", "release", "depth", "move", "axes", "buttons", "command")
@@ -135,7 +154,10 @@ class Deformation(Message):
     """The user's edit as a displacement of the neutral model (docs/architecture.md "Stages", 3).
 
     displacement: (V, 3) float32, model space, mm (M_m - M_bar).
-    static / handles / roi: anchor vertex indices, int32.  version grows with every solve.
+    static / handles / roi: anchor vertex indices, int32, of face ``face_id`` (the face last
+    edited).  version grows with every solve.  Several faces: face_ids (P,) int32 and
+    displacements (P, V, 3) float32 give each edited face its own; a face not listed (or no
+    lists) uses ``displacement``.
     """
 
     TYPE = "Deformation"
@@ -145,6 +167,17 @@ class Deformation(Message):
     handles: np.ndarray = array("i4", "H")
     roi: np.ndarray = array("i4", "R")
     version: int = 0
+    face_id: int = 0
+    face_ids: np.ndarray = array("i4", "P", optional=True)
+    displacements: np.ndarray = array("f4", "P", "V", 3, optional=True)
+
+    def displacement_of(self, face_id: int) -> np.ndarray:
+        """(V, 3) the displacement of face ``face_id``: its own when listed, else ``displacement``."""
+        if self.face_ids is not None and self.displacements is not None:
+            hit = np.flatnonzero(self.face_ids == int(face_id))
+            if hit.size:
+                return self.displacements[hit[0]]
+        return self.displacement
 
 
 @register

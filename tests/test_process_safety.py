@@ -87,7 +87,7 @@ def test_no_face_means_no_edits_are_claimed(tmp_path, models_dir):
     video = _small_video(tmp_path / "in.avi", frames=3)  # flat grey frames: no face
     result = _process(video, "-o", tmp_path / "out.mp4", "--edits", "nose_longer", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
-    assert "the edits are not applied" in result.stderr and "edits from" not in result.stderr
+    assert "unedited: no face was found" in result.stderr and "edits from" not in result.stderr
 
 
 def test_names_beside_the_target():

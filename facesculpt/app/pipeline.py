@@ -32,7 +32,16 @@ import numpy as np
 from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.nodes.deformer import EditStack
-from facesculpt.nodes.fitter import Fitter, FitterConfig, MorphableModel, fit_landmarks, load_model, make_fitter
+from facesculpt.nodes.fitter import (
+    FaceFitters,
+    Fitter,
+    FitterConfig,
+    MorphableModel,
+    load_model,
+    make_fitter,
+    max_faces_for,
+    parse_faces,
+)
 from facesculpt.nodes.landmarks import LandmarkDetector
 
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
@@ -96,14 +105,17 @@ class FrameResult:
     """One processed frame.
 
     image: (H, W, 3) uint8 BGR, the composited frame (the input itself, unchanged, without a
-    face); fit: the frame's :class:`FitResult` or None (no face, or the fit was refused);
-    timings_ms: stage -> ms for the stages that ran (:data:`STAGES`); render_ms: the
-    compositor's own stages (camera, texture, draw, readback, masks, inpaint, composite)."""
+    face); fit: the first fitted face's :class:`FitResult` or None (no face, or the fit was
+    refused); fits: face key -> :class:`FitResult` of every fitted face (the key is 0 for
+    ``faces="largest"``, else the face's track id); timings_ms: stage -> ms for the stages that
+    ran (:data:`STAGES`, summed over faces); render_ms: the compositor's own stages (camera,
+    texture, draw, readback, masks, inpaint, composite)."""
 
     image: np.ndarray
     fit: object | None
     timings_ms: dict[str, float] = field(default_factory=dict)
     render_ms: dict[str, float] = field(default_factory=dict)
+    fits: dict = field(default_factory=dict)
 
 
 class Pipeline:
@@ -115,26 +127,33 @@ class Pipeline:
     frames the fitter averages into the dense neutral (and that :meth:`calibrate` runs);
     iterations: the fitter's cold-start iterations; min_score: faces below this landmark score
     are not fitted (the other fitter options are :class:`FitterConfig`'s defaults, the fitter
-    node's); inpaint, feather_px, dilate_px: the compositor's. The detector and the GL context
-    are made here; call :meth:`close` (or use ``with``) to free them.
+    node's); faces: which faces are fitted and edited, "largest", "all" or a face number from 1
+    (:func:`facesculpt.nodes.fitter.parse_faces`), each with its own fitter and neutral;
+    inpaint, feather_px, dilate_px: the compositor's. The detector and the GL context are made
+    here; call :meth:`close` (or use ``with``) to free them.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
                  neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
-                 feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None):
+                 feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
+                 faces: str | int = "largest"):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
-        self.detector = LandmarkDetector(models_dir=models_dir, threads=threads)
+        self.selection = parse_faces(faces)
+        self.detector = LandmarkDetector(models_dir=models_dir, threads=threads,
+                                         max_faces=max_faces_for(self.selection))
         self.fov_deg = float(fov_deg)
         self.neutral_frames = int(neutral_frames)
         self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames)
         self.min_score = float(min_score)
         self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px}
-        self.fitter: Fitter | None = None
+        self.faces: FaceFitters | None = None
         self.compositor = None
         self.size: tuple[int, int] | None = None
         self.K: np.ndarray | None = None
-        self.displacement: np.ndarray | None = None  # (V, 3) model space, mm; None: no edit
-        self.fitted_frames = 0
+        self.presets: list[tuple[int | None, dict]] = []  # (face key or None: every face, preset)
+        self.displacements: dict[int, np.ndarray | None] = {}  # face key -> (V, 3) mm, solved once per face
+        self.fitted_frames = 0  # frames with at least one fitted face
+        self.fitted_per_face: dict[int, int] = {}
 
     # -- set-up per frame size --------------------------------------------------------------------
     def _prepare(self, width: int, height: int) -> None:
@@ -144,7 +163,8 @@ class Pipeline:
             raise ValueError(f"frame size changed from {self.size[0]}x{self.size[1]} to {width}x{height}")
         self.size = (width, height)
         self.K = intrinsics_from_fov(width, height, self.fov_deg)
-        self.fitter = make_fitter(self.model, self.fitter_config, self.size, self.K)
+        self.faces = FaceFitters(lambda: make_fitter(self.model, self.fitter_config, self.size, self.K),
+                                 self.selection)
 
     def _compositor(self):
         if self.compositor is None:
@@ -153,92 +173,153 @@ class Pipeline:
             self.compositor = Compositor(self.size[0], self.size[1], **self.compositor_options)
         return self.compositor
 
+    @property
+    def fitter(self) -> Fitter | None:
+        """The first face's fitter (the only one for ``faces="largest"``), None before any face."""
+        if self.faces is None or not self.faces.fitters:
+            return None
+        return self.faces.fitters[min(self.faces.fitters)]
+
     # -- the stages -------------------------------------------------------------------------------
-    def fit_frame(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None):
-        """Landmarks and fit of one frame (H, W, 3) uint8 BGR at time ``stamp_s`` (s). Returns the
-        :class:`FitResult`, or None without a face (or when the fit is refused)."""
+    def fit_faces(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None) -> dict:
+        """Landmarks and fit of one frame (H, W, 3) uint8 BGR at time ``stamp_s`` (s). Returns
+        face key -> :class:`FitResult` for the selected faces that were fitted ({} without one)."""
         h, w = frame_bgr.shape[:2]
         self._prepare(w, h)
         timings = {} if timings is None else timings
         t0 = time.perf_counter()
-        faces = self.detector.track(frame_bgr)
+        found = self.detector.track(frame_bgr)
         timings["landmarks"] = (time.perf_counter() - t0) * 1e3
-        if not faces:
-            return None
+        if not found:
+            return {}
         t0 = time.perf_counter()
-        fit = fit_landmarks(self.fitter, [f.points for f in faces], [f.score for f in faces], stamp_s,
-                            self.min_score).fit
+        fits = {}
+        for face in self.faces.fit([f.points for f in found], [f.score for f in found],
+                                   [f.track_id for f in found], stamp_s, self.min_score):
+            if face.outcome.fit is not None:
+                fits[face.key] = face.outcome.fit
+                self.fitted_per_face[face.key] = self.fitted_per_face.get(face.key, 0) + 1
         timings["fit"] = (time.perf_counter() - t0) * 1e3
-        if fit is not None:
-            self.fitted_frames += 1
-        return fit
+        self.fitted_frames += bool(fits)
+        return fits
+
+    def fit_frame(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None):
+        """:meth:`fit_faces`, the first fitted face only: its :class:`FitResult` or None."""
+        fits = self.fit_faces(frame_bgr, stamp_s, timings)
+        return fits[min(fits)] if fits else None
 
     def process(self, frame_bgr: np.ndarray, stamp_s: float) -> FrameResult:
-        """One frame through every stage; the edit (if any) merged into the fitted face."""
+        """One frame through every stage; each face's edit (if any) merged into it."""
         if not (isinstance(frame_bgr, np.ndarray) and frame_bgr.dtype == np.uint8 and frame_bgr.ndim == 3
                 and frame_bgr.shape[2] == 3):
             raise ValueError("frames must be (H, W, 3) uint8 BGR")
         timings: dict[str, float] = {}
-        fit = self.fit_frame(frame_bgr, stamp_s, timings)
-        if fit is None:
+        fits = self.fit_faces(frame_bgr, stamp_s, timings)
+        if not fits:
             return FrameResult(frame_bgr, None, timings)
-        t0 = time.perf_counter()
-        deformed = fit.vertices
-        if self.displacement is not None:
-            deformed = merge_deformation(fit.vertices, fit.R, fit.scale, self.displacement)
-        timings["merge"] = (time.perf_counter() - t0) * 1e3
-        t0 = time.perf_counter()
-        compositor = self._compositor()
-        out = compositor.render(frame_bgr, fit.vertices, fit.projected, self.model.triangles, deformed)
-        timings["render"] = (time.perf_counter() - t0) * 1e3
-        render_ms = {k: v for k, v in compositor.timings.items() if k != "total"}
-        return FrameResult(out, fit, timings, render_ms)
+        out, render_ms = frame_bgr, {}
+        timings["merge"] = timings["render"] = 0.0
+        for key, fit in fits.items():
+            t0 = time.perf_counter()
+            deformed = fit.vertices
+            displacement = self.displacement_of(key)
+            if displacement is None and self.presets:
+                continue  # other faces are edited, not this one: its pixels stay the input's
+            if displacement is not None:
+                deformed = merge_deformation(fit.vertices, fit.R, fit.scale, displacement)
+            timings["merge"] += (time.perf_counter() - t0) * 1e3
+            t0 = time.perf_counter()
+            compositor = self._compositor()
+            out = compositor.render(out, fit.vertices, fit.projected, self.model.triangles, deformed)
+            timings["render"] += (time.perf_counter() - t0) * 1e3
+            for k, v in compositor.timings.items():
+                if k != "total":
+                    render_ms[k] = render_ms.get(k, 0.0) + v
+        return FrameResult(out, fits[min(fits)], timings, render_ms, fits)
 
     # -- the neutral and the edit -----------------------------------------------------------------
+    def neutral_of(self, key: int | None = None) -> np.ndarray:
+        """(V, 3) float32 the neutral model of face ``key`` (None: the first face), model space
+        (mm); the model's mean before that face was fitted."""
+        if key is None:
+            fitter = self.fitter
+        else:
+            fitter = self.faces.fitters.get(key) if self.faces is not None else None
+        return fitter.neutral if fitter is not None else self.model.mean
+
     @property
     def neutral(self) -> np.ndarray:
-        """(V, 3) float32 the fitted person's neutral model, model space (mm)."""
-        return self.fitter.neutral if self.fitter is not None else self.model.mean
+        """(V, 3) float32 the first fitted person's neutral model, model space (mm)."""
+        return self.neutral_of(None)
 
     @property
     def neutral_complete(self) -> bool:
-        """The neutral will not change much more: the dense reference is frozen, or (sparse) the
-        identity has seen ``neutral_frames`` fitted frames."""
-        if self.fitter is None:
+        """The neutral of every face seen will not change much more: the dense reference is
+        frozen, or (sparse) the identity has seen ``neutral_frames`` fitted frames."""
+        if self.faces is None or not self.faces.fitters:
             return False
-        return self.fitter.neutral_ready and self.fitted_frames >= self.neutral_frames
+        return all(f.neutral_ready and self.fitted_per_face.get(k, 0) >= self.neutral_frames
+                   for k, f in self.faces.fitters.items())
 
     def calibrate(self, frames: Iterable[np.ndarray], fps: float, progress=None) -> int:
         """Landmarks + fitting over ``frames`` (the video's first frames, in order) until the neutral
         is complete or the frames run out; returns the frames read. The tracker is then reset (the
-        frames that follow start from the video's first frame again); the fitter keeps the neutral."""
+        frames that follow start from the video's first frame again, and its faces get the same
+        track ids); the fitters keep the neutrals."""
         read = 0
         for frame in frames:
-            self.fit_frame(frame, read / fps)
+            self.fit_faces(frame, read / fps)
             read += 1
             if progress is not None:
                 progress(read)
             if self.neutral_complete:
                 break
         self.detector.reset()
+        if self.faces is not None:
+            self.faces.reset_tracking()
         return read
 
-    def edit_stack(self, **options) -> EditStack:
-        """An :class:`EditStack` on the current neutral, with the model's landmark names; ``options``
-        go to it (roi_radius, iterations, tolerance, ...)."""
-        m = self.fitter.model if self.fitter is not None else self.model
-        return EditStack(self.neutral, m.triangles, list(m.landmark_names), m.landmark_vertices, **options)
+    def edit_stack(self, key: int | None = None, **options) -> EditStack:
+        """An :class:`EditStack` on the neutral of face ``key`` (None: the first face), with the
+        model's landmark names; ``options`` go to it (roi_radius, iterations, tolerance, ...)."""
+        m = self.model
+        return EditStack(self.neutral_of(key), m.triangles, list(m.landmark_names), m.landmark_vertices, **options)
 
-    def set_edits(self, preset: dict | None) -> np.ndarray | None:
-        """Solve a deformer preset (dict) on the current neutral; its displacement is merged into
-        every frame from now on (None: no edit). Returns the displacement (V, 3) mm."""
+    def set_edits(self, preset: dict | None, face: int | None = None) -> np.ndarray | None:
+        """Edit every face (``face`` None) or the face with key ``face`` with a deformer preset
+        (dict): solved once per face on its neutral (now for the faces fitted so far, on first
+        sight for the others) and merged into each of its frames. Presets for a face accumulate
+        after those for every face; ``None`` drops all edits. Returns the first face's
+        displacement (V, 3) mm, or None."""
         if preset is None:
-            self.displacement = None
+            self.presets, self.displacements = [], {}
             return None
-        stack = self.edit_stack()
-        stack.apply_preset(preset)
-        self.displacement = stack.solve().astype(np.float32)
+        self.presets.append((face, preset))
+        self.displacements = {}
+        for key in list(self.faces.fitters) if self.faces is not None else []:
+            self.displacement_of(key)
         return self.displacement
+
+    def displacement_of(self, key: int) -> np.ndarray | None:
+        """(V, 3) float32 mm: the edit of face ``key``, solved on its neutral when first asked for;
+        None when no preset applies to it."""
+        if key not in self.displacements:
+            presets = [p for k, p in self.presets if k is None or k == key]
+            if not presets:
+                self.displacements[key] = None
+            else:
+                stack = self.edit_stack(key)
+                stack.apply_preset(combine_presets(presets))
+                self.displacements[key] = stack.solve().astype(np.float32)
+        return self.displacements[key]
+
+    @property
+    def displacement(self) -> np.ndarray | None:
+        """The first face's edit (V, 3) float32 mm, or None without an edit or a fitted face."""
+        if not self.presets:
+            return None
+        key = min(self.faces.fitters) if self.faces is not None and self.faces.fitters else 0
+        return self.displacement_of(key)
 
     def close(self) -> None:
         if self.compositor is not None:

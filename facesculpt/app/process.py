@@ -38,9 +38,12 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", metavar="OUT", required=True,
                    help="output video (.mp4, .mov, .m4v, .avi, .mkv) or image pattern such as out/%%05d.png "
                         "(lossless: png, bmp, tif)")
-    p.add_argument("--edits", action="append", default=[], metavar="PRESET.json",
+    p.add_argument("--edits", action="append", default=[], metavar="[N:]PRESET",
                    help="a deformer preset file, or the name of a shipped one (nose_longer, chin, cheeks); "
-                        "repeat to stack several, in order")
+                        "repeat to stack several, in order; N:PRESET edits face N only (with --faces all)")
+    p.add_argument("--faces", default="largest", metavar="all|largest|N",
+                   help="which faces to fit and edit: the largest (default), all, or face N only "
+                        "(faces numbered 1, 2, ... from the left as they first appear)")
     p.add_argument("--model", default="facemesh", metavar="facemesh|sfm|MODEL.npz",
                    help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
                         "non-commercial) or a .npz from `facesculpt model import-eos`")
@@ -156,7 +159,27 @@ def _progress(total: int | None, desc: str, quiet: bool):
                 leave=True)
 
 
-def _calibrate(pipeline, args, total, fps: float, stop, preset: dict) -> None:
+def parse_edits(specs: list[str], selection) -> list[tuple[int | None, str]]:
+    """``--edits`` values as (face key or None for every face, preset path or name). ``N:PRESET``
+    names face N (numbered from 1), whose key is its track id N - 1 (:mod:`facesculpt.nodes.fitter.faces`)."""
+    out = []
+    for spec in specs:
+        head, sep, rest = spec.partition(":")
+        if sep and head.strip().isdigit() and rest:
+            n = int(head)
+            if n < 1:
+                raise ValueError(f"--edits {spec}: faces are numbered from 1")
+            if selection == "largest":
+                raise ValueError(f"--edits {spec} edits face {n} only: add --faces all (or --faces {n})")
+            if isinstance(selection, int) and selection != n:
+                raise ValueError(f"--edits {spec} edits face {n}, but --faces {selection} fits face {selection} only")
+            out.append((n - 1, rest))
+        else:
+            out.append((None, spec))
+    return out
+
+
+def _calibrate(pipeline, args, total, fps: float, stop, presets) -> None:
     """First pass: the person's neutral from the first frames, then the edit solved on it once."""
     calib = open_input(args.input)
     try:
@@ -169,10 +192,10 @@ def _calibrate(pipeline, args, total, fps: float, stop, preset: dict) -> None:
     finally:
         calib.close()
     if pipeline.fitter is None or pipeline.fitted_frames == 0:
-        print(f"facesculpt: no face found in the first frames of {args.input}: the edits are not applied",
-              file=sys.stderr)
-    else:
-        pipeline.set_edits(preset)
+        print(f"facesculpt: no face found in the first frames of {args.input}: the edits apply to faces "
+              f"found later, on the model's mean face", file=sys.stderr)
+    for face, preset in presets:
+        pipeline.set_edits(preset, face)
 
 
 def _finish(output, completed: bool) -> None:
@@ -189,36 +212,41 @@ def _finish(output, completed: bool) -> None:
 def cmd_process(args) -> int:
     from facesculpt.app.pipeline import Pipeline, combine_presets, read_preset
     from facesculpt.app.safe_output import refuse_output_over_input
+    from facesculpt.nodes.fitter import parse_faces
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)  # one thread per stage is faster here (see facesculpt.runtime.process_limits)
     if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:
         raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
     refuse_output_over_input(args.input, args.output)  # before anything is opened
+    selection = parse_faces(args.faces)
+    presets = [(face, read_preset(p)) for face, p in parse_edits(args.edits, selection)]
     source = open_input(args.input)
     fps = source.native_fps
     total = source.frame_count or None
     if total and args.max_frames:
         total = min(total, args.max_frames)
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input)
-    preset = combine_presets([read_preset(p) for p in args.edits]) if args.edits else None
-    pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames)
-    if preset is not None:
+    pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
+                        faces=selection)
+    if presets:
         from facesculpt.nodes.deformer import DeformerError
 
         try:  # a preset that does not fit the model fails now, not after the first pass
-            pipeline.edit_stack().apply_preset(preset)
+            pipeline.edit_stack().apply_preset(combine_presets([p for _, p in presets]))
         except DeformerError as exc:
             raise ValueError(f"the edits do not fit the {args.model} model: {exc}") from None
-    faces = 0
+    frames_with_face = 0
+    faces_edited: set[int] = set()
     try:
         with _Stop() as stop:
-            if preset is not None:
-                _calibrate(pipeline, args, total, fps, stop, preset)
+            if presets:
+                _calibrate(pipeline, args, total, fps, stop, presets)
             with _progress(total, "process", args.quiet) as bar:
                 for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
                     result = pipeline.process(frame, i / fps)
-                    faces += result.fit is not None
+                    frames_with_face += bool(result.fits)
+                    faces_edited.update(k for k in result.fits if pipeline.displacement_of(k) is not None)
                     image = np.hstack([frame, result.image]) if args.side_by_side else result.image
                     output.write(image)
                     bar.update(1)
@@ -240,7 +268,11 @@ def cmd_process(args) -> int:
             output.discard()
         raise ValueError(f"cannot read {args.input}: it holds no frames")
     _finish(output, completed=True)
-    edited = pipeline.displacement is not None
-    print(f"wrote {output.frames} frames to {output.path!s} ({faces} with a face"
-          + (f", edits from {', '.join(args.edits)})" if edited else ")"), file=sys.stderr)
+    if presets and not faces_edited:
+        how = "no face was found" if not frames_with_face else "no face the edits name was found"
+        print(f"wrote {output.frames} frames to {output.path!s} unedited: {how}", file=sys.stderr)
+    else:
+        edits = f", edits from {', '.join(args.edits)} on {len(faces_edited)} face(s)" if faces_edited else ""
+        print(f"wrote {output.frames} frames to {output.path!s} ({frames_with_face} with a face{edits})",
+              file=sys.stderr)
     return 0

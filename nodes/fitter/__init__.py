@@ -13,7 +13,8 @@ Files, one concept each: ``model.py`` (the model format, .npz save/load), ``eos_
 ``fitter.py`` (what both fitters share, :func:`make_fitter`), ``sparse_fitter.py``,
 ``dense_fitter.py``, ``result.py``, ``fit_camera.py``, ``pose.py``, ``fitting.py`` (the
 coefficient solves), ``outline.py``, ``pose_smoothing.py`` and ``smoothing.py`` (One Euro),
-``neutral_learning.py``; ``stage.py`` (the stage, :func:`fit_landmarks`); ``node.py`` (the node shell).
+``neutral_learning.py``; ``stage.py`` (the stage, :func:`fit_landmarks`); ``faces.py`` (several faces:
+the selection and one fitter per face, :class:`FaceFitters`); ``node.py`` (the node shell).
 """
 
 from facesculpt.nodes.fitter.eos_import import import_eos
@@ -29,6 +30,8 @@ __all__ = [
     "FitError",
     "FitResult",
     "Fitter",
+    "FaceFit",
+    "FaceFitters",
     "FitterConfig",
     "LandmarksFit",
     "ModelFormatError",
@@ -38,6 +41,8 @@ __all__ = [
     "import_eos",
     "load_model",
     "make_fitter",
+    "max_faces_for",
+    "parse_faces",
     "save_model",
 ]
 
@@ -45,6 +50,7 @@ __all__ = [
 _LAZY = {
     "Fitter": "fitter", "make_fitter": "fitter", "FitResult": "result", "FitError": "result",
     "FitterConfig": "config", "fit_landmarks": "stage", "LandmarksFit": "stage",
+    "FaceFitters": "faces", "FaceFit": "faces", "parse_faces": "faces", "max_faces_for": "faces",
 }
 
 

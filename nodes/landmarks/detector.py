@@ -68,11 +68,14 @@ class Detection:
 class Face:
     """One face: ``points`` (468, 3) float32 (x, y image pixels, z relative depth in pixel
     scale), ``score`` face presence in [0, 1], ``roi`` (5,) float32 [cx, cy, w, h, angle_rad]
-    of the crop the points came from (angle: rotation of the crop's x axis from the image's)."""
+    of the crop the points came from (angle: rotation of the crop's x axis from the image's),
+    ``track_id`` the same number for the same tracked face from frame to frame (0, 1, ... in the
+    order faces are first found, left to right among those found together)."""
 
     points: np.ndarray
     score: float
     roi: np.ndarray
+    track_id: int = 0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -337,13 +340,13 @@ def as_bgr_uint8(image) -> np.ndarray | None:
     return np.ascontiguousarray(image)
 
 
-def _index_coords(face_points: np.ndarray, roi: np.ndarray, score: float) -> Face:
+def _index_coords(face_points: np.ndarray, roi: np.ndarray, score: float, track_id: int = 0) -> Face:
     """Continuous coordinates -> pixel-index coordinates, as a :class:`Face`."""
     points = face_points.astype(np.float32)
     points[:, :2] -= 0.5
     out_roi = roi.astype(np.float32)
     out_roi[:2] -= 0.5
-    return Face(points=points, score=float(score), roi=out_roi)
+    return Face(points=points, score=float(score), roi=out_roi, track_id=int(track_id))
 
 
 @dataclass
@@ -355,6 +358,7 @@ class _Track:
     points: np.ndarray
     score: float
     next_roi: np.ndarray
+    track_id: int = -1
 
 
 class LandmarkDetector:
@@ -402,13 +406,16 @@ class LandmarkDetector:
         self.redetect_interval = max(int(redetect_interval), 1)
         self.anchors = ssd_anchors()
         self._tracks: list[_Track] = []
+        self._next_track_id = 0
         self._frames_since_detect = 0
         self.last_ran_detector = False
 
     # ---- public API ----------------------------------------------------------------------
     def reset(self) -> None:
-        """Forget the tracked faces: the next :meth:`track` runs the detector."""
+        """Forget the tracked faces: the next :meth:`track` runs the detector, and track ids
+        start again from 0 (the same video then gives its faces the same ids)."""
         self._tracks = []
+        self._next_track_id = 0
 
     def detect(self, image) -> list[Face]:
         """Run the detector on the whole image (and tiles), then the mesh on each face found."""
@@ -416,6 +423,7 @@ class LandmarkDetector:
         if bgr is None:
             self._tracks = []
             return []
+        self._next_track_id = 0  # a still image: its faces are 0, 1, ... from the left
         self._tracks = self._detect_tracks(bgr, [])
         self._frames_since_detect = 0
         self.last_ran_detector = True
@@ -430,9 +438,11 @@ class LandmarkDetector:
             return []
         self.last_ran_detector = False
         tracks: list[_Track] = []
-        for track in (self._refine(bgr, t.next_roi) for t in self._tracks):
+        for old in self._tracks:
+            track = self._refine(bgr, old.next_roi)
             # Two tracks that drifted onto one face become one.
             if track is not None and not any(_roi_overlap(track.next_roi, t.points) for t in tracks):
+                track.track_id = old.track_id
                 tracks.append(track)
         lost = len(tracks) < len(self._tracks)
         self._frames_since_detect += 1
@@ -503,11 +513,15 @@ class LandmarkDetector:
             if track is not None and not any(_roi_overlap(track.next_roi, t.points) for t in tracks + found):
                 found.append(track)
         found.sort(key=lambda t: -t.next_roi[2])
-        return tracks + found[: max(self.max_faces - len(tracks), 0)]
+        found = sorted(found[: max(self.max_faces - len(tracks), 0)], key=lambda t: t.next_roi[0])
+        for track in found:  # new faces are numbered left to right
+            track.track_id = self._next_track_id
+            self._next_track_id += 1
+        return tracks + found
 
     def _faces(self) -> list[Face]:
         tracks = sorted(self._tracks, key=lambda t: -t.next_roi[2])[: self.max_faces]
-        return [_index_coords(t.points, t.crop_roi, t.score) for t in tracks]
+        return [_index_coords(t.points, t.crop_roi, t.score, t.track_id) for t in tracks]
 
 
 def _owned_by_tile(boxes: np.ndarray, x0: float, y0: float, width: float, height: float) -> np.ndarray:

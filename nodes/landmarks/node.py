@@ -61,7 +61,7 @@ class LandmarksNode(Node):
             points=np.stack([f.points for f in faces]) if faces else np.zeros((0, NUM_POINTS, 3), np.float32),
             scores=np.array([f.score for f in faces], np.float32),
             rois=np.stack([f.roi for f in faces]).astype(np.float32) if faces else np.zeros((0, 5), np.float32),
-            image_size=size, K=msg.K))
+            track_ids=np.array([f.track_id for f in faces], np.int32), image_size=size, K=msg.K))
 
 
 if __name__ == "__main__":

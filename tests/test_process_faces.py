@@ -1,0 +1,117 @@
+"""Several faces: `facesculpt process --faces all` fits every face with its own identity and
+edits each with its own preset (`--edits N:PRESET`); a face left unedited keeps its pixels; the
+shared photo with three people gets three fitted, edited faces."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+FRAMES = 12
+
+
+def process(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "facesculpt.cli", "process", *map(str, args), "--quiet"], cwd=REPO,
+                          capture_output=True, text=True, timeout=300)
+
+
+def frames_of(path: Path, n: int) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    out = []
+    while len(out) < n:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        out.append(frame)
+    cap.release()
+    return out
+
+
+@pytest.fixture(scope="module")
+def two_people(data_dir, tmp_path_factory) -> tuple[Path, list[np.ndarray]]:
+    """Two of the shared videos side by side (two people in one 1024x512 frame), as lossless PNGs
+    wrapped in an FFV1 video so the input frames are known exactly."""
+    import av
+
+    left = frames_of(data_dir / "video" / "d0.mp4", FRAMES)
+    right = frames_of(data_dir / "video" / "d3.mp4", FRAMES)
+    frames = [np.hstack([a, b]) for a, b in zip(left, right)]
+    path = tmp_path_factory.mktemp("two") / "two_people.mkv"
+    with av.open(str(path), "w") as box:
+        stream = box.add_stream("ffv1", rate=25)
+        stream.width, stream.height, stream.pix_fmt = 1024, 512, "bgr0"
+        for f in frames:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(f, format="bgr24")):
+                box.mux(packet)
+        for packet in stream.encode():
+            box.mux(packet)
+    return path, frames
+
+
+def changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=2) > 8
+
+
+def test_two_faces_each_with_its_own_edit(two_people, models_dir, tmp_path):
+    video, inputs = two_people
+    both = tmp_path / "both" / "%03d.png"
+    r = process(video, "-o", both, "--faces", "all", "--edits", "1:nose_longer", "--edits", "2:chin",
+                "--neutral-frames", "5")
+    assert r.returncode == 0, r.stderr
+    assert "on 2 face(s)" in r.stderr
+    only_left = tmp_path / "left" / "%03d.png"
+    r = process(video, "-o", only_left, "--faces", "all", "--edits", "1:nose_longer", "--neutral-frames", "5")
+    assert r.returncode == 0, r.stderr
+    for i in (3, FRAMES - 1):
+        src = inputs[i]
+        out_both = cv2.imread(str(both).replace("%03d", f"{i:03d}"))
+        out_left = cv2.imread(str(only_left).replace("%03d", f"{i:03d}"))
+        d_both = changed(src, out_both)
+        # both people are edited in the same output frame ...
+        assert d_both[:, :512].sum() > 300 and d_both[:, 512:].sum() > 300
+        # ... each with its own edit: the left face is the same whether or not the right one is edited,
+        assert np.array_equal(out_both[:, :480], out_left[:, :480])
+        # and a face no edit names keeps its pixels exactly
+        assert np.array_equal(out_left[:, 544:], src[:, 544:])
+        # the chin edit moves the lower face of the right person, not the area above the eyes
+        assert d_both[300:, 512:].sum() > d_both[:150, 512:].sum()
+
+
+def test_largest_is_one_face_and_face_numbers_need_a_selection(two_people, models_dir, tmp_path):
+    video, inputs = two_people
+    out = tmp_path / "one" / "%03d.png"
+    r = process(video, "-o", out, "--edits", "nose_longer", "--neutral-frames", "5", "--max-frames", "4")
+    assert r.returncode == 0, r.stderr
+    assert "on 1 face(s)" in r.stderr
+    r = process(video, "-o", tmp_path / "x" / "%03d.png", "--edits", "2:chin")
+    assert r.returncode != 0
+    assert "--faces all" in r.stderr.strip().splitlines()[-1]
+    r = process(video, "-o", tmp_path / "y" / "%03d.png", "--faces", "several")
+    assert r.returncode != 0
+    assert "faces must be all, largest or a face number" in r.stderr
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_three_people_in_the_shared_photo(data_dir, models_dir):
+    from facesculpt.app.pipeline import Pipeline, read_preset
+
+    photo = cv2.imread(str(data_dir / "faces" / "2008_002506.jpg"))
+    with Pipeline("facemesh", faces="all", neutral_frames=1) as pipeline:
+        pipeline.calibrate([photo], fps=1.0)
+        pipeline.set_edits(read_preset("nose_longer"))
+        result = pipeline.process(photo, 0.0)
+    assert sorted(result.fits) == [0, 1, 2]  # three people, numbered from the left
+    xs = [float(result.fits[k].projected[:, 0].mean()) for k in (0, 1, 2)]
+    assert xs == sorted(xs)
+    moved = changed(photo, result.image)
+    for k in (0, 1, 2):  # each face's own region changed
+        px = result.fits[k].projected
+        x0, x1 = int(px[:, 0].min()), int(px[:, 0].max())
+        y0, y1 = int(px[:, 1].min()), int(px[:, 1].max())
+        assert moved[y0:y1, x0:x1].sum() > 50, k
