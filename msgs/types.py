@@ -127,6 +127,8 @@ class InputEvent(Message):
     vector: (3,) float32 model-space displacement in mm (kind "move").
     axes: (A,) float32 joystick axes in -1..1; buttons: bit mask.
     command / argument: kind "command" (INPUT_COMMANDS; argument e.g. a preset path).
+    face: which face (FaceState.face_id) the event edits; -1: the face under the pointer for
+    pixel events, every face for landmark presses and commands.
     """
 
     TYPE = "InputEvent"
@@ -142,6 +144,7 @@ class InputEvent(Message):
     command: str = ""
     argument: str = ""
     source: str = ""
+    face: int = -1
 
     def check(self) -> None:
         if self.kind not in INPUT_KINDS:
