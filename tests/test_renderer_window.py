@@ -6,7 +6,9 @@ x11-apps (xwd, for screenshots; ImageMagick's `import` also works); skips withou
 from __future__ import annotations
 
 import os
+import select
 import shutil
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -26,15 +28,16 @@ def display():
         missing.append("xwd")
     if missing:
         pytest.skip(f"needs {', '.join(missing)} (apt-get install xvfb xdotool x11-apps)")
-    for number in range(91, 140):
-        if not Path(f"/tmp/.X{number}-lock").exists() and not Path(f"/tmp/.X11-unix/X{number}").exists():
-            break
-    proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1920x1080x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 10
-    while not Path(f"/tmp/.X11-unix/X{number}").exists():
-        assert proc.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
-        time.sleep(0.05)
+    # -displayfd: Xvfb picks a free display number itself and writes it to the pipe, so test
+    # sessions running side by side never share (or race for) one.
+    read_fd, write_fd = os.pipe()
+    proc = subprocess.Popen(["Xvfb", "-displayfd", str(write_fd), "-screen", "0", "1920x1080x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(write_fd,))
+    os.close(write_fd)
+    with os.fdopen(read_fd) as pipe:
+        ready = select.select([pipe], [], [], 20.0)[0]
+        number = pipe.readline().strip() if ready else ""  # written once the server is ready; "" if it died
+    assert number.isdigit(), f"Xvfb did not start (exit status {proc.poll()})"
     yield f":{number}"
     proc.terminate()
     proc.wait(5)
@@ -146,11 +149,13 @@ def test_window_shows_the_frame_and_reports_input_in_frame_pixels(display, data_
         window.close()
 
 
-def _scene_feeder(model, pose, frame):
+def _scene_feeder(model, pose, frame, preset_dir: Path | None = None):
     """A node that plays camera + fitter for the window graph: the frame and its posed face
     state at 15 Hz, the model latched; it keeps the input events it hears and how many
-    input/events subscribers the renderer reports (its diagnostics)."""
-    from facesculpt.msgs import Diagnostics, FaceModel, FaceState, Image, InputEvent
+    input/events subscribers the renderer reports (its diagnostics). It can play the deformer
+    too: publish a deformation (latched), and answer a save_preset event as the deformer does,
+    with the absolute path under ``preset_dir`` as ``last_saved_preset`` in its diagnostics."""
+    from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, Image, InputEvent
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
 
@@ -158,13 +163,16 @@ def _scene_feeder(model, pose, frame):
 
     class Feeder(Node):
         NAME = "window_feeder"
+        DIAGNOSTICS_PERIOD_S = 0.3
 
         def setup(self):
             self.image_pub = self.advertise("camera/image", Image)
             self.state_pub = self.advertise("face/state", FaceState)
             self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
+            self.deformation_pub = self.advertise("face/deformation", Deformation, qos=LATCHED)
             self.events = []
-            self.subscribe("input/events", InputEvent, self.events.append, qos=EVENTS)
+            self.saved_preset = None
+            self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
             self.listeners = 0  # the renderer's input/events subscribers, from its diagnostics
             self.subscribe("diagnostics", Diagnostics, self.on_diagnostics, qos=EVERY_MESSAGE)
             self.timer(1 / 15, self.tick)
@@ -172,6 +180,22 @@ def _scene_feeder(model, pose, frame):
         def on_diagnostics(self, msg):
             if msg.node == "renderer":
                 self.listeners = msg.values.get("subscribers", {}).get("input/events", 0)
+
+        def on_event(self, msg):
+            self.events.append(msg)
+            if msg.kind == "command" and msg.command == "save_preset" and preset_dir is not None:
+                self.saved_preset = str((preset_dir / msg.argument).resolve())
+
+        def diagnostics(self):
+            values = super().diagnostics()
+            if self.saved_preset:
+                values["last_saved_preset"] = self.saved_preset
+            return values
+
+        def publish_pins(self, static):
+            self.deformation_pub.publish(Deformation(
+                stamp=1, model_id=model.model_id, displacement=np.zeros((len(model.mean), 3), np.float32),
+                static=np.asarray(static, np.int32), version=1))
 
         def tick(self):
             stamp = time.time_ns()
@@ -257,17 +281,102 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
     assert np.array_equal(after[:, :300], before[:, :300])
 
 
-def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
-    """Q in the window ends the renderer with the stop-the-graph status; the launcher stops every
-    node (the renderer is marked respawn, and does not come back) and exits 0."""
+def _visible_window(display, title: str) -> str:
+    """The id of the visible window titled ``title``, "" while there is none."""
+    # --onlyvisible: the window exists before it is mapped, and xwd fails on an unmapped one.
+    r = subprocess.run(["xdotool", "search", "--onlyvisible", "--name", title],
+                       env=dict(os.environ, DISPLAY=display), capture_output=True)
+    return (r.stdout.split() or [b""])[0].decode()
+
+
+def _panel_size(shot: np.ndarray, frame: np.ndarray) -> tuple[int, int]:
+    """(rows, columns) of the top-left text panel in a screenshot: pixels the panel darkened to
+    well under the frame's brightness, counted down the strip left of the letters and along the
+    strip above them."""
+    from facesculpt.nodes.renderer.overlay import MARGIN_PX
+
+    strip = slice(MARGIN_PX + 1, 2 * MARGIN_PX)
+    shot, frame = shot[:240].astype(float), frame[:240].astype(float)
+    rows = shot[:, strip].mean(axis=(1, 2)) < 0.6 * frame[:, strip].mean(axis=(1, 2))
+    cols = shot[strip].mean(axis=(0, 2)) < 0.6 * frame[strip].mean(axis=(0, 2))
+    return int(rows.sum()), int(cols.sum())
+
+
+def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tmp_path):
+    """The overlay in a real window: pinned vertices (Deformation.static) are drawn as yellow
+    squares where the face shows them; S sends save_preset, the window says so at once, and
+    when the deformer's diagnostics report the file (played here by the feeder) the renderer
+    logs its absolute path and shows it for a few seconds."""
+    from facesculpt.nodes.fitter import load_model
+    from facesculpt.nodes.renderer.overlay import PIN_BGR
+
+    model = load_model("sfm")
+    pose = place_marked(model, "s18")
+    frame = read_frames(data_dir, "s18")[0]
+    title = f"facesculpt-pins-{os.getpid()}"
+    graph.env["DISPLAY"] = display
+    log = tmp_path / "renderer.txt"
+    with open(log, "w") as out:
+        graph.spawn("run", "renderer", "window=true", "overlay=true", f"title={title}",
+                    stdout=out, stderr=subprocess.STDOUT)
+    preset_dir = tmp_path / "presets-in-a-directory-with-a-long-name"  # the widest line of the overlay
+    feeder = graph.node(_scene_feeder(model, pose, frame, preset_dir=preset_dir))
+    feeder.publish_model()
+    pins = [pose.landmarks[name] for name in ("nose_tip", "chin", "mouth_left")]
+    feeder.publish_pins(pins)
+    found = []
+    assert graph.spin_until(feeder, lambda: found.append(_visible_window(display, title)) or found[-1], 40.0), \
+        "the renderer's window did not open"
+    wid = found[-1]
+    shots = []
+
+    def shows(predicate):
+        try:
+            shots.append(screenshot(display, wid))
+        except subprocess.CalledProcessError:
+            return False  # being mapped or resized: try again
+        return predicate(shots[-1])
+
+    def pinned(shot):
+        hits = []
+        for v in pins:
+            x, y = np.round(pose.projected[v]).astype(int)
+            patch = shot[y - 6:y + 7, x - 6:x + 7].reshape(-1, 3).astype(int)
+            hits.append((np.abs(patch - PIN_BGR).max(axis=1) < 40).sum())
+        return min(hits) >= 30  # a 9 x 9 px square at each pin, within a pixel or two
+    assert graph.spin_until(feeder, lambda: shows(pinned), 20.0), "no pins drawn at the pinned vertices"
+    rows_before, cols_before = _panel_size(shots[-1], frame)
+    assert rows_before > 15 and cols_before > 200  # the fps and stage-time lines
+
+    assert graph.spin_until(feeder, lambda: feeder.listeners == 1, 30.0)
+    subprocess.run(["xdotool", "key", "--window", wid, "s"], env=dict(os.environ, DISPLAY=display), check=True)
+    assert graph.spin_until(feeder, lambda: feeder.saved_preset is not None, 10.0), "no save_preset event"
+    name = Path(feeder.saved_preset).name
+    assert name.startswith("facesculpt-edits-") and name.endswith(".json")
+    # At once a line more ("saving preset NAME"); once the deformer reports the file, its
+    # absolute path (longer than any other line here): a wider panel.
+    assert graph.spin_until(feeder, lambda: shows(lambda s: _panel_size(s, frame)[0] > rows_before + 10), 10.0), \
+        "no notice line in the window after S"
+    assert graph.spin_until(feeder, lambda: shows(lambda s: _panel_size(s, frame)[1] > cols_before + 50), 10.0), \
+        "the saved preset's path is not shown"
+    text = log.read_text()
+    assert f"asked the deformer to save the edits as preset {name}" in text
+    assert f"saved the preset as {feeder.saved_preset}" in text, text
+    # A few seconds later the notice is gone again.
+    assert graph.spin_until(feeder, lambda: shows(lambda s: _panel_size(s, frame)[0] <= rows_before + 3), 15.0)
+
+
+def _launch_window_graph(graph, display, tmp_path, title: str, **renderer_params):
+    """`facesculpt launch` of camera (embedded photo, 15 fps) + renderer (window, marked
+    respawn, ``renderer_params``), output to a log file; returns (launcher, log path, env) once
+    the renderer's window is visible and has shown a few frames."""
     import yaml
 
-    title = f"facesculpt-quit-{os.getpid()}"
     launch = tmp_path / "window.yaml"
     launch.write_text(yaml.safe_dump({"nodes": [
         {"name": "camera", "node": "camera", "params": {"source": "embedded", "fps": 15.0}},
         {"name": "renderer", "node": "renderer", "respawn": True,
-         "params": {"window": True, "overlay": False, "title": title}},
+         "params": {"window": True, "overlay": False, "title": title, **renderer_params}},
     ]}))
     graph.env["DISPLAY"] = display
     log = tmp_path / "launch.txt"
@@ -282,13 +391,52 @@ def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
                              capture_output=True).stdout.split(b"\n")[0]
         time.sleep(0.2)
     time.sleep(1.0)  # a few frames shown
-    # The window may still be settling (mapped, resized): send Q to every matching window until
-    # the launcher ends, rather than once to an id that may already be stale.
-    deadline = time.monotonic() + 30
-    while proc.poll() is None and time.monotonic() < deadline:
+    return proc, log, env
+
+
+def _press_q_until(env, title: str, done, timeout: float = 30.0) -> None:
+    """Send Q to every visible window titled ``title`` until ``done()``: the window may still be
+    settling (mapped, resized), and an id taken once may already be stale."""
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
         subprocess.run(["xdotool", "search", "--onlyvisible", "--name", title, "key", "--window", "%@", "q"],
                        env=env, capture_output=True, timeout=20)
         time.sleep(0.5)
+
+
+def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
+    """Q in the window ends the renderer with the stop-the-graph status; the launcher stops every
+    node (the renderer is marked respawn, and does not come back) and exits 0."""
+    title = f"facesculpt-quit-{os.getpid()}"
+    proc, log, env = _launch_window_graph(graph, display, tmp_path, title)
+    _press_q_until(env, title, lambda: proc.poll() is not None)
     assert proc.wait(10) == 0, log.read_text()
     text = log.read_text()
     assert "[renderer] asked the graph to stop" in text and text.count("[renderer] running") == 1, text
+
+
+def test_q_with_close_node_stops_only_the_renderer(display, graph, tmp_path):
+    """close: node in the launch file: Q ends the renderer alone, with EXIT_NODE_CLOSED, which the
+    launcher does not respawn (it is marked respawn) nor count as a failure; the camera runs on
+    until the launcher is stopped, and launch then exits 0."""
+    from facesculpt.msgs import Image
+    from facesculpt.runtime.node import Node
+
+    title = f"facesculpt-close-{os.getpid()}"
+    proc, log, env = _launch_window_graph(graph, display, tmp_path, title, close="node")
+    _press_q_until(env, title, lambda: "[renderer] closed by the user" in log.read_text())
+    text = log.read_text()
+    assert "[renderer] closed by the user (its window); not respawning" in text, text
+    assert "stopping the renderer (close=node" in text and "asked the graph to stop" not in text, text
+    # The rest of the graph runs on: the camera still publishes, the renderer stays gone.
+    frames = []
+    watcher = graph.node(Node(name="close_watcher"))
+    watcher.subscribe("camera/image", Image, frames.append)
+    assert graph.spin_until(watcher, lambda: len(frames) >= 5, 20.0), log.read_text()
+    assert proc.poll() is None, log.read_text()
+    assert not subprocess.run(["xdotool", "search", "--onlyvisible", "--name", title], env=env,
+                              capture_output=True).stdout.strip()
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(10) == 0, log.read_text()
+    text = log.read_text()
+    assert text.count("[renderer] running") == 1 and "respawning" not in text.replace("not respawning", ""), text

@@ -27,10 +27,12 @@ SIGINT/SIGTERM every child gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``.
 
 A node that exits with ``EXIT_BAD_PARAMETER`` (2: a parameter out of its range or choices, or a
 resource it names that cannot be used, see facesculpt.runtime.parameters) is not respawned: the
-same values would stop it again. A node that keeps crashing quickly is respawned with a growing
-delay and given up after ``MAX_QUICK_FAILURES`` quick deaths in a row. When a required node ends,
-the graph stops; if it failed, ``launch`` exits non-zero and its last line names the node and
-the last line the node wrote to stderr (its reason).
+same values would stop it again. Nor is one that exits with ``EXIT_NODE_CLOSED`` (4: the user
+closed it, e.g. the renderer's window with ``close: node``); the rest of the graph runs on. A
+node marked ``respawn`` that exits 0 comes back like one that died. A node that keeps crashing
+quickly is respawned with a growing delay and given up after ``MAX_QUICK_FAILURES`` quick deaths
+in a row. When a required node ends, the graph stops; if it failed, ``launch`` exits non-zero
+and its last line names the node and the last line the node wrote to stderr (its reason).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ from pathlib import Path
 import yaml
 
 from facesculpt.runtime.master import master_address, master_alive
-from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER, EXIT_STOP_GRAPH, parse_assignments
+from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER, EXIT_NODE_CLOSED, EXIT_STOP_GRAPH, parse_assignments
 
 STOP_GRACE_S = 2.5
 # A node that ran this long before dying was healthy: its next respawn starts without backoff
@@ -297,10 +299,13 @@ class Launcher:
                 if child.spec.required:
                     self.status(f"[{child.spec.name}] ended ({how}); it is required, so the graph stops")
                     child.state = "done"
-                    if code != 0:
+                    if code not in (0, EXIT_NODE_CLOSED):
                         self._reason(child, how)
                     return False
-                if child.spec.respawn and code == EXIT_BAD_PARAMETER:
+                if code == EXIT_NODE_CLOSED:
+                    child.state = "done"
+                    self.status(f"[{child.spec.name}] closed by the user (its window); not respawning")
+                elif child.spec.respawn and code == EXIT_BAD_PARAMETER:
                     child.state = "done"
                     self.status(f"[{child.spec.name}] ended ({how}): a parameter, or what it names, cannot be used "
                                 f"(its message above); not respawning")
@@ -351,7 +356,7 @@ class Launcher:
         if self.stop_reason:
             time.sleep(0.05)  # let the forwarders write the nodes' last lines first
             self.status(self.stop_reason)
-        failed = [c for c in self.children if c.exit_code not in (None, 0, EXIT_STOP_GRAPH)
+        failed = [c for c in self.children if c.exit_code not in (None, 0, EXIT_STOP_GRAPH, EXIT_NODE_CLOSED)
                   and (not c.spec.respawn or c.exit_code == EXIT_BAD_PARAMETER
                        or c.failures >= MAX_QUICK_FAILURES)]
         return 1 if failed else 0

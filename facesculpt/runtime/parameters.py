@@ -30,6 +30,9 @@ EXIT_BAD_PARAMETER = 2
 # Exit status of a node that ends because the user asked the whole graph to stop (the window's
 # Q, Escape or close button): the launcher stops every node and exits 0, and never respawns it.
 EXIT_STOP_GRAPH = 3
+# Exit status of a node the user closed on its own (the renderer's window with close=node): it
+# ended on purpose, so the launcher neither respawns it nor counts it failed; the rest runs on.
+EXIT_NODE_CLOSED = 4
 
 
 class ParameterError(ValueError):

@@ -9,7 +9,8 @@ output). Writes ``output`` (a video file) when set.
 Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames kept
 for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea"),
 feather_px, dilate_px, output (video path), fps (of the video file), publish, overlay
-(fps, stage times, handles and ROI in the window), title.
+(fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
+the window stops: "graph" | "node").
 """
 
 from __future__ import annotations
@@ -49,9 +50,16 @@ class RendererNode(Node):
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),
-        "overlay": Param(True, "draw fps, stage times, handles and ROI in the window"),
+        "overlay": Param(True, "draw fps, stage times, handles, ROI, pins and the key help in the window"),
         "title": Param("facesculpt", "window title"),
+        "close": Param("graph", "what Q, Escape or the window's close button stop: graph (every node; "
+                                "launch exits 0) or node (this renderer only; the launcher does not respawn it)",
+                       choices=("graph", "node")),
     }
+    NOTICE_S = 3.0                    # how long the window shows a notice (a saved preset), s
+    _notice: tuple[str, float] | None = None   # (text, monotonic time it ends)
+    _saving = ""                      # the preset the window asked for, until the deformer reports it
+    _diagnostics_sub = None           # diagnostics, subscribed to at the first save
 
     def setup(self):
         p = self.params
@@ -183,25 +191,89 @@ class RendererNode(Node):
         self.count("rendered")
 
     def _show(self, out: np.ndarray, handles_px, roi_px) -> None:
-        from .window import draw_overlay
+        from .overlay import draw_overlay
+        from .window import keys_help
 
         now = time.monotonic()
         self._shown_at = [t for t in self._shown_at if now - t < 1.0] + [now]
+        lines = []
         if self.params.overlay:
             t = self.compositor.timings
             lines = [f"{len(self._shown_at)} fps  render {t.get('total', 0.0):.1f} ms",
                      "  ".join(f"{k} {v:.1f}" for k, v in t.items() if k != "total")]
-            out = draw_overlay(out, lines, handles_px, roi_px)
+        if self._notice is not None:
+            if now < self._notice[1]:
+                lines.append(self._notice[0])
+            else:
+                self._notice = None
+        if self.params.overlay:
+            out = draw_overlay(out, lines, handles_px, roi_px, self._pins_px(handles_px),
+                               help_lines=[keys_help(self.params.close)])
+        elif lines:
+            out = draw_overlay(out, lines)
         self.window.show(out)
+
+    def _pins_px(self, handles_px) -> np.ndarray | None:
+        """(S, 2) pixels of the pinned vertices (the deformation's ``static``) on the deformed
+        face this frame drew; None when it drew none (``handles_px`` None: no face, no edit)."""
+        d, px = self.deformation, self.compositor.deformed_px
+        if handles_px is None or d is None or px is None:
+            return None
+        return px[d.static[(d.static >= 0) & (d.static < len(px))]]
+
+    def _notify(self, text: str) -> None:
+        """Show ``text`` in the window for NOTICE_S seconds."""
+        self._notice = (text, time.monotonic() + self.NOTICE_S)
+
+    def _on_save_sent(self, name: str) -> None:
+        """S in the window sent save_preset ``name``: say so, and listen to the deformer's
+        diagnostics for where it wrote it (``last_saved_preset``) or why it could not."""
+        from facesculpt.msgs import Diagnostics
+
+        self._saving = name
+        self._notify(f"saving preset {name}")
+        self.log.info("asked the deformer to save the edits as preset %s (relative to its preset_dir)", name)
+        if self._diagnostics_sub is None:
+            self._diagnostics_sub = self.subscribe("diagnostics", Diagnostics, self._on_diagnostics,
+                                                   qos=EVERY_MESSAGE)
+
+    def _on_diagnostics(self, msg) -> None:
+        """A node's diagnostics: the preset being saved is confirmed by a ``last_saved_preset``
+        with its file name, or reported failed by a ``last_diagnostic`` / ``last_error`` naming it."""
+        if not self._saving:
+            return
+        values = msg.values if isinstance(msg.values, dict) else {}
+        saved = values.get("last_saved_preset")
+        if isinstance(saved, str) and os.path.basename(saved) == os.path.basename(self._saving):
+            self.log.info("%s saved the preset as %s", msg.node, saved)
+            self._notify(f"saved preset {saved}")
+            self._saving = ""
+            return
+        for key in ("last_diagnostic", "last_error"):
+            problem = values.get(key)
+            if isinstance(problem, str) and self._saving in problem:
+                self.log.warning("%s did not save the preset: %s", msg.node, problem)
+                self._notify(f"preset not saved: {problem}")
+                self._saving = ""
+                return
 
     def on_tick(self) -> None:
         if self.window is None:
             return
         for event in self.window.poll():
             self.events_pub.publish(InputEvent(stamp=time.time_ns(), source="window", **event))
+            if event.get("command") == "save_preset":
+                self._on_save_sent(event["argument"])
         if self.window.closed:
-            self.log.info("window closed: stopping the graph")
-            self.stop_graph()
+            if self.params.close == "graph":
+                self.log.info("window closed: stopping the graph")
+                self.stop_graph()
+            else:
+                from facesculpt.runtime.parameters import EXIT_NODE_CLOSED
+
+                self.log.info("window closed: stopping the renderer (close=node; the rest of the graph runs on)")
+                self.exit_code = EXIT_NODE_CLOSED
+                self.shutdown()
 
     def teardown(self) -> None:
         if self.video is not None:

@@ -9,7 +9,10 @@ events come back from :meth:`Window.poll` as plain dicts holding the fields of a
 * right button: ``command`` ``toggle_static`` at the pointer;
 * wheel: ``depth``, +1 mm per notch toward the camera (handle 0);
 * keys: R ``reset``, U or Ctrl+Z ``undo``, S ``save_preset`` (a timestamped JSON);
-  Escape and Q close the window.
+  Escape and Q close the window (the node decides what closing stops: its ``close`` param).
+
+What is drawn over the frame (text, handles, ROI, pins) is ``overlay.py``'s
+:func:`draw_overlay`, applied to the frame before :meth:`Window.show`.
 
 glfw wants its calls on the main thread: create, show and poll from the thread
 that runs the node.
@@ -19,12 +22,20 @@ from __future__ import annotations
 
 import time
 
-import cv2
 import glfw
 import moderngl
 import numpy as np
 
+from .overlay import draw_overlay  # noqa: F401  (the window's overlay; kept importable from here)
+
 WHEEL_MM_PER_NOTCH = 1.0
+
+
+def keys_help(close: str = "graph") -> str:
+    """The window's mouse and keys in one line (groups apart by two spaces, where the overlay
+    wraps it); ``close``: what Q does, "graph" (quit) or "node" (close this window)."""
+    return ("drag: move  right-click: pin  wheel: depth  R reset  U undo  S save  "
+            + ("Q quit" if close == "graph" else "Q close"))
 
 _QUAD_VS = """
 #version 330
@@ -45,23 +56,6 @@ void main() {
     f_color = vec4(texture(u_image, v_uv).bgr, 1.0);  // frames are BGR
 }
 """
-
-
-def draw_overlay(image: np.ndarray, lines=(), points=None, roi=None) -> np.ndarray:
-    """A copy of ``image`` (H, W, 3) uint8 BGR with text lines top-left, handle ``points``
-    ((N, 2) pixels, circles) and ``roi`` points ((M, 2) pixels, dots)."""
-    out = image.copy()
-    if roi is not None and len(roi):
-        for x, y in np.asarray(roi, np.float64):
-            cv2.circle(out, (int(round(x)), int(round(y))), 1, (255, 200, 0), -1, cv2.LINE_AA)
-    if points is not None and len(points):
-        for x, y in np.asarray(points, np.float64):
-            cv2.circle(out, (int(round(x)), int(round(y))), 5, (0, 0, 255), 2, cv2.LINE_AA)
-    for i, text in enumerate(lines):
-        org = (8, 20 + 18 * i)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
-    return out
 
 
 class Window:
