@@ -108,21 +108,32 @@ def test_preset_from_one_identity_moves_same_landmarks_on_another(model, tmp_pat
     assert np.abs(d_a - d_b).max() > 1e-3
 
 
-def test_preset_on_other_topology_uses_names_only(model, tmp_path):
+def test_preset_on_other_topology_places_unnamed_handles_by_landmarks(model, tmp_path):
     s = stack_for(model)
     make_edits(s, FIG6E[:1])
     s.begin([5])  # vertex 5 is not a named landmark
     s.set_offset(5, [1.0, 0.0, 0.0])
     s.solve()
     doc = s.to_preset()
-    assert doc["edits"][1]["handles"][0] == {"vertex": 5, "offset": [1.0, 0.0, 0.0]}
-    # same vertices, triangles listed in another order: a different topology signature
+    handle = doc["edits"][1]["handles"][0]
+    assert handle["vertex"] == 5 and np.allclose(handle["point"], model.mean[5], atol=1e-3)
+    assert set(doc["landmarks"]) >= {"nose_tip", "left_eye_outer", "right_eye_outer"}
+    assert not any(k.isdigit() for k in doc["landmarks"])  # iBUG numbers are no names other models share
+    # same vertices, triangles listed in another order: a different topology signature; the
+    # landmarks are where they were, so the handle lands on vertex 5 again
     other = stack_for(model, triangles=model.triangles[::-1].copy())
-    with pytest.raises(DeformerError, match="different mesh topology"):
-        other.apply_preset(doc)
-    assert other.edits == []  # nothing half-applied
-    doc["edits"] = doc["edits"][:1]
     other.apply_preset(doc)
+    assert sorted(other.edits[1].offsets) == [5]
+    # a preset written before handles carried their position (vertex only) still needs the same topology
+    old = json.loads(json.dumps(doc))
+    del old["edits"][1]["handles"][0]["point"]
+    with pytest.raises(DeformerError, match="different mesh topology"):
+        other.apply_preset(old)
+    assert sorted(other.edits[1].offsets) == [5]  # nothing half-applied
+    s.apply_preset(old)  # on its own topology the vertex index is exact
+    assert sorted(s.edits[1].offsets) == [5]
+    old["edits"] = old["edits"][:1]
+    other.apply_preset(old)
     assert np.allclose(other.solve()[other.landmark_vertex("nose_tip")], FIG6E[0]["nose_tip"])
 
 
@@ -256,3 +267,116 @@ def test_preset_from_one_video_applies_to_another(model, data_dir, models_dir, t
     u = project(merged[[nose]].astype(np.float64), None, fit_b.projection)[0]
     hit = pick_vertex(u[0], u[1], fit_b.K, merged, model.triangles, fit_b.projection)
     assert hit is not None and np.linalg.norm(person_b[hit.vertex] + disp[hit.vertex] - person_b[nose] - disp[nose]) < 6.0
+
+
+def test_strength_scales_offsets_from_argument_and_preset_field(model):
+    from facesculpt.nodes.deformer.preset_format import scale_preset
+
+    s = stack_for(model)
+    make_edits(s, FIG6E[:2])
+    doc = s.to_preset()
+    nose, chin = s.landmark_vertex("nose_tip"), s.landmark_vertex("chin")
+    half = scale_preset(doc, 0.5)
+    assert half["edits"][0]["handles"][0]["offset"] == [0.0, -1.5, 6.0]
+    assert doc["edits"][0]["handles"][0]["offset"] == [0.0, -3.0, 12.0]  # the original is untouched
+    doc["strength"] = 2.0  # the preset's own strength multiplies the argument's
+    t = stack_for(model)
+    t.apply_preset(doc, strength=1.5)
+    d = t.solve()
+    assert np.allclose(d[nose], 3.0 * np.array(FIG6E[0]["nose_tip"]), atol=1e-9)
+    assert np.allclose(d[chin], 3.0 * np.array(FIG6E[1]["chin"]), atol=1e-9)
+    assert t.edits[0].roi_radius == s.edits[0].roi_radius  # strength scales offsets, not the ROI
+    assert "strength" not in t.to_preset()  # saved offsets hold it
+    fresh = stack_for(model)
+    fresh.apply_preset(doc, strength=0.0)
+    assert np.abs(fresh.solve()).max() < 1e-6  # strength 0: the handles stay, nothing moves
+
+
+@pytest.mark.parametrize("where, value", [("argument", 3.5), ("argument", -0.1), ("argument", float("nan")),
+                                          ("field", 4), ("field", "strong"), ("field", True)])
+def test_strength_outside_0_to_3_is_one_sentence_naming_it(model, where, value):
+    from facesculpt.nodes.deformer.preset_format import scale_preset
+
+    s = stack_for(model)
+    make_edits(s, FIG6E[:1])
+    doc = s.to_preset()
+    before = s.to_preset()
+    kwargs = {"strength": value} if where == "argument" else {}
+    if where == "field":
+        doc["strength"] = value
+    for call in (lambda: scale_preset(doc, **kwargs), lambda: s.apply_preset(doc, **kwargs)):
+        with pytest.raises(DeformerError) as err:
+            call()
+        message = str(err.value)
+        assert repr(value) in message and "outside 0..3" in message and message.count(".") <= 3, message
+    assert s.to_preset() == before
+
+
+def test_presets_written_before_portable_handles_still_load(model):
+    """The version-1 files older builds wrote: numeric names and vertex-only handles."""
+    s = stack_for(model)
+    nose, other = s.landmark_vertex("nose_tip"), 5
+    old = {"format": "facesculpt-deformer-preset", "version": 1, "units": "mm",
+           "topology": {"vertices": s.n, "triangles": int(model.triangles.shape[0]), "crc32": 0},
+           "static": [{"vertex": 7}],
+           "edits": [{"handles": [{"landmark": "nose_tip", "aliases": ["31"], "vertex": nose, "offset": [0, 0, 4]}],
+                      "roi": {"radius": 40.0, "metric": "geodesic"}},
+                     {"handles": [{"vertex": other, "offset": [1, 0, 0]}], "roi": {"radius": 30.0, "metric": "geodesic"}}]}
+    from facesculpt.nodes.deformer.edits import topology_signature
+
+    old["topology"] = topology_signature(s.n, model.triangles)
+    s.apply_preset(old)
+    d = s.solve()
+    assert np.allclose(d[nose], [0, 0, 4]) and np.allclose(d[other], [1, 0, 0]) and s.static == {7}
+    # an iBUG number of one model is no name on another: a numeric name from another mesh is not
+    # taken at its word ("31" here would be the nose on the SFM but vertex 31 of the face mesh)
+    elsewhere = json.loads(json.dumps(old))
+    elsewhere["topology"]["crc32"] += 1
+    elsewhere["edits"] = [{"handles": [{"landmark": "31", "vertex": 31, "offset": [0, 0, 1]}]}]
+    elsewhere["static"] = []
+    with pytest.raises(DeformerError, match="different mesh topology"):
+        s.apply_preset(elsewhere)
+    del elsewhere["topology"]  # a hand-written preset (no topology) means the names it uses
+    s.apply_preset(elsewhere)
+    assert list(s.edits[0].offsets) == [s.landmark_vertex("31")]
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d["edits"][0]["handles"][0].update(offset=[0, 1]), "not 3 finite numbers"),
+        (lambda d: d["edits"][0]["handles"][0].update(point=[0, "x", 1]), "not 3 finite numbers"),
+        (lambda d: d["edits"][0].update(handles=[]), "has no handles"),
+        (lambda d: d["edits"][0]["handles"][0].pop("offset"), "no 'offset'"),
+        (lambda d: d.update(edits={"a": 1}), "'edits' is not a list"),
+        (lambda d: d.update(landmarks={"nose_tip": [0, 0]}), "not 3 finite numbers"),
+        (lambda d: d["edits"][0]["roi"].update(metric="manhattan"), "metric"),
+        (lambda d: d.update(version=2), "version"),
+    ],
+)
+def test_validate_preset_without_a_model(model, mutate, message):
+    from facesculpt.nodes.deformer.preset_format import validate_preset
+
+    s = stack_for(model)
+    s.begin([5])
+    s.set_offset(5, [1.0, 0.0, 0.0])
+    doc = s.to_preset()
+    validate_preset(doc)
+    mutate(doc)
+    with pytest.raises(DeformerError, match=message):
+        validate_preset(doc)
+
+
+def test_find_and_read_preset_files(tmp_path):
+    from facesculpt.nodes.deformer.preset_format import find_preset, read_preset_file
+
+    shipped = find_preset("chin")
+    assert shipped.name == "chin.json" and read_preset_file(shipped)["edits"]
+    own = tmp_path / "chin.json"  # a file in preset_dir wins over the shipped preset
+    own.write_text(shipped.read_text())
+    assert find_preset("chin.json", tmp_path) == own
+    with pytest.raises(DeformerError, match="not found .*shipped: cheeks, chin, nose_longer.*no file"):
+        find_preset("no_such", tmp_path)
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(DeformerError, match="list.json: not a facesculpt-deformer-preset"):
+        read_preset_file(tmp_path / "list.json")

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from facesculpt.geometry import merge_deformation, project
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
 from facesculpt.nodes.deformer.node import DeformerNode
+from facesculpt.nodes.deformer.preset_format import find_preset
 
 K = np.array([[900.0, 0.0, 320.0], [0.0, 900.0, 240.0], [0.0, 0.0, 1.0]])
 
@@ -289,3 +290,96 @@ def test_real_process_receives_every_event_and_publishes(graph, sfm):
         client.close()
         proc.terminate()
         assert proc.wait(10) == 0
+
+
+def make_node(monkeypatch, tmp_path, **params):
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    n = DeformerNode(params={"preset_dir": str(tmp_path), **params})
+    n.setup()
+    n.running = True
+    return n
+
+
+def test_preset_param_applies_on_the_first_model_and_follows_model_changes(monkeypatch, tmp_path, sfm):
+    """`deformer.preset=chin strength=2`: the chin edit (offsets doubled) is published as soon
+    as a face/model arrives, stays through a refined neutral, and a user's change to it is kept."""
+    n = make_node(monkeypatch, tmp_path, preset="chin", strength=2.0)
+    try:
+        chin = sfm.landmark_index()["chin"]
+        offset = 2.0 * np.array(json.loads(find_preset("chin").read_text())["edits"][0]["handles"][0]["offset"])
+        n.on_round()
+        assert n.last is None  # nothing before a model
+        n.on_model(face_model(sfm))
+        n.on_round()
+        assert np.allclose(n.last.displacement[chin], offset, atol=1e-4) and list(n.last.handles) == [chin]
+        assert n.diagnostics()["counters"]["preset_loaded"] == 1
+        # a refined neutral of the same mesh (the fitter learning the person): the preset again
+        refined = face_model(sfm, version=2)
+        refined.vertices = sfm.instance(np.linspace(-1, 1, sfm.num_shape)).astype(np.float32)
+        n.on_model(refined)
+        n.on_round()
+        assert np.allclose(n.last.displacement[chin], offset, atol=1e-4) and list(n.last.handles) == [chin]
+        # the user moves the chin: a later neutral carries the user's edit, not the preset's
+        n.on_event(ev("move", landmark="chin", vector=np.array([0.0, 1.0, 0.0], np.float32)))
+        n.on_round()
+        n.on_model(face_model(sfm, version=3))
+        n.on_round()
+        assert np.allclose(n.last.displacement[chin], offset + [0, 1, 0], atol=1e-4)
+        assert n.errors == 0 and "preset_rejected" not in n.counters
+    finally:
+        n.close()
+
+
+def test_a_missing_or_malformed_preset_param_stops_the_node_at_start(monkeypatch, tmp_path, graph):
+    from facesculpt.runtime.parameters import ConfigurationError
+
+    (tmp_path / "broken.json").write_text("{not json")
+    doc = json.loads(find_preset("nose_longer").read_text())
+    doc["strength"] = 4
+    (tmp_path / "too_strong.json").write_text(json.dumps(doc))
+    for value, message in [("no_such_preset", "'no_such_preset' not found .*shipped: cheeks, chin, nose_longer"),
+                           ("broken.json", "cannot read preset .*broken.json"),
+                           ("too_strong.json", "preset strength 4 is outside 0..3")]:
+        monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+        n = DeformerNode(params={"preset_dir": str(tmp_path), "preset": value})
+        try:
+            with pytest.raises(ConfigurationError, match=message):
+                n.setup()
+        finally:
+            n.close()
+    # as a process: exit status 2 (not respawned by a launcher) and one line naming the preset
+    r = graph.run("run", "deformer", f"preset_dir={tmp_path}", "preset=broken.json", timeout=60)
+    assert r.returncode == 2, r.stderr
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "broken.json" in lines[0] and "Traceback" not in r.stderr, r.stderr
+
+
+def test_save_preset_logs_its_absolute_path_and_strength_scales_loads(monkeypatch, tmp_path, sfm, caplog):
+    import logging
+
+    n = make_node(monkeypatch, tmp_path)
+    weak = make_node(monkeypatch, tmp_path, strength=0.5)
+    try:
+        nose = sfm.landmark_index()["nose_tip"]
+        n.on_model(face_model(sfm))
+        n.on_event(ev("move", landmark="nose_tip", vector=np.array([0.0, -2.0, 8.0], np.float32)))
+        with caplog.at_level(logging.INFO, logger="facesculpt"):
+            n.on_event(ev("command", command="save_preset", argument="mine.json"))
+            n.on_round()
+        path = (tmp_path / "mine.json").resolve()
+        assert path.is_file()
+        assert f"saved the edits as preset {path}" in [r.getMessage() for r in caplog.records]
+        assert n.diagnostics()["last_saved_preset"] == str(path)
+        weak.on_model(face_model(sfm))
+        weak.on_event(ev("command", command="load_preset", argument="mine.json"))
+        weak.on_event(ev("command", command="load_preset", argument="nose_longer"))  # a shipped name
+        weak.on_round()
+        shipped = json.loads(find_preset("nose_longer").read_text())["edits"][0]["handles"][0]["offset"]
+        assert np.allclose(weak.last.displacement[nose], 0.5 * np.array(shipped), atol=1e-4)
+        weak.on_event(ev("command", command="load_preset", argument=str(path)))
+        weak.on_round()
+        assert np.allclose(weak.last.displacement[nose], [0.0, -1.0, 4.0], atol=1e-4)
+        assert weak.diagnostics()["last_saved_preset"] == ""
+    finally:
+        n.close()
+        weak.close()

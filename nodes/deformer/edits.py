@@ -7,10 +7,12 @@ explicit vertices). All edits are solved together: every edit's handles stay whe
 edit put them (a later edit of the same vertex wins), the ROIs are united, and whatever no
 ROI covers stays fixed. The result is the displacement ``M_m - M_bar`` (V, 3) in mm.
 
-Presets name handles by the model's landmark names where a handle is a landmark vertex
-(and by vertex index otherwise, valid only on the same topology), and store offsets and ROI
-radii, so a preset made on one person applies to another person and to any model that has
-the same landmark names.
+Presets (:mod:`.preset_format`) name handles by the model's landmark names where a handle is
+a landmark vertex; any other handle is stored with its vertex index (exact on the same
+topology) and its rest position, which the preset's copy of the neutral's named landmarks
+carries onto another person or another model (:mod:`.landmark_warp`). They store offsets and
+ROI radii (mm), so a preset made on one person applies to another person and to any model
+that names the same landmarks.
 """
 
 from __future__ import annotations
@@ -25,9 +27,10 @@ import numpy as np
 from .anchors import METRICS, edge_length_graph, roi_within_radius
 from .arap import ArapDeformer
 from .errors import DeformerError
+from .landmark_warp import face_size, landmark_positions, nearest_vertices, warp_points
+from .preset_format import PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
 
-PRESET_FORMAT = "facesculpt-deformer-preset"
-PRESET_VERSION = 1
+__all__ = ["PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
 
 
 @dataclass
@@ -248,101 +251,120 @@ class EditStack:
 
     # -- presets -----------------------------------------------------------------------
 
-    def to_preset(self) -> dict:
-        """JSON-ready dict of the edits and pins; handles named by landmark where possible."""
-
-        def ref(v: int) -> dict:
-            names = self._names_of.get(v)
-            if not names:
-                return {"vertex": v}
+    def _ref(self, v: int) -> dict:
+        """A handle or pin as a preset names it: by landmark name where the vertex has a
+        descriptive one, else by its rest position (carried to other meshes through the
+        landmarks); always with the vertex index (exact on the same topology)."""
+        names = [k for k in self._names_of.get(v, []) if not k.isdigit()]
+        if names:
             out = {"landmark": names[0], "vertex": v}
             if len(names) > 1:
                 out["aliases"] = names[1:]
             return out
+        return {"vertex": v, "point": [round(float(x), 4) for x in self.rest[v]]}
 
+    def to_preset(self) -> dict:
+        """JSON-ready dict of the edits and pins (:mod:`.preset_format`): handles named by
+        landmark where possible, else placed relative to the neutral's named landmarks, which
+        the preset carries."""
         edits = []
         for e in self.edits:
             item = {
-                "handles": [dict(ref(v), offset=[float(x) for x in off]) for v, off in e.offsets.items()],
+                "handles": [dict(self._ref(v), offset=[float(x) for x in off]) for v, off in e.offsets.items()],
                 "roi": {"radius": e.roi_radius, "metric": e.roi_metric},
             }
             if e.roi is not None:
                 item["roi"]["vertices"] = [int(r) for r in e.roi]
             edits.append(item)
+        marks = landmark_positions(self.rest, self.landmarks)
         return {
             "format": PRESET_FORMAT,
             "version": PRESET_VERSION,
             "units": "mm",
             "topology": topology_signature(self.n, self.triangles),
-            "static": [ref(v) for v in sorted(self.static)],
+            "landmarks": {k: [round(float(x), 4) for x in p] for k, p in sorted(marks.items())},
+            "static": [self._ref(v) for v in sorted(self.static)],
             "edits": edits,
         }
 
-    def save_preset(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_preset(), indent=1))
+    def save_preset(self, path: str | Path) -> Path:
+        """Write :meth:`to_preset` as JSON; returns the absolute path written (OSError when it
+        cannot be written)."""
+        path = Path(path).expanduser().resolve()
+        path.write_text(json.dumps(self.to_preset(), indent=1))
+        return path
 
-    def _resolve(self, ref: dict, same_topology: bool) -> int:
-        if not isinstance(ref, dict):
-            raise DeformerError(f"preset handle must be an object, got {ref!r}")
-        name = ref.get("landmark")
-        if name is not None:
-            for alias in [name, *ref.get("aliases", [])]:
-                if str(alias) in self.landmarks:
-                    return self.landmarks[str(alias)]
-            return self.landmark_vertex(str(name))  # raises, naming the landmark
-        if "vertex" not in ref:
-            raise DeformerError(f"preset handle {ref!r} names neither a landmark nor a vertex")
-        if not same_topology:
+    def _resolver(self, preset: dict, same_topology: bool):
+        """A function handle/pin dict -> vertex of this mesh for one preset (DeformerError when
+        it cannot be placed)."""
+        marks = {k: np.asarray(p, np.float64) for k, p in preset.get("landmarks", {}).items()}
+        mine = landmark_positions(self.rest, self.landmarks)
+
+        # numeric names are model-specific (mesh indices, iBUG numbers): from a preset made on
+        # another mesh they would name other points here
+        other_mesh = "topology" in preset and not same_topology
+
+        def resolve(ref: dict) -> int:
+            name = ref.get("landmark")
+            if name is not None and not (other_mesh and name.isdigit()):
+                for alias in [name, *ref.get("aliases", [])]:
+                    if alias in self.landmarks and not (other_mesh and alias.isdigit()):
+                        return self.landmarks[alias]
+                return self.landmark_vertex(name)  # raises, naming the landmark
+            if same_topology and "vertex" in ref:
+                return self._vertex(ref["vertex"])
+            if "point" in ref and marks:
+                point = warp_points(np.asarray(ref["point"], np.float64), marks, mine)
+                return int(nearest_vertices(self.rest, point)[0])
+            if "point" in ref:
+                raise DeformerError("a preset handle placed by its position needs the preset's 'landmarks'")
             raise DeformerError(
-                f"preset handle at vertex {ref['vertex']} is not a named landmark and the preset was made on a "
+                f"preset handle at vertex {ref.get('vertex')} is not a named landmark and the preset was made on a "
                 "different mesh topology"
             )
-        v = ref["vertex"]
-        if not isinstance(v, int):
-            raise DeformerError(f"preset vertex must be an integer, got {v!r}")
-        return self._vertex(v)
 
-    def apply_preset(self, preset: dict) -> None:
-        """Replace the edits by those of a preset dict (see :meth:`to_preset`). Nothing changes
-        when the preset is malformed or names a landmark this model lacks (DeformerError)."""
-        if not isinstance(preset, dict) or preset.get("format") != PRESET_FORMAT:
-            raise DeformerError(f"not a {PRESET_FORMAT} document")
-        if preset.get("version") != PRESET_VERSION:
-            raise DeformerError(f"preset version {preset.get('version')!r} is not {PRESET_VERSION}")
+        return resolve
+
+    def _unit_scale(self, preset: dict, same_topology: bool) -> float:
+        """Factor from the preset's mm to this mesh's: the ratio of the face sizes when the preset
+        was made on another topology (another model, maybe in other units) and says its face
+        size; else 1."""
+        if same_topology:
+            return 1.0
+        theirs = face_size({k: np.asarray(p, np.float64) for k, p in preset.get("landmarks", {}).items()})
+        ours = face_size(landmark_positions(self.rest, self.landmarks))
+        return 1.0 if theirs is None or ours is None else ours / theirs
+
+    def apply_preset(self, preset: dict, strength: float = 1.0) -> None:
+        """Replace the edits and pins by those of a preset dict (:mod:`.preset_format`), its
+        offsets multiplied by ``strength`` and its own ``"strength"`` (each 0..3). Nothing
+        changes when the preset is malformed or names a landmark this model lacks
+        (DeformerError). On another topology, offsets and ROI radii scale with the face size."""
+        preset = scale_preset(preset, strength)  # validates
         same = preset.get("topology") == topology_signature(self.n, self.triangles)
-        try:
-            static = {self._resolve(r, same) for r in preset.get("static", [])}
-            edits = []
-            for item in preset["edits"]:
-                offsets = {}
-                for h in item["handles"]:
-                    off = np.asarray(h["offset"], dtype=np.float64)
-                    if off.shape != (3,) or not np.all(np.isfinite(off)):
-                        raise DeformerError(f"preset offset {h['offset']!r} is not 3 finite numbers")
-                    offsets[self._resolve(h, same)] = off
-                if not offsets:
-                    raise DeformerError("a preset edit has no handles")
-                roi = item.get("roi", {})
-                radius, metric = float(roi.get("radius", self.roi_radius)), roi.get("metric", self.roi_metric)
-                self._check_roi(radius, metric)
-                explicit = None
-                if "vertices" in roi:
-                    if not same:
-                        explicit = None  # explicit ROI vertices only mean something on the same topology
-                    else:
-                        explicit = np.unique(np.array([self._vertex(int(r)) for r in roi["vertices"]], dtype=np.int64))
-                edits.append(Edit(offsets, radius, metric, explicit))
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, DeformerError):
-                raise
-            raise DeformerError(f"malformed preset: {exc!r}") from exc
+        resolve = self._resolver(preset, same)
+        unit = self._unit_scale(preset, same)
+        static = {resolve(r) for r in preset.get("static", [])}
+        edits = []
+        for item in preset["edits"]:
+            offsets = {resolve(h): unit * np.asarray(h["offset"], dtype=np.float64) for h in item["handles"]}
+            roi = item.get("roi", {})
+            radius = unit * float(roi["radius"]) if "radius" in roi else self.roi_radius
+            metric = roi.get("metric", self.roi_metric)
+            self._check_roi(radius, metric)
+            explicit = None
+            if "vertices" in roi and same:  # explicit ROI vertices only mean something on the same topology
+                try:
+                    explicit = np.unique(np.array([self._vertex(int(r)) for r in roi["vertices"]], dtype=np.int64))
+                except (TypeError, ValueError) as exc:
+                    if isinstance(exc, DeformerError):
+                        raise
+                    raise DeformerError(f"malformed preset: ROI vertices {exc}") from None
+            edits.append(Edit(offsets, radius, metric, explicit))
         self.edits = edits
         self.static = static
 
-    def load_preset(self, path: str | Path) -> None:
-        """Read a preset file and apply it (DeformerError when unreadable or malformed)."""
-        try:
-            preset = json.loads(Path(path).read_text())
-        except (OSError, ValueError) as exc:
-            raise DeformerError(f"cannot read preset {path}: {exc}") from exc
-        self.apply_preset(preset)
+    def load_preset(self, path: str | Path, strength: float = 1.0) -> None:
+        """Read a preset file and apply it with ``strength`` (DeformerError when unreadable or
+        malformed)."""
+        self.apply_preset(read_preset_file(path), strength)

@@ -5,12 +5,14 @@ Events are queued on arrival and applied in rounds (every ``round_s``): the pape
 event queue each round, so any number of drags of a handle become one ARAP solve. Rounds run
 on the node's own thread, independent of the frame rate. Bad input (a miss, an unknown
 landmark, NaN, a preset that does not fit) is counted in diagnostics and the last good
-deformation stays.
+deformation stays. The ``preset`` param is checked at start (a missing or malformed file stops
+the node with one sentence) and applied as soon as the first ``face/model`` arrives.
 """
 
 from __future__ import annotations
 
 import copy
+import json
 import time
 from pathlib import Path
 
@@ -19,15 +21,15 @@ import numpy as np
 from facesculpt.geometry import axes_velocity, merge_deformation, project
 from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
-from facesculpt.paths import preset_file
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import Param
+from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVENTS, LATCHED
 
 from .dragging import depth_delta, drag_delta
 from .edits import EditStack
 from .errors import DeformerError
 from .picking import pick_vertex
+from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_preset
 
 MAX_PENDING_WITHOUT_MODEL = 10000
 MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
@@ -51,6 +53,10 @@ class DeformerNode(Node):
         "joystick_deadzone": Param(DEADZONE, "axes events: fraction of full deflection read as 0",
                                    range=DEADZONE_RANGE),
         "preset_dir": Param("", "where relative preset paths live (\"\": the current directory)"),
+        "preset": Param("", "a preset applied when the first face/model arrives: a JSON file (relative to "
+                            "preset_dir) or a shipped name (nose_longer, chin, cheeks); \"\": none"),
+        "strength": Param(1.0, "multiplier of the offsets of every preset loaded (the preset param and "
+                               "load_preset commands); 1: as saved", range=STRENGTH_RANGE),
     }
 
     def setup(self):
@@ -73,6 +79,17 @@ class DeformerNode(Node):
         self.stamp = 0
         self.last: Deformation | None = None  # last published (the last good deformation)
         self.last_diagnostic = ""
+        self.last_saved_preset = ""  # absolute path of the last preset written
+        # the last preset loaded (offsets scaled) and the edits it made: while the edits are still
+        # those, a new neutral gets the preset again (its handles placed anew on that mesh)
+        self.loaded: tuple[dict, str] | None = None
+        self.initial_preset: dict | None = None
+        if self.params.preset:
+            try:
+                path = find_preset(self.params.preset, self.params.preset_dir)
+                self.initial_preset = scale_preset(read_preset_file(path), self.params.strength)
+            except DeformerError as exc:
+                raise ConfigurationError(f"deformer: preset={self.params.preset!r}: {exc}") from None
 
     # -- inputs --------------------------------------------------------------------------
 
@@ -95,12 +112,7 @@ class DeformerNode(Node):
         except DeformerError as exc:
             self._bad("bad_model", exc)
             return
-        if self.stack is not None and self.stack.edits:
-            # carry the edits over: by landmark name, or by vertex on the same topology
-            try:
-                stack.apply_preset(self.stack.to_preset())
-            except DeformerError as exc:
-                self._bad("edits_dropped_on_model_change", exc)
+        self._carry_edits(stack)
         same_topology = (self.model is not None and self.model.vertices.shape == msg.vertices.shape
                          and np.array_equal(self.model.triangles, msg.triangles))
         if same_topology and self.stack is not None and self.stack.edits:
@@ -114,6 +126,31 @@ class DeformerNode(Node):
             self.pointers.clear()
             self.selected = None
         self.dirty = True
+
+    def _carry_edits(self, stack: EditStack) -> None:
+        """Put the edits on the new model's stack: the ``preset`` param on the first model; the
+        last loaded preset again while the edits are still its own (its handles placed anew on
+        this mesh); else the current edits (by landmark name, by vertex on the same topology, by
+        position relative to the landmarks on another)."""
+        first = self.initial_preset is not None
+        if first:
+            doc, self.initial_preset = self.initial_preset, None
+        elif self.stack is None or not (self.stack.edits or self.stack.static):
+            return
+        elif self.loaded is not None and self.loaded[1] == _fingerprint(self.stack):
+            doc = self.loaded[0]
+        else:
+            doc, self.loaded = self.stack.to_preset(), None
+        try:
+            stack.apply_preset(doc)
+        except DeformerError as exc:
+            self._bad("preset_rejected" if first else "edits_dropped_on_model_change", exc)
+            return
+        if first or self.loaded is not None:
+            self.loaded = (doc, _fingerprint(stack))
+        if first:
+            self.count("preset_loaded")
+            self.log.info("applied preset %s", self.params.preset)
 
     def on_state(self, msg: FaceState):
         self.state = msg
@@ -187,6 +224,7 @@ class DeformerNode(Node):
     def diagnostics(self) -> dict:
         values = super().diagnostics()
         values["last_diagnostic"] = self.last_diagnostic
+        values["last_saved_preset"] = self.last_saved_preset
         return values
 
     # -- one event -----------------------------------------------------------------------
@@ -314,7 +352,7 @@ class DeformerNode(Node):
         if not argument:
             raise DeformerError("preset command needs a path argument")
         p = Path(argument).expanduser()
-        return p if p.is_absolute() or not self.params.preset_dir else Path(self.params.preset_dir) / p
+        return p if p.is_absolute() or not self.params.preset_dir else Path(self.params.preset_dir).expanduser() / p
 
     def _command(self, ev: InputEvent):
         cmd = ev.command
@@ -331,19 +369,20 @@ class DeformerNode(Node):
         elif cmd == "save_preset":
             path = self._preset_path(ev.argument)
             try:
-                self.stack.save_preset(path)
+                path = self.stack.save_preset(path)
             except OSError as exc:
                 raise DeformerError(f"cannot write preset {path}: {exc}") from exc
+            self.last_saved_preset = str(path)
+            self.log.info("saved the edits as preset %s", path)
             self.count("preset_saved")
             return
         elif cmd == "load_preset":
-            path = self._preset_path(ev.argument)
-            if not path.is_file():
-                try:
-                    path = preset_file(ev.argument)  # the name of a shipped preset, e.g. "nose_longer"
-                except FileNotFoundError:
-                    pass  # load_preset names the missing path
-            self.stack.load_preset(path)
+            if not ev.argument:
+                raise DeformerError("preset command needs a path argument")
+            # a file (relative to preset_dir) or the name of a shipped preset, e.g. "nose_longer"
+            doc = scale_preset(read_preset_file(find_preset(ev.argument, self.params.preset_dir)), self.params.strength)
+            self.stack.apply_preset(doc)
+            self.loaded = (doc, _fingerprint(self.stack))
             self.pointers.clear()
             self.selected = None
             self.count("preset_loaded")
@@ -367,3 +406,9 @@ class DeformerNode(Node):
             self.count("ignored_command")
             return
         self.dirty = True
+
+
+def _fingerprint(stack: EditStack) -> str:
+    """The edits and pins of a stack as text, to tell whether they changed since a preset was loaded."""
+    doc = stack.to_preset()
+    return json.dumps([doc["edits"], doc["static"]])
