@@ -326,7 +326,7 @@ def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tm
     feeder.publish_pins(pins)
     found = []
     assert graph.spin_until(feeder, lambda: found.append(_visible_window(display, title)) or found[-1], 40.0), \
-        "the renderer's window did not open"
+        f"the renderer's window did not open: {log.read_text()}"
     wid = found[-1]
     shots = []
 
