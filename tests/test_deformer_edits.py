@@ -380,3 +380,38 @@ def test_find_and_read_preset_files(tmp_path):
     (tmp_path / "list.json").write_text("[1, 2]")
     with pytest.raises(DeformerError, match="list.json: not a facesculpt-deformer-preset"):
         read_preset_file(tmp_path / "list.json")
+
+
+def test_merge_presets_keeps_each_presets_strength_and_origin(model):
+    """Presets stacked for one run (nose, then a point saved on another mesh in other units,
+    then the shipped chin): each keeps its own strength, and its handles are placed through
+    the landmarks of the mesh it was made on."""
+    from facesculpt.nodes.deformer.preset_format import find_preset, merge_presets, read_preset_file
+
+    s = stack_for(model)
+    make_edits(s, FIG6E[:1])
+    s.begin([5])
+    s.set_offset(5, [2.0, 0.0, 0.0])
+    here = s.to_preset()
+    here["strength"] = 2.0
+    there = json.loads(json.dumps(here))  # as if saved on another mesh, in units 20 times smaller than mm
+    there["topology"]["crc32"] += 1
+    there["landmarks"] = {k: [20.0 * x for x in p] for k, p in there["landmarks"].items()}
+    for edit in there["edits"]:
+        for h in edit["handles"]:
+            if "point" in h:
+                h["point"] = [20.0 * x for x in h["point"]]
+    there["strength"] = 0.5
+    chin = read_preset_file(find_preset("chin"))
+    merged = merge_presets([here, there, chin], strength=1.5)
+    assert "landmarks" not in merged and len(merged["edits"]) == 5
+    t = stack_for(model)
+    t.apply_preset(merged)
+    nose, chin_v = t.landmark_vertex("nose_tip"), t.landmark_vertex("chin")
+    assert [sorted(e.offsets) for e in t.edits] == [[nose], [5], [nose], [5], [chin_v]]
+    assert np.allclose(t.edits[1].offsets[5], [3.0 * 2.0, 0, 0])  # strength 2 x 1.5, same mesh: exact
+    assert np.allclose(t.edits[3].offsets[5], [0.75 * 2.0 / 20.0, 0, 0])  # 0.5 x 1.5, in this mesh's mm
+    assert np.isclose(t.edits[3].roi_radius, here["edits"][1]["roi"]["radius"] / 20.0)
+    assert np.allclose(t.edits[4].offsets[chin_v], 1.5 * np.array(chin["edits"][0]["handles"][0]["offset"]))
+    with pytest.raises(DeformerError, match="no preset"):
+        merge_presets([])

@@ -28,7 +28,7 @@ from .anchors import METRICS, edge_length_graph, roi_within_radius
 from .arap import ArapDeformer
 from .errors import DeformerError
 from .landmark_warp import face_size, landmark_positions, nearest_vertices, warp_points
-from .preset_format import PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
+from .preset_format import ORIGIN_KEYS, PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
 
 __all__ = ["PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
 
@@ -294,15 +294,21 @@ class EditStack:
         path.write_text(json.dumps(self.to_preset(), indent=1))
         return path
 
-    def _resolver(self, preset: dict, same_topology: bool):
-        """A function handle/pin dict -> vertex of this mesh for one preset (DeformerError when
-        it cannot be placed)."""
-        marks = {k: np.asarray(p, np.float64) for k, p in preset.get("landmarks", {}).items()}
-        mine = landmark_positions(self.rest, self.landmarks)
+    def _placement(self, origin: dict):
+        """(same topology?, handle/pin dict -> vertex of this mesh, unit factor) for presets made
+        on the mesh ``origin`` describes (its optional ``topology`` and ``landmarks``).
 
+        The unit factor takes the preset's mm to this mesh's: the ratio of the face sizes when
+        the preset was made on another topology (another model, maybe in other units) and
+        carries its landmarks; else 1."""
+        same = origin.get("topology") == topology_signature(self.n, self.triangles)
+        marks = {k: np.asarray(p, np.float64) for k, p in origin.get("landmarks", {}).items()}
+        mine = landmark_positions(self.rest, self.landmarks)
+        theirs, ours = face_size(marks), face_size(mine)
+        unit = 1.0 if same or theirs is None or ours is None else ours / theirs
         # numeric names are model-specific (mesh indices, iBUG numbers): from a preset made on
         # another mesh they would name other points here
-        other_mesh = "topology" in preset and not same_topology
+        other_mesh = "topology" in origin and not same
 
         def resolve(ref: dict) -> int:
             name = ref.get("landmark")
@@ -311,7 +317,7 @@ class EditStack:
                     if alias in self.landmarks and not (other_mesh and alias.isdigit()):
                         return self.landmarks[alias]
                 return self.landmark_vertex(name)  # raises, naming the landmark
-            if same_topology and "vertex" in ref:
+            if same and "vertex" in ref:
                 return self._vertex(ref["vertex"])
             if "point" in ref and marks:
                 point = warp_points(np.asarray(ref["point"], np.float64), marks, mine)
@@ -323,30 +329,30 @@ class EditStack:
                 "different mesh topology"
             )
 
-        return resolve
-
-    def _unit_scale(self, preset: dict, same_topology: bool) -> float:
-        """Factor from the preset's mm to this mesh's: the ratio of the face sizes when the preset
-        was made on another topology (another model, maybe in other units) and says its face
-        size; else 1."""
-        if same_topology:
-            return 1.0
-        theirs = face_size({k: np.asarray(p, np.float64) for k, p in preset.get("landmarks", {}).items()})
-        ours = face_size(landmark_positions(self.rest, self.landmarks))
-        return 1.0 if theirs is None or ours is None else ours / theirs
+        return same, resolve, unit
 
     def apply_preset(self, preset: dict, strength: float = 1.0) -> None:
         """Replace the edits and pins by those of a preset dict (:mod:`.preset_format`), its
         offsets multiplied by ``strength`` and its own ``"strength"`` (each 0..3). Nothing
         changes when the preset is malformed or names a landmark this model lacks
-        (DeformerError). On another topology, offsets and ROI radii scale with the face size."""
+        (DeformerError). On another topology, offsets and ROI radii scale with the face size.
+        An edit or pin with its own ``topology``/``landmarks`` (:func:`merge_presets` of presets
+        made on different meshes) is placed by those."""
         preset = scale_preset(preset, strength)  # validates
-        same = preset.get("topology") == topology_signature(self.n, self.triangles)
-        resolve = self._resolver(preset, same)
-        unit = self._unit_scale(preset, same)
-        static = {resolve(r) for r in preset.get("static", [])}
+        placements: dict[str, tuple] = {}
+
+        def placement(item: dict) -> tuple:
+            source = item if any(k in item for k in ORIGIN_KEYS) else preset
+            origin = {k: source[k] for k in ORIGIN_KEYS if k in source}
+            key = json.dumps(origin, sort_keys=True)
+            if key not in placements:
+                placements[key] = self._placement(origin)
+            return placements[key]
+
+        static = {placement(r)[1](r) for r in preset.get("static", [])}
         edits = []
         for item in preset["edits"]:
+            same, resolve, unit = placement(item)
             offsets = {resolve(h): unit * np.asarray(h["offset"], dtype=np.float64) for h in item["handles"]}
             roi = item.get("roi", {})
             radius = unit * float(roi["radius"]) if "radius" in roi else self.roi_radius

@@ -13,7 +13,9 @@ A preset is an object::
 
 where a HANDLE names a landmark (``{"landmark": "nose_tip"}``), or a vertex with its rest
 position (``{"vertex": 115, "point": [x, y, z]}``: exact on the same mesh topology, carried
-through ``landmarks`` onto any other, :mod:`.landmark_warp`), or both.
+through ``landmarks`` onto any other, :mod:`.landmark_warp`), or both. An edit or a pin may
+carry its own ``topology`` and ``landmarks`` (:func:`merge_presets` of presets made on different
+meshes), which then replace the document's for it.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ PRESET_FORMAT = "facesculpt-deformer-preset"
 PRESET_VERSION = 1
 #: The strength a preset's offsets may be multiplied by (inclusive).
 STRENGTH_RANGE = (0.0, 3.0)
+#: What says which mesh a preset (or one of its edits or pins) was made on.
+ORIGIN_KEYS = ("topology", "landmarks")
 
 
 def check_strength(value, what: str = "strength") -> float:
@@ -65,14 +69,26 @@ def _check_handle(h, where: str) -> None:
         raise DeformerError(f"preset vertex must be an integer, got {h['vertex']!r}")
     if "point" in h:
         _finite3(h["point"], "handle point")
+    _check_origin(h)
     aliases = h.get("aliases", [])
     if not isinstance(aliases, list) or not all(isinstance(a, str) for a in aliases):
         raise DeformerError(f"preset {where} aliases must be a list of names, got {aliases!r}")
 
 
+def _check_origin(item: dict) -> None:
+    marks = item.get("landmarks", {})
+    if not isinstance(marks, dict):
+        raise DeformerError("malformed preset: 'landmarks' is not an object of name -> [x, y, z]")
+    for name, p in marks.items():
+        _finite3(p, f"landmark {name!r} position")
+    if not isinstance(item.get("topology", {}), dict):
+        raise DeformerError("malformed preset: 'topology' is not an object")
+
+
 def _check_edit(item, k: int) -> None:
     if not isinstance(item, dict) or not isinstance(item.get("handles"), list):
         raise DeformerError(f"malformed preset: edit {k} is not an object with a list of 'handles'")
+    _check_origin(item)
     if not item["handles"]:
         raise DeformerError(f"preset edit {k} has no handles")
     for h in item["handles"]:
@@ -107,11 +123,7 @@ def validate_preset(preset) -> None:
         raise DeformerError("malformed preset: 'static' is not a list")
     for h in preset.get("static", []):
         _check_handle(h, "pin")
-    marks = preset.get("landmarks", {})
-    if not isinstance(marks, dict):
-        raise DeformerError("malformed preset: 'landmarks' is not an object of name -> [x, y, z]")
-    for name, p in marks.items():
-        _finite3(p, f"landmark {name!r} position")
+    _check_origin(preset)
     for k, item in enumerate(preset["edits"]):
         _check_edit(item, k)
 
@@ -128,6 +140,27 @@ def scale_preset(preset: dict, strength: float = 1.0) -> dict:
     for item in out["edits"]:
         for h in item["handles"]:
             h["offset"] = [float(x) * s for x in h["offset"]]
+    return out
+
+
+def merge_presets(presets: list[dict], strength: float = 1.0) -> dict:
+    """One preset holding the edits (in order) and pins of several, e.g. nose, then chin, then
+    cheeks (the paper's Fig. 6e); later edits of the same handle win when applied. Each
+    preset's offsets are multiplied by ``strength`` and by its own ``"strength"``
+    (:func:`scale_preset`). Presets made on different meshes keep their own: each of their
+    edits and pins carries its preset's ``topology`` and ``landmarks``. DeformerError when
+    there is none, or one is malformed or its strength is outside 0..3."""
+    if not presets:
+        raise DeformerError("no preset to merge")
+    scaled = [scale_preset(p, strength) for p in presets]
+    origins = [{k: p[k] for k in ORIGIN_KEYS if k in p} for p in scaled]
+    shared = all(o == origins[0] for o in origins)
+    out = {"format": PRESET_FORMAT, "version": PRESET_VERSION, "units": "mm", **(origins[0] if shared else {}),
+           "static": [], "edits": []}
+    for p, origin in zip(scaled, origins):
+        own = {} if shared else origin
+        out["static"] += [dict(r, **own) for r in p.get("static", [])]
+        out["edits"] += [dict(e, **own) for e in p["edits"]]
     return out
 
 
