@@ -95,7 +95,10 @@ def test_largest_is_one_face_and_face_numbers_need_a_selection(two_people, model
     r = process(video, "-o", tmp_path / "y" / "%03d.png", "--faces", "several")
     assert r.returncode != 0
     assert "faces must be all, largest or a face number" in r.stderr
-    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    r = process(video, "-o", tmp_path / "z" / "%03d.png", "--edits", "chin", "--strength", "4")
+    assert r.returncode != 0
+    assert "--strength 4.0 is outside 0..3" in r.stderr.strip().splitlines()[-1]
+    assert not any((tmp_path / d).exists() for d in "xyz")
 
 
 def test_three_people_in_the_shared_photo(data_dir, models_dir):

@@ -466,7 +466,8 @@ def table(result: dict) -> str:
 
 
 def cmd_bench(args) -> int:
-    from facesculpt.app.pipeline import combine_presets, load_face_model, read_preset
+    from facesculpt.app.pipeline import load_face_model, read_preset
+    from facesculpt.nodes.deformer.preset_format import merge_presets
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(args.threads)  # also in the environment the graph's processes inherit
@@ -485,7 +486,7 @@ def cmd_bench(args) -> int:
             print(f"facesculpt bench: sfm skipped: {exc}", file=sys.stderr)
     source, description = bench_source(args.video)
     paths = preset_paths()
-    preset = combine_presets([read_preset(p) for p in paths])
+    preset = merge_presets([read_preset(p) for p in paths])
     preset_file = Path(tempfile.mkdtemp(prefix="fs-bench-preset-")) / "fig6e.json"
     preset_file.write_text(json.dumps(preset))
     frames, fps, size = read_frames(source, args.frames)

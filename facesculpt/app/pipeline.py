@@ -32,6 +32,7 @@ import numpy as np
 from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.nodes.deformer import EditStack
+from facesculpt.nodes.deformer.preset_format import merge_presets
 from facesculpt.nodes.fitter import (
     FaceFitters,
     Fitter,
@@ -84,20 +85,6 @@ def read_preset(path: str | Path) -> dict:
         raise ValueError(f"preset {path} is {what}, not a deformer preset (a JSON object with 'format', "
                          f"'version' and a list of 'edits', as the window's S key saves)")
     return doc
-
-
-def combine_presets(presets: list[dict]) -> dict:
-    """One preset holding the edits (in order) and pins of several, e.g. nose, then chin, then
-    cheeks (the paper's Fig. 6e). Later edits of the same handle win, as in an :class:`EditStack`."""
-    if not presets:
-        raise ValueError("no preset to combine")
-    first = presets[0]
-    combined = dict(first)
-    combined["edits"] = [e for p in presets for e in p.get("edits", [])]
-    combined["static"] = [s for p in presets for s in p.get("static", [])]
-    if any(p.get("topology") != first.get("topology") for p in presets):
-        combined.pop("topology", None)  # mixed origins: handles resolve by landmark name only
-    return combined
 
 
 @dataclass
@@ -309,7 +296,7 @@ class Pipeline:
                 self.displacements[key] = None
             else:
                 stack = self.edit_stack(key)
-                stack.apply_preset(combine_presets(presets))
+                stack.apply_preset(merge_presets(presets))
                 self.displacements[key] = stack.solve().astype(np.float32)
         return self.displacements[key]
 

@@ -41,6 +41,8 @@ def register(sub) -> None:
     p.add_argument("--edits", action="append", default=[], metavar="[N:]PRESET",
                    help="a deformer preset file, or the name of a shipped one (nose_longer, chin, cheeks); "
                         "repeat to stack several, in order; N:PRESET edits face N only (with --faces all)")
+    p.add_argument("--strength", type=float, default=1.0, metavar="S",
+                   help="multiply the edits' offsets by S, 0 (no edit) to 3 (default 1)")
     p.add_argument("--faces", default="largest", metavar="all|largest|N",
                    help="which faces to fit and edit: the largest (default), all, or face N only "
                         "(faces numbered 1, 2, ... from the left as they first appear)")
@@ -210,8 +212,9 @@ def _finish(output, completed: bool) -> None:
 
 
 def cmd_process(args) -> int:
-    from facesculpt.app.pipeline import Pipeline, combine_presets, read_preset
+    from facesculpt.app.pipeline import Pipeline, read_preset
     from facesculpt.app.safe_output import refuse_output_over_input
+    from facesculpt.nodes.deformer.preset_format import check_strength, merge_presets, scale_preset
     from facesculpt.nodes.fitter import parse_faces
     from facesculpt.runtime.process_limits import limit_threads
 
@@ -220,7 +223,8 @@ def cmd_process(args) -> int:
         raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
     refuse_output_over_input(args.input, args.output)  # before anything is opened
     selection = parse_faces(args.faces)
-    presets = [(face, read_preset(p)) for face, p in parse_edits(args.edits, selection)]
+    strength = check_strength(args.strength, "--strength")
+    presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
     source = open_input(args.input)
     fps = source.native_fps
     total = source.frame_count or None
@@ -233,7 +237,7 @@ def cmd_process(args) -> int:
         from facesculpt.nodes.deformer import DeformerError
 
         try:  # a preset that does not fit the model fails now, not after the first pass
-            pipeline.edit_stack().apply_preset(combine_presets([p for _, p in presets]))
+            pipeline.edit_stack().apply_preset(merge_presets([p for _, p in presets]))
         except DeformerError as exc:
             raise ValueError(f"the edits do not fit the {args.model} model: {exc}") from None
     frames_with_face = 0
