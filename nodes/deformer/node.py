@@ -7,32 +7,34 @@ on the node's own thread, independent of the frame rate. Bad input (a miss, an u
 landmark, NaN, a preset that does not fit) is counted in diagnostics and the last good
 deformation stays. The ``preset`` param is checked at start (a missing or malformed file stops
 the node with one sentence) and applied as soon as the first ``face/model`` arrives.
+
+Several faces: each fitted face (``FaceState.face_id``) has its own edits on its own neutral
+(:class:`FaceEditor`). A press or pin at a pixel goes to the face under it; drags, depth, moves
+and joystick axes to the face of their pointer or selection; a landmark press, a preset and the
+other commands to every face, unless the event names one (``InputEvent.face``). One
+Deformation carries every face's displacement (``face_ids``, ``displacements``).
 """
 
 from __future__ import annotations
 
-import copy
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
-from facesculpt.geometry import axes_velocity, merge_deformation, project
 from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVENTS, LATCHED
 
-from .dragging import depth_delta, drag_delta
-from .edits import EditStack
 from .errors import DeformerError
-from .picking import pick_vertex
+from .face_editor import FaceEditor
 from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_preset
 
 MAX_PENDING_WITHOUT_MODEL = 10000
-MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
+MAX_FACES = 16  # editors kept; the face edited longest ago is dropped first
+POINTER_KINDS = ("drag", "release", "depth", "move")
+SELECTED_KINDS = ("depth", "move", "axes")
 
 
 class DeformerNode(Node):
@@ -67,23 +69,16 @@ class DeformerNode(Node):
         self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
         self.timer(self.params.round_s, self.on_round)
         self.model: FaceModel | None = None
-        self.state: FaceState | None = None
-        self.stack: EditStack | None = None
+        self.editors: dict[int, FaceEditor] = {}
         self.pending: list[InputEvent] = []
-        self.pointers: dict[int, tuple[int, float, float]] = {}  # pointer -> (vertex, last x, last y)
-        self.selected: int | None = None  # handle that depth/move/axes act on without a pointer
-        self.velocity = np.zeros(3)  # model-space mm/s from joystick axes
-        self.last_axes_at = time.monotonic()
-        self.dirty = False
-        self.settle_rounds = 0  # idle rounds left to converge the last solve
+        self.pointer_face: dict[int, int] = {}  # pointer -> the face it pressed
+        self.selected_face: int | None = None  # the face last pressed or selected
+        self.displacements: dict[int, np.ndarray] = {}  # face -> last solved (V, 3) mm
         self.stamp = 0
         self.last: Deformation | None = None  # last published (the last good deformation)
-        self.last_diagnostic = ""
-        self.last_saved_preset = ""  # absolute path of the last preset written
-        # the last preset loaded (offsets scaled) and the edits it made: while the edits are still
-        # those, a new neutral gets the preset again (its handles placed anew on that mesh)
-        self.loaded: tuple[dict, str] | None = None
         self.initial_preset: dict | None = None
+        self.last_diagnostic = ""  # the last problem of any face
+        self.last_saved_preset = ""  # absolute path of the last preset written
         if self.params.preset:
             try:
                 path = find_preset(self.params.preset, self.params.preset_dir)
@@ -91,69 +86,73 @@ class DeformerNode(Node):
             except DeformerError as exc:
                 raise ConfigurationError(f"deformer: preset={self.params.preset!r}: {exc}") from None
 
+    # -- the first face's editor (one face: the node's own state) ------------------------
+
+    @property
+    def editor(self) -> FaceEditor | None:
+        """The editor of the face last edited, else of the lowest face id; None before a model."""
+        if self.selected_face in self.editors:
+            return self.editors[self.selected_face]
+        return self.editors[min(self.editors)] if self.editors else None
+
+    @property
+    def stack(self):
+        return None if self.editor is None else self.editor.stack
+
+    @property
+    def state(self) -> FaceState | None:
+        return None if self.editor is None else self.editor.state
+
+    @property
+    def settle_rounds(self) -> int:
+        return sum(e.settle_rounds for e in self.editors.values())
+
+    @property
+    def dirty(self) -> bool:
+        return any(e.dirty for e in self.editors.values())
+
+    @dirty.setter
+    def dirty(self, value: bool) -> None:
+        for e in self.editors.values():
+            e.dirty = bool(value)
+
     # -- inputs --------------------------------------------------------------------------
+
+    def _new_editor(self, face_id: int) -> FaceEditor:
+        if len(self.editors) >= MAX_FACES:
+            oldest = min(self.editors, key=lambda k: (k == self.selected_face, k))
+            del self.editors[oldest]
+            self.displacements.pop(oldest, None)
+        preset = None if self.initial_preset is None else dict(self.initial_preset)
+        editor = FaceEditor(face_id, self.params, self.count, self.stage, self.log, preset, self.params.preset)
+        editor.report = lambda text: setattr(self, "last_diagnostic", text)
+        editor.report_saved = lambda path: setattr(self, "last_saved_preset", path)
+        self.editors[face_id] = editor
+        if self.model is not None:
+            editor.set_model(self.model, self.model.neutral_of(face_id))
+        return editor
 
     def on_model(self, msg: FaceModel):
         if self.model is not None and msg.model_id == self.model.model_id and msg.version == self.model.version:
             return
-        try:
-            stack = EditStack(
-                msg.vertices,
-                msg.triangles,
-                msg.landmark_names,
-                msg.landmark_vertices,
-                roi_radius=self.params.roi_radius,
-                roi_metric=self.params.roi_metric,
-                iterations=self.params.iterations,
-                tolerance=self.params.tolerance,
-                acceleration=self.params.acceleration,
-                clamp_weights=self.params.clamp_weights,
-            )
-        except DeformerError as exc:
-            self._bad("bad_model", exc)
-            return
-        self._carry_edits(stack)
-        same_topology = (self.model is not None and self.model.vertices.shape == msg.vertices.shape
-                         and np.array_equal(self.model.triangles, msg.triangles))
-        if same_topology and self.stack is not None and self.stack.edits:
-            # A refined neutral of the same mesh: the edit's shape barely changes, so the solver
-            # starts from it (a few iterations) instead of from the rest mesh (many).
-            stack.deformer.current = stack.rest + self.stack.displacement
-        self.model, self.stack = msg, stack
-        if not same_topology:
-            # Vertex indices mean nothing on another mesh; on the same one (the face-mesh
-            # neutral being refined) a drag in progress keeps its handle.
-            self.pointers.clear()
-            self.selected = None
-        self.dirty = True
-
-    def _carry_edits(self, stack: EditStack) -> None:
-        """Put the edits on the new model's stack: the ``preset`` param on the first model; the
-        last loaded preset again while the edits are still its own (its handles placed anew on
-        this mesh); else the current edits (by landmark name, by vertex on the same topology, by
-        position relative to the landmarks on another)."""
-        first = self.initial_preset is not None
-        if first:
-            doc, self.initial_preset = self.initial_preset, None
-        elif self.stack is None or not (self.stack.edits or self.stack.static):
-            return
-        elif self.loaded is not None and self.loaded[1] == _fingerprint(self.stack):
-            doc = self.loaded[0]
-        else:
-            doc, self.loaded = self.stack.to_preset(), None
-        try:
-            stack.apply_preset(doc)
-        except DeformerError as exc:
-            self._bad("preset_rejected" if first else "edits_dropped_on_model_change", exc)
-            return
-        if first or self.loaded is not None:
-            self.loaded = (doc, _fingerprint(stack))
-        if first:
-            self.count("preset_loaded")
-            self.log.info("applied preset %s", self.params.preset)
+        self.model = msg
+        if not self.editors:
+            self._new_editor(0)  # one face until the states say otherwise
+        for face_id, editor in self.editors.items():
+            editor.set_model(msg, msg.neutral_of(face_id))
+        for face_id in [] if msg.face_ids is None else msg.face_ids.tolist():
+            if face_id not in self.editors:
+                self._new_editor(face_id)
 
     def on_state(self, msg: FaceState):
-        self.state = msg
+        if msg.vertices.shape[0] == 0:
+            return  # an empty state (no face in that frame) keeps the last fitted one
+        editor = self.editors.get(msg.face_id)
+        if editor is None:
+            if self.model is None:
+                return
+            editor = self._new_editor(msg.face_id)
+        editor.state = msg
 
     def on_event(self, msg: InputEvent):
         self.pending.append(msg)
@@ -161,254 +160,88 @@ class DeformerNode(Node):
     # -- rounds --------------------------------------------------------------------------
 
     def on_round(self):
-        if self.stack is None:
+        if self.model is None or not self.editors:
             # Events wait (bounded) for the first face/model instead of being lost.
             if len(self.pending) > MAX_PENDING_WITHOUT_MODEL:
                 self.count("events_without_model", len(self.pending) - MAX_PENDING_WITHOUT_MODEL)
                 del self.pending[:-MAX_PENDING_WITHOUT_MODEL]
             return
         events, self.pending = self.pending, []
-        if not events and not self.dirty and not np.any(self.velocity) and not self.settle_rounds:
-            return  # an idle round: nothing to apply, nothing to solve, nothing left to converge
-        snapshot = (copy.deepcopy(self.stack.edits), set(self.stack.static))
+        routed: dict[int, list[InputEvent]] = {k: [] for k in self.editors}
         for ev in events:
             self.stamp = ev.stamp or self.stamp
-            try:
-                self.apply(ev)
-            except DeformerError as exc:
-                self._bad("bad_input", exc)
-        self._integrate_axes()
-        if not self.dirty and not self.settle_rounds:
-            return
-        settling = not self.dirty
-        self.dirty = False
-        try:
-            with self.stage("solve"):
-                displacement = self.stack.solve()
-        except DeformerError as exc:
-            # e.g. an edit whose ROI holds no free vertex: roll the round back
-            self.stack.edits, self.stack.static = snapshot
-            self.settle_rounds = 0
-            self._bad("solve_rejected", exc)
-            return
-        # A drag gets a few iterations per round; once it stops, idle rounds go on iterating until
-        # the mesh has converged (a bounded number of rounds), so the edit settles on the ARAP solution.
-        if settling:
-            self.count("settle_rounds")
-        if self.stack.deformer.last_converged or self.params.tolerance <= 0:
-            self.settle_rounds = 0
-        elif settling:
-            self.settle_rounds -= 1
-        else:
-            self.settle_rounds = MAX_SETTLE_ROUNDS
-        self.publish(displacement)
+            for face_id in self._faces_of(ev):
+                routed[face_id].append(ev)
+        solved = False
+        for face_id, editor in self.editors.items():
+            displacement = editor.round(routed.get(face_id, []))
+            if displacement is not None:
+                self.displacements[face_id] = displacement
+                solved = True
+        if solved:
+            self.publish()
 
-    def publish(self, displacement: np.ndarray):
-        static, handles, roi, _ = self.stack.anchors()
+    def _faces_of(self, ev: InputEvent) -> list[int]:
+        """The faces an event edits (see the module docstring)."""
+        if ev.face >= 0:
+            if ev.face not in self.editors:
+                self.count("event_for_unknown_face")
+                return []
+            faces = [ev.face]
+        elif ev.kind in POINTER_KINDS and ev.handle in self.pointer_face:
+            faces = [self.pointer_face[ev.handle]]
+        elif ev.kind in SELECTED_KINDS and not ev.landmark and self.selected_face in self.editors:
+            faces = [self.selected_face]
+        elif (ev.kind == "press" and not ev.landmark) or (ev.kind == "command" and ev.command == "toggle_static"):
+            faces = self._face_under(ev)
+        elif ev.kind == "command" and ev.command in ("save_preset", "select_edit") and self.editor is not None:
+            faces = [self.editor.face_id]
+        else:
+            faces = list(self.editors)
+        if ev.kind == "press" and faces:
+            self.pointer_face[ev.handle] = faces[0]
+            self.selected_face = faces[0]
+        elif ev.kind == "release":
+            self.pointer_face.pop(ev.handle, None)
+        return faces
+
+    def _face_under(self, ev: InputEvent) -> list[int]:
+        """The face whose deformed mesh is nearest under the event's pixel; with one face, that
+        face (its editor counts the miss)."""
+        if len(self.editors) == 1 or not (np.isfinite(ev.x) and np.isfinite(ev.y)):
+            return [next(iter(self.editors))] if len(self.editors) == 1 else []
+        with self.stage("pick"):
+            hits = {k: e.hit_distance(ev.x, ev.y) for k, e in self.editors.items()}
+        hits = {k: d for k, d in hits.items() if d is not None}
+        if not hits:
+            self.count("pick_miss")
+            self.last_diagnostic = f"pick_miss: pixel ({ev.x:.1f}, {ev.y:.1f}) is on no face"
+            return []
+        return [min(hits, key=hits.get)]
+
+    def publish(self):
+        editor = self.editor
+        static, handles, roi, _ = editor.stack.anchors()
+        own = self.displacements.get(editor.face_id, np.zeros_like(editor.stack.rest))
+        several = len(self.editors) > 1
+        faces = sorted(k for k in self.displacements if k in self.editors)
         self.last = Deformation(
             stamp=self.stamp or time.time_ns(),
             model_id=self.model.model_id,
-            displacement=displacement.astype(np.float32),
+            displacement=own.astype(np.float32),
             static=static.astype(np.int32),
             handles=handles.astype(np.int32),
             roi=roi.astype(np.int32),
-            version=self.stack.version,
+            version=sum(e.stack.version for e in self.editors.values() if e.stack is not None),
+            face_id=editor.face_id,
+            face_ids=np.array(faces, np.int32) if several else None,
+            displacements=np.stack([self.displacements[k] for k in faces]).astype(np.float32) if several else None,
         )
         self.pub.publish(self.last)
-
-    def _bad(self, counter: str, exc: Exception):
-        self.count(counter)
-        self.last_diagnostic = f"{counter}: {exc}"
-        self.log.warning("%s", self.last_diagnostic)
 
     def diagnostics(self) -> dict:
         values = super().diagnostics()
         values["last_diagnostic"] = self.last_diagnostic
         values["last_saved_preset"] = self.last_saved_preset
+        values["faces"] = len(self.editors)
         return values
-
-    # -- one event -----------------------------------------------------------------------
-
-    def apply(self, ev: InputEvent):
-        """Apply one input event to the edit stack (raises DeformerError on bad input)."""
-        kind = ev.kind
-        if kind == "press":
-            self._press(ev)
-        elif kind == "drag":
-            self._drag(ev)
-        elif kind == "release":
-            self.pointers.pop(ev.handle, None)
-        elif kind == "depth":
-            v = self._target_vertex(ev)
-            if not np.isfinite(ev.depth):
-                raise DeformerError("depth event with a non-finite depth")
-            state = self._need_state()
-            self._move(v, depth_delta(self._handle_cam(v, state), ev.depth, state.R, state.projection))
-        elif kind == "move":
-            v = self._target_vertex(ev)
-            vec = None if ev.vector is None else np.asarray(ev.vector, dtype=np.float64)
-            if vec is None or vec.shape != (3,) or not np.all(np.isfinite(vec)):
-                raise DeformerError("move event needs a finite model-space vector (3,) in mm")
-            self._move(v, vec)
-        elif kind == "axes":
-            self._axes(ev)
-        elif kind == "command":
-            self._command(ev)
-        else:  # buttons: mapped to commands by the input nodes
-            self.count(f"ignored_{kind}")
-
-    def _need_state(self) -> FaceState:
-        st = self.state
-        if st is None:
-            raise DeformerError("no face/state yet: cannot turn pixels into the model")
-        if st.vertices.shape[0] != self.stack.n:
-            raise DeformerError(
-                f"face/state has {st.vertices.shape[0]} vertices, face/model {self.stack.n}: waiting for matching ones"
-            )
-        return st
-
-    def _current_mesh(self, st: FaceState) -> np.ndarray:
-        """The deformed fitted mesh (camera space) the user sees: Eq. 5 with the last solve."""
-        return merge_deformation(st.vertices.astype(np.float64), st.R, st.scale, self.stack.displacement)
-
-    def _handle_cam(self, v: int, st: FaceState) -> np.ndarray:
-        """Camera-space position of handle ``v`` at its current target."""
-        offset = self.stack.handle_position(v) - self.stack.rest[v]
-        return st.vertices[v].astype(np.float64) + st.scale * (st.R @ offset)
-
-    def _pick(self, ev: InputEvent) -> int:
-        if ev.landmark:
-            return self.stack.landmark_vertex(ev.landmark)
-        if not (np.isfinite(ev.x) and np.isfinite(ev.y)):
-            raise DeformerError("press without a landmark name needs finite pixel coordinates x, y")
-        st = self._need_state()
-        with self.stage("pick"):
-            hit = pick_vertex(ev.x, ev.y, st.K, self._current_mesh(st), self.stack.triangles, st.projection)
-        if hit is None:
-            self.count("pick_miss")
-            self.last_diagnostic = f"pick_miss: pixel ({ev.x:.1f}, {ev.y:.1f}) is not on the face"
-            return -1
-        return hit.vertex
-
-    def _press(self, ev: InputEvent):
-        v = self._pick(ev)
-        if v < 0:
-            return
-        if self.pointers and self.stack.edits:
-            self.stack.add_handle(v)  # another pointer is held: same edit (e.g. a two-handle squeeze)
-        else:
-            self.stack.begin([v])
-        self.pointers[ev.handle] = (v, ev.x, ev.y)
-        self.selected = v
-        self.dirty = True
-        self.count("press")
-
-    def _drag(self, ev: InputEvent):
-        if ev.handle not in self.pointers:
-            raise DeformerError(f"drag of pointer {ev.handle} without a press")
-        if not (np.isfinite(ev.x) and np.isfinite(ev.y)):
-            raise DeformerError("drag needs finite pixel coordinates x, y")
-        v, x0, y0 = self.pointers[ev.handle]
-        st = self._need_state()
-        if not (np.isfinite(x0) and np.isfinite(y0)):  # pressed at a landmark: start from its pixel
-            x0, y0 = project(self._handle_cam(v, st)[None], st.K, st.projection)[0]
-        self._move(v, drag_delta(self._handle_cam(v, st), (x0, y0), (ev.x, ev.y), st.K, st.R, st.scale, st.projection))
-        self.pointers[ev.handle] = (v, ev.x, ev.y)
-        self.count("drag")
-
-    def _target_vertex(self, ev: InputEvent) -> int:
-        if ev.handle in self.pointers:
-            return self.pointers[ev.handle][0]
-        if ev.landmark:
-            v = self.stack.landmark_vertex(ev.landmark)
-            if self.stack.edit_of(v) is None:
-                self.stack.begin([v])
-            return v
-        if self.selected is None:
-            raise DeformerError(f"{ev.kind} event with no handle selected: press first")
-        return self.selected
-
-    def _move(self, v: int, delta: np.ndarray):
-        k = self.stack.edit_of(v)
-        if k is None:
-            raise DeformerError(f"vertex {v} is no longer a handle (undone or reset)")
-        self.stack.move_handle(v, delta, edit=k)
-        self.dirty = True
-
-    def _axes(self, ev: InputEvent):
-        self._integrate_axes()
-        axes = np.zeros(0) if ev.axes is None else ev.axes
-        self.velocity = axes_velocity(axes, self.params.joystick_speed, self.params.joystick_deadzone)
-        self.last_axes_at = time.monotonic()
-
-    def _integrate_axes(self):
-        now = time.monotonic()
-        dt, self.last_axes_at = now - self.last_axes_at, now
-        if not np.any(self.velocity) or self.selected is None or self.stack.edit_of(self.selected) is None:
-            return
-        self._move(self.selected, self.velocity * min(dt, 0.1))
-
-    def _preset_path(self, argument: str) -> Path:
-        if not argument:
-            raise DeformerError("preset command needs a path argument")
-        p = Path(argument).expanduser()
-        return p if p.is_absolute() or not self.params.preset_dir else Path(self.params.preset_dir).expanduser() / p
-
-    def _command(self, ev: InputEvent):
-        cmd = ev.command
-        if cmd == "reset":
-            self.stack.clear()
-            self.pointers.clear()
-            self.selected = None
-            self.velocity[:] = 0
-        elif cmd == "undo":
-            if not self.stack.undo():
-                self.count("undo_empty")
-            self.pointers.clear()
-            self.selected = None
-        elif cmd == "save_preset":
-            path = self._preset_path(ev.argument)
-            try:
-                path = self.stack.save_preset(path)
-            except OSError as exc:
-                raise DeformerError(f"cannot write preset {path}: {exc}") from exc
-            self.last_saved_preset = str(path)
-            self.log.info("saved the edits as preset %s", path)
-            self.count("preset_saved")
-            return
-        elif cmd == "load_preset":
-            if not ev.argument:
-                raise DeformerError("preset command needs a path argument")
-            # a file (relative to preset_dir) or the name of a shipped preset, e.g. "nose_longer"
-            doc = scale_preset(read_preset_file(find_preset(ev.argument, self.params.preset_dir)), self.params.strength)
-            self.stack.apply_preset(doc)
-            self.loaded = (doc, _fingerprint(self.stack))
-            self.pointers.clear()
-            self.selected = None
-            self.count("preset_loaded")
-        elif cmd == "select_edit":
-            # Later depth / move / axes events without a pointer act on this edit's first handle.
-            try:
-                k = int(ev.argument)
-                edit = self.stack.edits[k]
-            except (ValueError, IndexError):
-                raise DeformerError(f"select_edit needs an edit number in 0..{len(self.stack.edits) - 1} "
-                                    f"(or negative from the end), got {ev.argument!r}") from None
-            self.selected = min(edit.offsets)
-            self.count("edit_selected")
-            return
-        elif cmd == "toggle_static":
-            v = self._pick(ev)
-            if v < 0:
-                return
-            self.stack.toggle_static(v)
-        else:
-            self.count("ignored_command")
-            return
-        self.dirty = True
-
-
-def _fingerprint(stack: EditStack) -> str:
-    """The edits and pins of a stack as text, to tell whether they changed since a preset was loaded."""
-    doc = stack.to_preset()
-    return json.dumps([doc["edits"], doc["static"]])
