@@ -21,8 +21,16 @@ def test_demo_writes_an_edited_video_a_before_after_picture_and_timings(models_d
                             env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert result.returncode == 0, result.stderr[-3000:]
 
-    cap = cv2.VideoCapture(str(out / "demo.mp4"))
-    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) >= 90   # nearly every camera frame was rendered
+    import av
+
+    with av.open(str(out / "demo.mp4")) as video:
+        assert sum(1 for _ in video.decode(video=0)) == 120   # every camera frame was written (issue 23)
+    assert "(120 frames rendered)" in result.stdout
+    log = result.stdout + result.stderr
+    # Shutdown: each node says it is stopping once at most, none lost the master while stopping.
+    for name in ("camera", "landmarks", "fitter", "deformer", "script", "renderer"):
+        assert log.count(f"[facesculpt.{name}] stopping (") <= 1, log[-3000:]
+    assert "no master answers" not in log, log[-3000:]
     pair = cv2.imread(str(out / "before_after.png"))
     assert pair.shape == (480, 1280, 3)
     before, after = pair[:, :640].astype(int), pair[:, 640:].astype(int)

@@ -103,9 +103,12 @@ def cmd_demo(args) -> int:
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     video = out / "demo.mp4"
+    # The listener below is a third camera/image subscriber: the camera waits for landmarks and
+    # renderer too, or its first frame could go out before landmarks listens (and, in lockstep, be
+    # waited for until camera.ack_timeout_s).
     specs = load_launch(launch_file("demo"), [
         f"camera.max_frames={args.frames}", f"camera.source={args.source}",
-        f"fitter.model={args.model}", f"renderer.output={video}",
+        f"fitter.model={args.model}", f"renderer.output={video}", "camera.wait_subscribers=3",
     ])
     launcher = Launcher(specs, status=lambda line: print(line, flush=True))
     launcher.start_master()  # the listener needs it before the nodes start

@@ -1,18 +1,39 @@
 """The camera node: frames from a webcam, a video file, a still image or a bag
-on `camera/image`, stamped with their capture time, with intrinsics K."""
+on `camera/image`, stamped with their capture time, with intrinsics K.
+
+Live (``wait_for`` empty, the default) the camera sends at its pace and the graph keeps up as it
+can: latest-only subscribers skip the frames they had no time for. Offline (``wait_for:
+render/done``, for a replay or demo that writes a file) it runs in lockstep with the renderer:
+a frame goes out only while fewer than ``max_in_flight`` sent frames wait for their
+:class:`~facesculpt.msgs.FrameDone`, and at the end of the source the camera waits for the last
+ones before it ends, so every frame reaches the file. A frame still unacknowledged after
+``resend_s`` is published again (a node that connected after it went out missed it; the renderer
+ignores a copy of a frame it already has); one unacknowledged after ``ack_timeout_s`` is given
+up (counter ``ack_timeout``) and the camera sends on.
+"""
 
 from __future__ import annotations
 
 import time
+from collections import OrderedDict
 
 import numpy as np
 
-from facesculpt.msgs import Image
+from facesculpt.msgs import FrameDone, Image
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
+from facesculpt.runtime.qos import EVERY_MESSAGE
 
 from .intrinsics import intrinsics_from_fov
 from .sources import RESIZE_MODES, SourceError, open_source, resize_frame
+
+# Lockstep: how often the camera looks at its pacing and its acknowledgement deadlines, s (the
+# acknowledgements themselves send the next frame at once).
+LOCKSTEP_TICK_S = 0.01
+# Lockstep: the first frame waits this long after its subscribers are there, so that the nodes
+# further down (the fitter on landmarks, ...) have connected too (their master links look for
+# new publishers every 0.1 s); one that still missed it gets it again after resend_s, s.
+LOCKSTEP_SETTLE_S = 0.3
 
 
 class CameraNode(Node):
@@ -33,7 +54,20 @@ class CameraNode(Node):
         "max_frames": Param(0, "stop after this many frames (0: no limit)", range=(0, None)),
         "wait_subscribers": Param(0, "hold the first frame until this many subscribers listen (recording)",
                                   range=(0, 1000)),
-        "wait_timeout_s": Param(10.0, "longest hold for wait_subscribers, s", range=(0.0, 3600.0)),
+        "wait_timeout_s": Param(10.0, "longest hold for wait_subscribers (and, with wait_for, for the "
+                                      "acknowledging publisher), s", range=(0.0, 3600.0)),
+        "wait_for": Param("", "offline lockstep: the topic of FrameDone acknowledgements (render/done) to wait "
+                              "for before sending more frames, so every frame is processed and written; "
+                              "\"\": live, frames go out at the pace whether or not the graph keeps up"),
+        "max_in_flight": Param(1, "with wait_for: frames sent but not yet acknowledged (1: no latest-only "
+                                  "node can skip a frame; more overlaps the stages, but a node that keeps "
+                                  "only the newest frame may then skip one)", range=(1, 4)),
+        "ack_timeout_s": Param(10.0, "with wait_for: longest wait for a frame's acknowledgement before "
+                                     "sending on (counted as ack_timeout), also at the end of the source, s",
+                               range=(0.1, 3600.0)),
+        "resend_s": Param(2.0, "with wait_for: publish a frame again when its acknowledgement has not come "
+                               "after this long (a node that connected late missed it; the renderer ignores "
+                               "a copy of a frame it has), s; 0: never", range=(0.0, 3600.0)),
     }
 
     def setup(self):
@@ -53,9 +87,20 @@ class CameraNode(Node):
                 raise ValueError(f"camera.K needs 9 numbers, got {len(p.K)}")
             self.K_fixed = np.asarray(p.K, dtype=np.float64).reshape(3, 3)
         self._K_cache: dict[tuple, np.ndarray] = {}
-        self.wait_until = time.monotonic() + p.wait_timeout_s if p.wait_subscribers else 0.0
-        self.log.info("%s at %s", self.source.description, f"{rate:.1f} fps" if rate else "full speed")
-        self.timer(self.period, self.on_tick)
+        self.lockstep = bool(p.wait_for)
+        # Lockstep: seq -> [the Image, monotonic time first sent, monotonic time last sent].
+        self.in_flight: OrderedDict[int, list] = OrderedDict()
+        self.next_send_at = 0.0   # lockstep pacing: monotonic time the next frame may go out
+        self.ended = False        # lockstep: the source is done; waiting for the last acknowledgements
+        self.done_sub = None
+        self.settle_until = 0.0   # lockstep: monotonic time the first frame may go out
+        if self.lockstep:
+            self.done_sub = self.subscribe(p.wait_for, FrameDone, self.on_done, qos=EVERY_MESSAGE)
+        waits = p.wait_subscribers or self.lockstep
+        self.wait_until = time.monotonic() + p.wait_timeout_s if waits else 0.0
+        self.log.info("%s at %s%s", self.source.description, f"{rate:.1f} fps" if rate else "full speed",
+                      f", in lockstep with {p.wait_for} ({p.max_in_flight} in flight)" if self.lockstep else "")
+        self.tick = self.timer(LOCKSTEP_TICK_S if self.lockstep else self.period, self.on_tick)
 
     def intrinsics(self, width: int, height: int) -> np.ndarray:
         if self.K_fixed is not None:
@@ -66,30 +111,114 @@ class CameraNode(Node):
         return self._K_cache[key]
 
     def on_tick(self):
-        if self.wait_until:
-            if self.pub.subscriber_count() < self.params.wait_subscribers and time.monotonic() < self.wait_until:
-                return
-            self.wait_until = 0.0
+        if self.wait_until and not self._ready_to_start():
+            return
+        if self.lockstep:
+            self._advance()
+        elif self._publish_next() and self.params.max_frames and self.sent >= self.params.max_frames:
+            self.shutdown()
+
+    def _ready_to_start(self) -> bool:
+        """Whether the first frame may go out: ``wait_subscribers`` listen and, in lockstep, the
+        acknowledging publisher is known (or ``wait_timeout_s`` passed)."""
+        p = self.params
+        missing = []
+        if self.pub.subscriber_count() < p.wait_subscribers:
+            missing.append(f"{p.wait_subscribers} subscribers of {self.pub.topic}")
+        if self.done_sub is not None and not self.done_sub.endpoints:
+            missing.append(f"a publisher of {self.done_sub.topic}")
+        now = time.monotonic()
+        if missing and now < self.wait_until:
+            return False
+        if missing:
+            self.log.warning("starting without %s after %.1f s", " and ".join(missing), p.wait_timeout_s)
+        elif self.lockstep:
+            self.settle_until = self.settle_until or now + LOCKSTEP_SETTLE_S
+            if now < self.settle_until:
+                return False
+        self.wait_until = 0.0
+        return True
+
+    def _publish_next(self) -> bool:
+        """Read, resize and publish the next frame; False at the end of the source (or on its error)."""
         try:
             frame, stamp = next(self.frames)
             self._report_problems()
         except StopIteration:
             self._report_problems()
             self.log.info("end of %s after %d frames", self.source.description, self.sent)
-            self.shutdown()
-            return
+            self._end()
+            return False
         except SourceError as exc:
             self.count("source_errors")
             self.log.error("%s", exc)
-            self.shutdown()
-            return
+            self._end()
+            return False
         frame = resize_frame(frame, self.params.width, self.params.height, self.params.resize)
         h, w = frame.shape[:2]
         self.sent += 1
-        self.pub.publish(Image(stamp=stamp, seq=self.sent, frame_id="camera",
-                               image=np.ascontiguousarray(frame), K=self.intrinsics(w, h)))
-        if self.params.max_frames and self.sent >= self.params.max_frames:
+        msg = Image(stamp=stamp, seq=self.sent, frame_id="camera", image=np.ascontiguousarray(frame),
+                    K=self.intrinsics(w, h))
+        self.pub.publish(msg)
+        if self.lockstep:
+            now = time.monotonic()
+            self.in_flight[self.sent] = [msg, now, now]
+        return True
+
+    def _end(self) -> None:
+        """No more frames: live, stop now; in lockstep, once the frames in flight are acknowledged."""
+        if self.lockstep:
+            self.ended = True
+        else:
             self.shutdown()
+
+    # -- lockstep ------------------------------------------------------------------------------
+    def _advance(self) -> None:
+        """Give up acknowledgements past ``ack_timeout_s``, send what the window and the pacing
+        allow, and stop once the source ended and nothing is in flight."""
+        p = self.params
+        now = time.monotonic()
+        for seq, entry in list(self.in_flight.items()):
+            msg, first_sent, last_sent = entry
+            if now - first_sent >= p.ack_timeout_s:
+                del self.in_flight[seq]
+                self.count("ack_timeout")
+                self.log.warning("frame %d: no acknowledgement on %s within %.1f s; sending on",
+                                 seq, self.done_sub.topic, p.ack_timeout_s)
+            elif p.resend_s and now - last_sent >= p.resend_s:
+                self.pub.publish(msg)
+                entry[2] = now
+                self.count("resent")
+                self.log.info("frame %d: no acknowledgement after %.1f s; sent again", seq, now - first_sent)
+        while not self.ended and len(self.in_flight) < p.max_in_flight and now >= self.next_send_at:
+            if p.max_frames and self.sent >= p.max_frames:
+                self._end()
+            elif self._publish_next():
+                self.next_send_at = now + self.period
+        if self.next_send_at > now:  # wake up when the pacing allows the next frame, not a tick later
+            self.tick.next_at = min(self.tick.next_at, self.next_send_at)
+        if self.ended and not self.in_flight and self.running:
+            c = self.counters
+            self.log.info("all %d frames handled downstream (%d acknowledged, %d skipped, %d timed out)",
+                          self.sent, c.get("acknowledged", 0), c.get("ack_skipped", 0), c.get("ack_timeout", 0))
+            self.shutdown()
+
+    def on_done(self, msg: FrameDone) -> None:
+        """The renderer handled frame ``msg.seq``: it leaves the window, and so do older frames
+        still in it (a node downstream skipped them: they will never be acknowledged)."""
+        sent = self.in_flight.get(msg.seq)
+        if sent is None or sent[0].stamp != msg.stamp:
+            self.count("ack_unknown")  # after its timeout, or another camera's frame
+            return
+        for seq in list(self.in_flight):
+            if seq >= msg.seq:
+                break
+            del self.in_flight[seq]
+            self.count("ack_skipped")
+        del self.in_flight[msg.seq]
+        self.count("acknowledged")
+        if self.wait_until == 0.0:
+            self._advance()
 
     def _report_problems(self) -> None:
         problems = getattr(self.source, "problems", None)

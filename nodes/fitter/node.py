@@ -8,7 +8,9 @@ node's mapping and fitted with ids 1..68). ``face/model`` carries the neutral th
 on: the model mean, then the learned reference of this person (dense: the mean of the first
 frames; sparse: the accumulated identity) — published when it changes, at most every
 ``model_period_s`` seconds while it is still being learned. No face, too few valid landmarks or
-any other refusal: no state, a counter in diagnostics, never an exception.
+any other refusal: an empty state for that frame (0 vertices: the renderer's "no face", so a
+renderer pairing frames with states never waits for it), a counter in diagnostics, never an
+exception.
 """
 
 from __future__ import annotations
@@ -135,6 +137,28 @@ class FitterNode(Node):
         self.camera_key = key
 
     def on_landmarks(self, msg: FaceLandmarks):
+        """One face/state per landmarks message: the fit, or an empty state when there is none."""
+        published = self.state_pub.count
+        try:
+            self.fit_frame(msg)
+        finally:
+            if self.state_pub.count == published:
+                self.publish_no_face(msg)
+
+    def publish_no_face(self, msg: FaceLandmarks) -> None:
+        """An empty FaceState (0 vertices) for the frame of ``msg``: no fit on it."""
+        try:
+            size = [int(msg.image_size[0]), int(msg.image_size[1])]
+        except (TypeError, ValueError, IndexError):
+            size = [0, 0]
+        self.state_pub.publish(FaceState(
+            stamp=msg.stamp, frame_id=msg.frame_id, model_id=self.model.model_id if self.model else "",
+            vertices=np.zeros((0, 3), np.float32), projected=np.zeros((0, 2), np.float32), image_size=size,
+            faces=0,
+        ))
+
+    def fit_frame(self, msg: FaceLandmarks) -> None:
+        """Stage 2 on one landmarks message; publishes the state when a face was fitted."""
         if self.model is None:
             self.count("no_model")
             return

@@ -173,7 +173,8 @@ class JoystickNode(Node):
         self.model = msg
 
     def on_state(self, msg: FaceState):
-        self.state = msg
+        if msg.vertices.shape[0] > 0:  # an empty state (no face in that frame) keeps the last fitted one
+            self.state = msg
 
     def grab_target(self) -> str:
         """The landmark the grab button presses: ``grab_landmark``, else the one nearest the

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from facesculpt.geometry import merge_deformation
-from facesculpt.msgs import Deformation, FaceModel, FaceState, Image, InputEvent
+from facesculpt.msgs import Deformation, FaceModel, FaceState, FrameDone, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
@@ -71,6 +71,8 @@ class RendererNode(Node):
                                   max_age_ns=int(p.max_state_age_s * 1e9))
         self.image_pub = self.advertise("render/image", Image) if p.publish else None
         self.events_pub = self.advertise("input/events", InputEvent) if p.window else None
+        # One FrameDone per handled frame: an offline camera (camera.wait_for) sends the next one on it.
+        self.done_pub = self.advertise("render/done", FrameDone, qos=EVERY_MESSAGE)
         self.subscribe("camera/image", Image, self.on_image, qos=qos)
         self.subscribe("face/state", FaceState, self.on_state, qos=qos)
         self.subscribe("face/model", FaceModel, self.on_model)
@@ -154,6 +156,7 @@ class RendererNode(Node):
         if not self._ensure_output(w, h):
             return
         out = frame
+        drawn = False
         handles_px = roi_px = None
         if state is None:
             self.count("no_face")
@@ -165,6 +168,7 @@ class RendererNode(Node):
             try:
                 deformed = self._deformed_vertices(state)
                 out = self.compositor.render(frame, state.vertices, state.projected, self.model.triangles, deformed)
+                drawn = True
                 for name, ms in self.compositor.timings.items():
                     if name != "total":
                         self.stage_times.setdefault(name, []).append(ms)
@@ -189,6 +193,8 @@ class RendererNode(Node):
             if self.window is not None:
                 self._show(out, handles_px, roi_px)
         self.count("rendered")
+        self.done_pub.publish(FrameDone(stamp=frame_msg.stamp, seq=frame_msg.seq, frame_id=frame_msg.frame_id,
+                                        rendered=drawn))
 
     def _show(self, out: np.ndarray, handles_px, roi_px) -> None:
         from .overlay import draw_overlay
