@@ -23,7 +23,8 @@ Optional top-level keys: ``transport: tcp`` (default ipc) with ``host: ADDRESS``
 ``facesculpt launch FILE name.param=value ...`` overrides params. A string param
 starting with ``./`` is a path relative to the launch file. Children are
 killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
-SIGINT/SIGTERM every child gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``.
+SIGINT/SIGTERM every node gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``; the master stops
+last (in a session of its own, a Ctrl-C in the terminal does not end it before the nodes).
 
 A node that exits with ``EXIT_BAD_PARAMETER`` (2: a parameter out of its range or choices, or a
 resource it names that cannot be used, see facesculpt.runtime.parameters) is not respawned: the
@@ -201,8 +202,11 @@ def _die_with_parent() -> None:
         pass
 
 
-def _spawn(argv: list[str], env: dict, stderr=None) -> subprocess.Popen:
-    return subprocess.Popen(argv, env=env, stderr=stderr, preexec_fn=_die_with_parent)
+def _spawn(argv: list[str], env: dict, stderr=None, own_session: bool = False) -> subprocess.Popen:
+    """Start a child that dies with the launcher; ``own_session``: in a session of its own, out of
+    reach of the terminal's Ctrl-C (SIGINT goes to the whole foreground process group)."""
+    return subprocess.Popen(argv, env=env, stderr=stderr, preexec_fn=_die_with_parent,
+                            start_new_session=own_session)
 
 
 def _forward_stderr(child: Child) -> None:
@@ -262,7 +266,9 @@ class Launcher:
         if master_alive(self.master, security=self.security):
             self.status(f"using the master already running at {self.master}")
             return
-        self.master_proc = _spawn([sys.executable, "-m", "facesculpt.cli", "master"], self.env)
+        # The master stops last (stop()): a Ctrl-C in the terminal reaches the nodes and the
+        # launcher, but not the master, which the nodes still talk to while they stop.
+        self.master_proc = _spawn([sys.executable, "-m", "facesculpt.cli", "master"], self.env, own_session=True)
         deadline = time.monotonic() + 10
         while not master_alive(self.master, 0.2, security=self.security):
             if self.master_proc.poll() is not None or time.monotonic() > deadline:

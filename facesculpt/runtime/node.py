@@ -440,6 +440,8 @@ class Node:
     def run(self) -> int:
         """setup + spin + teardown, with SIGINT/SIGTERM handled; returns an exit code."""
         def _on_signal(signum, frame):
+            if self._stopped.is_set():  # e.g. the terminal's Ctrl-C, then the launcher's SIGTERM: one line
+                return
             self.log.info("stopping (%s)", signal.Signals(signum).name)
             self.shutdown()
         if threading.current_thread() is threading.main_thread():
