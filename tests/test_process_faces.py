@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from two_people import write_two_people
 
 REPO = Path(__file__).resolve().parent.parent
 FRAMES = 12
@@ -21,37 +22,10 @@ def process(*args) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300)
 
 
-def frames_of(path: Path, n: int) -> list[np.ndarray]:
-    cap = cv2.VideoCapture(str(path))
-    out = []
-    while len(out) < n:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        out.append(frame)
-    cap.release()
-    return out
-
-
 @pytest.fixture(scope="module")
 def two_people(data_dir, tmp_path_factory) -> tuple[Path, list[np.ndarray]]:
-    """Two of the shared videos side by side (two people in one 1024x512 frame), as lossless PNGs
-    wrapped in an FFV1 video so the input frames are known exactly."""
-    import av
-
-    left = frames_of(data_dir / "video" / "d0.mp4", FRAMES)
-    right = frames_of(data_dir / "video" / "d3.mp4", FRAMES)
-    frames = [np.hstack([a, b]) for a, b in zip(left, right)]
     path = tmp_path_factory.mktemp("two") / "two_people.mkv"
-    with av.open(str(path), "w") as box:
-        stream = box.add_stream("ffv1", rate=25)
-        stream.width, stream.height, stream.pix_fmt = 1024, 512, "bgr0"
-        for f in frames:
-            for packet in stream.encode(av.VideoFrame.from_ndarray(f, format="bgr24")):
-                box.mux(packet)
-        for packet in stream.encode():
-            box.mux(packet)
-    return path, frames
+    return path, write_two_people(data_dir, path, FRAMES)
 
 
 def changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:

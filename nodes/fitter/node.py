@@ -23,10 +23,10 @@ from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import LATCHED
 
 from .config import FitterConfig
+from .faces import FaceFitters, parse_faces
 from .fitter import Fitter, make_fitter
 from .model import MorphableModel, load_model
 from .result import FitError
-from .stage import fit_landmarks
 
 
 def valid_intrinsics(K) -> bool:
@@ -56,6 +56,8 @@ class FitterNode(Node):
         "model_change_mm": Param(2.0, "sparse, once learned (2 x neutral_frames frames): republish when a "
                                       "landmark vertex moved this much, mm", range=(0.0, None)),
         "min_score": Param(0.5, "faces below this landmark score are not fitted", range=(0.0, 1.0)),
+        "faces": Param("largest", "which faces to fit: largest, all, or a face number from 1 (numbered from the "
+                                  "left as first seen; the landmarks node's max_faces must cover them)"),
     }
 
     def setup(self):
@@ -63,56 +65,90 @@ class FitterNode(Node):
         self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
         self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
         self.model: MorphableModel | None = None
-        self.fitter: Fitter | None = None
+        self.faces: FaceFitters | None = None
         self.camera_key = None
+        try:
+            self.selection = parse_faces(self.params.faces)
+        except ValueError as exc:
+            raise ConfigurationError(f"fitter: {exc}") from None
         self.model_version = 0
         self.published_neutral: np.ndarray | None = None
+        self.published_neutrals: dict[int, np.ndarray] = {}  # face -> its neutral last published
         self.last_model_publish = -np.inf
-        self.final_published = False
+        self.final_faces: set[int] = set()  # faces whose complete dense reference went out
         try:
             self.model = load_model(self.params.model)
         except Exception as exc:  # missing setup files, bad .npz: running on would fit nothing
             raise ConfigurationError(f"fitter: cannot load model {self.params.model!r}: {exc}") from None
         self.publish_model(self.model.mean, stamp=0)
 
+    @property
+    def fitter(self) -> Fitter | None:
+        """The first face's fitter (the only one with faces=largest); None before a face."""
+        if self.faces is None or not self.faces.fitters:
+            return None
+        return self.faces.fitters[min(self.faces.fitters)]
+
     # -- model ---------------------------------------------------------------------------------
     def publish_model(self, neutral: np.ndarray, stamp: int) -> None:
+        """face/model with ``neutral`` (V, 3) mm; with a selection other than "largest", every
+        fitted face's own neutral too (``face_ids``, ``neutrals``)."""
         m = self.model
         self.model_version += 1
+        per_face = {}
+        if self.selection != "largest" and self.faces is not None:
+            per_face = {k: np.asarray(f.neutral, np.float32) for k, f in sorted(self.faces.fitters.items())}
         self.model_pub.publish(FaceModel(
             stamp=int(stamp), model_id=m.model_id, vertices=np.asarray(neutral, np.float32),
             triangles=m.triangles.astype(np.int32), landmark_names=list(m.landmark_names),
             landmark_vertices=m.landmark_vertices.astype(np.int32), units=m.units, version=self.model_version,
+            face_ids=np.array(list(per_face), np.int32) if per_face else None,
+            neutrals=np.stack(list(per_face.values())) if per_face else None,
         ))
         self.published_neutral = np.array(neutral, np.float32)
+        self.published_neutrals = {k: v.copy() for k, v in per_face.items()}
+        if self.selection == "largest" and self.faces is not None:
+            self.published_neutrals = {k: self.published_neutral for k in self.faces.fitters}
         self.count("model_published")
 
-    def maybe_publish_model(self, stamp: int, now_s: float) -> None:
-        """Publish the learned neutral when it moved by more than 0.5 mm somewhere, at most every
-        ``model_period_s``; always once when a dense reference is complete. A sparse identity keeps
-        accumulating evidence (and jitter) after it has been learned: from 2 x ``neutral_frames``
-        frames on, only a landmark vertex moving past ``model_change_mm`` is republished, since
-        each new neutral makes the deformer solve the edits again (and the edited face wobble)."""
-        f = self.fitter
+    def _neutral_change(self, f: Fitter, published: np.ndarray | None) -> tuple[float, float, bool]:
+        """(how far the fitter's neutral moved since ``published``, mm; the threshold that calls
+        for a new face/model; whether its dense reference is complete)."""
         neutral = f.neutral
         done = f.model.dense and f.neutral_ready
-        if done and self.final_published:
-            return
         learned = not f.model.dense and f.frames_fitted >= 2 * self.params.neutral_frames
         threshold = self.params.model_change_mm if learned else 0.5
-        if self.published_neutral is None:
-            moved = np.inf
-        elif learned:
+        if published is None:
+            return np.inf, threshold, done
+        if learned:
             # Judge the face itself (its landmark vertices, measured per vertex), not the skull
             # behind it, which the landmarks barely constrain (it swings much more).
-            change = neutral[f.model.landmark_vertices] - self.published_neutral[f.model.landmark_vertices]
-            moved = float(np.linalg.norm(change, axis=1).max())
-        else:
-            moved = float(np.abs(neutral - self.published_neutral).max())
-        if (done and moved > 0) or (moved > threshold and now_s - self.last_model_publish >= self.params.model_period_s):
-            self.publish_model(neutral, stamp)
+            change = neutral[f.model.landmark_vertices] - published[f.model.landmark_vertices]
+            return float(np.linalg.norm(change, axis=1).max()), threshold, done
+        return float(np.abs(neutral - published).max()), threshold, done
+
+    def maybe_publish_model(self, stamp: int, now_s: float) -> None:
+        """Publish the learned neutrals when one moved by more than 0.5 mm somewhere, at most every
+        ``model_period_s``; always once when a face's dense reference is complete. A sparse identity
+        keeps accumulating evidence (and jitter) after it has been learned: from 2 x
+        ``neutral_frames`` frames on, only a landmark vertex moving past ``model_change_mm`` is
+        republished, since each new neutral makes the deformer solve the edits again (and the
+        edited face wobble)."""
+        completes, moves = False, False
+        for key, f in self.faces.fitters.items():
+            if key in self.final_faces:
+                continue
+            # one face: its neutral against the last published one (at first the model's mean)
+            default = self.published_neutral if self.selection == "largest" else None
+            moved, threshold, done = self._neutral_change(f, self.published_neutrals.get(key, default))
+            completes |= done and moved > 0
+            moves |= moved > threshold
+            if done and moved == 0:
+                self.final_faces.add(key)
+        if completes or (moves and now_s - self.last_model_publish >= self.params.model_period_s):
+            self.publish_model(self.fitter.neutral, stamp)
             self.last_model_publish = now_s
-            self.final_published = done
+            self.final_faces |= {k for k, f in self.faces.fitters.items() if f.model.dense and f.neutral_ready}
 
     # -- frames --------------------------------------------------------------------------------
     def fitter_config(self) -> FitterConfig:
@@ -128,12 +164,14 @@ class FitterNode(Node):
         """A fitter for this camera (image size, K), made anew when the camera changed; the
         frame's K is ignored when the projection is orthographic. Raises FitError."""
         key = (size, None if K is None else K.round(6).tobytes())
-        if self.fitter is not None and key == self.camera_key:
+        if self.faces is not None and key == self.camera_key:
             return
-        if self.fitter is not None:
+        if self.faces is not None:
             self.count("camera_changed")
         K = None if self.params.projection == "orthographic" else K
-        self.fitter = make_fitter(self.model, self.fitter_config(), size, K)
+        config = self.fitter_config()
+        make_fitter(self.model, config, size, K)  # raises FitError now for a camera it cannot fit
+        self.faces = FaceFitters(lambda: make_fitter(self.model, config, size, K), self.selection)
         self.camera_key = key
 
     def on_landmarks(self, msg: FaceLandmarks):
@@ -180,20 +218,25 @@ class FitterNode(Node):
             self.last_error = str(exc)
             return
         with self.stage("fit"):
-            outcome = fit_landmarks(self.fitter, msg.points, msg.scores, msg.stamp * 1e-9, self.params.min_score)
-        if outcome.fit is None:
-            self.count(outcome.skipped)
-            if outcome.error:
-                self.last_error = outcome.error
-            return
-        result = outcome.fit
-        self.state_pub.publish(FaceState(
-            stamp=msg.stamp, frame_id=msg.frame_id, model_id=self.model.model_id,
-            R=np.asarray(result.R, np.float64), t=np.asarray(result.t, np.float64), scale=float(result.scale),
-            K=np.asarray(msg.K, np.float64) if np.shape(msg.K) == (3, 3) else np.eye(3),
-            alpha=result.alpha.astype(np.float32), beta=result.beta.astype(np.float32),
-            vertices=result.vertices, projected=result.projected, residual_px=float(result.residual_px),
-            image_size=[size[0], size[1]], projection=result.projection,
-        ))
-        self.count("fitted")
-        self.maybe_publish_model(msg.stamp, msg.stamp * 1e-9)
+            faces = self.faces.fit(msg.points, msg.scores, msg.track_ids, msg.stamp * 1e-9, self.params.min_score)
+        if not faces:
+            self.count("no_face" if np.shape(msg.points)[0] == 0 else "face_not_selected")
+        fitted = [f for f in faces if f.outcome.fit is not None]
+        for f in faces:
+            if f.outcome.fit is None:
+                self.count(f.outcome.skipped)
+                if f.outcome.error:
+                    self.last_error = f.outcome.error
+        for f in fitted:
+            result = f.outcome.fit
+            self.state_pub.publish(FaceState(
+                stamp=msg.stamp, frame_id=msg.frame_id, model_id=self.model.model_id,
+                R=np.asarray(result.R, np.float64), t=np.asarray(result.t, np.float64), scale=float(result.scale),
+                K=np.asarray(msg.K, np.float64) if np.shape(msg.K) == (3, 3) else np.eye(3),
+                alpha=result.alpha.astype(np.float32), beta=result.beta.astype(np.float32),
+                vertices=result.vertices, projected=result.projected, residual_px=float(result.residual_px),
+                image_size=[size[0], size[1]], projection=result.projection, face_id=f.key, faces=len(fitted),
+            ))
+            self.count("fitted")
+        if fitted:
+            self.maybe_publish_model(msg.stamp, msg.stamp * 1e-9)

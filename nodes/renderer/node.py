@@ -27,6 +27,7 @@ from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
 
 from .compositor import Compositor
+from .face_groups import FaceGroups
 from .pairing import FramePairer
 
 
@@ -69,6 +70,7 @@ class RendererNode(Node):
         qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))
+        self.groups = FaceGroups(capacity=p.buffer)  # the states of one frame (one per face)
         self.image_pub = self.advertise("render/image", Image) if p.publish else None
         self.events_pub = self.advertise("input/events", InputEvent) if p.window else None
         # One FrameDone per handled frame: an offline camera (camera.wait_for) sends the next one on it.
@@ -83,6 +85,7 @@ class RendererNode(Node):
         self.window = None
         self.video = None
         self._shown_at: list[float] = []
+        self._overlay_px: np.ndarray | None = None  # (V, 2) the edited face's deformed pixels this frame
         if p.window:
             self.timer(1.0 / 120.0, self.on_tick)
 
@@ -102,8 +105,12 @@ class RendererNode(Node):
         has_face = msg.vertices.shape[0] > 0
         if not has_face:
             self.count("state_without_face")
+        pairs = []
         with self.stage("pair"):
-            pairs = self.pairer.push_state(msg.stamp, msg if has_face else None)
+            for stamp, states in self.groups.push(msg.stamp, msg, msg.faces if has_face else 0, msg.face_id):
+                pairs += self.pairer.push_state(stamp, states or None)
+        for name, n in self.groups.counters.items():
+            self.counters[f"pairing_{name}"] = n
         self._render_all(pairs)
 
     # -- the frame -------------------------------------------------------------------------------
@@ -114,15 +121,17 @@ class RendererNode(Node):
             self._render(pair.frame, pair.state)
 
     def _deformed_vertices(self, state: FaceState) -> np.ndarray:
-        """Eq. 5 through the deformer's merge; the fitted vertices when there is no usable edit."""
+        """Eq. 5 through the deformer's merge, with the edit of this state's face; the fitted
+        vertices when there is no usable edit."""
         d = self.deformation
         if d is None or d.displacement.shape[0] == 0:
             return state.vertices
-        if d.model_id != state.model_id or d.displacement.shape != state.vertices.shape:
+        displacement = d.displacement_of(state.face_id)
+        if d.model_id != state.model_id or displacement.shape != state.vertices.shape:
             self.count("deformation_model_mismatch")
             return state.vertices
         with self.stage("merge"):
-            return merge_deformation(state.vertices, state.R, state.scale, d.displacement)
+            return merge_deformation(state.vertices, state.R, state.scale, displacement)
 
     def _ensure_output(self, width: int, height: int) -> bool:
         """(Re)create window and compositor for this frame size; False when the size is unusable."""
@@ -150,7 +159,9 @@ class RendererNode(Node):
                                      feather_px=self.params.feather_px, dilate_px=self.params.dilate_px)
         return True
 
-    def _render(self, frame_msg: Image, state: FaceState | None) -> None:
+    def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:
+        """Composite every face of ``states`` (None or []: no face) into the frame, each with its
+        own edit, and hand the result to the window, the video file and render/image."""
         frame = frame_msg.image
         h, w = frame.shape[:2]
         if not self._ensure_output(w, h):
@@ -158,28 +169,33 @@ class RendererNode(Node):
         out = frame
         drawn = False
         handles_px = roi_px = None
-        if state is None:
+        self._overlay_px = None
+        if not states:
             self.count("no_face")
-        elif self.model is None or self.model.model_id != state.model_id:
-            self.count("no_model")
-        elif state.image_size and list(state.image_size) not in ([w, h], [0, 0]):
-            self.count("state_size_mismatch")
-        else:
+        for state in states or []:
+            if self.model is None or self.model.model_id != state.model_id:
+                self.count("no_model")
+                continue
+            if state.image_size and list(state.image_size) not in ([w, h], [0, 0]):
+                self.count("state_size_mismatch")
+                continue
             try:
                 deformed = self._deformed_vertices(state)
-                out = self.compositor.render(frame, state.vertices, state.projected, self.model.triangles, deformed)
-                drawn = True
-                for name, ms in self.compositor.timings.items():
-                    if name != "total":
-                        self.stage_times.setdefault(name, []).append(ms)
-                if self.deformation is not None and self.compositor.deformed_px is not None:
-                    px = self.compositor.deformed_px
-                    handles_px = px[self.deformation.handles[self.deformation.handles < len(px)]]
-                    roi_px = px[self.deformation.roi[self.deformation.roi < len(px)]]
+                out = self.compositor.render(out, state.vertices, state.projected, self.model.triangles, deformed)
             except ValueError as exc:
                 self.count("bad_input")
-                self.log.warning("frame %d not rendered: %s", frame_msg.stamp, exc)
-                out = frame
+                self.log.warning("frame %d, face %d not rendered: %s", frame_msg.stamp, state.face_id, exc)
+                continue
+            drawn = True
+            for name, ms in self.compositor.timings.items():
+                if name != "total":
+                    self.stage_times.setdefault(name, []).append(ms)
+            d, px = self.deformation, self.compositor.deformed_px
+            if d is not None and px is not None and (d.face_id == state.face_id or len(states) == 1):
+                # the overlay marks the face being edited
+                self._overlay_px = px
+                handles_px = px[d.handles[d.handles < len(px)]]
+                roi_px = px[d.roi[d.roi < len(px)]]
         with self.stage("output"):
             if self.image_pub is not None:
                 self.image_pub.publish(Image(stamp=frame_msg.stamp, seq=frame_msg.seq, frame_id=frame_msg.frame_id,
@@ -222,7 +238,7 @@ class RendererNode(Node):
     def _pins_px(self, handles_px) -> np.ndarray | None:
         """(S, 2) pixels of the pinned vertices (the deformation's ``static``) on the deformed
         face this frame drew; None when it drew none (``handles_px`` None: no face, no edit)."""
-        d, px = self.deformation, self.compositor.deformed_px
+        d, px = self.deformation, self._overlay_px
         if handles_px is None or d is None or px is None:
             return None
         return px[d.static[(d.static >= 0) & (d.static < len(px))]]
