@@ -1,7 +1,8 @@
 """Renderer time per frame at 856x480, next to OpenCV's Telea inpainting of the same mask on the
-full frame, in the same run.
+full frame and next to the compositor of an earlier commit, in the same run.
 
-    python benchmarks/bench_renderer.py [--video s18] [--frames 60] [--model sfm|facemesh] [--json out.json]
+    python benchmarks/bench_renderer.py [--video s18] [--frames 60] [--model sfm|facemesh]
+                                        [--baseline REV] [--json out.json]
 
 Frames: the shared video (default s18.mp4, 1280x720) resized to 856x480, the paper's size. Face
 geometry per frame from the real pipeline (landmark detector + fitter, orthographic) when
@@ -9,9 +10,12 @@ geometry per frame from the real pipeline (landmark detector + fitter, orthograp
 (tests/renderer_scene.py). The edit is the issue's (nose tip out 15 mm, cheeks in 8 mm; ARAP),
 merged per frame with the deformer's Eq. 5. Geometry is computed before timing.
 
-Measured per frame (medians, ms): the compositor's stages (camera recovery, texture update,
-draw, readback, masks (regions, uncovered mask, sources), inpaint (the fill), composite) and its total, with the push-pull fill and with Telea on the
-bounding box; the peer cv2.inpaint(TELEA, radius 3) of the same uncovered mask on the full
+Measured per frame (medians, ms): the compositor's stages (camera recovery with the subdivided
+vertices, draw (the source map), readback, masks (regions, uncovered mask, sources), inpaint (the
+fill), texture (the frame sampled through the source map), composite) and its total, with the
+push-pull fill, with Telea on the bounding box, with Lanczos-4 sampling instead of bicubic, and
+the whole render of the baseline compositor (``--baseline``, default the commit before the
+source-map warp: texture round trip, no subdivision), loaded from git; the peer cv2.inpaint(TELEA, radius 3) of the same uncovered mask on the full
 frame; and a GPU variant of the composite step (upload background + alpha, blend in a shader,
 read back) next to the CPU one. Targets: inpaint <= 0.1x the full-frame Telea; whole renderer
 stage <= 10 ms on this machine. The paper (i7-3770 + GTX TITAN): inpainting 31.16 ms, texture +
@@ -41,6 +45,7 @@ from facesculpt.nodes.renderer import Compositor  # noqa: E402
 from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
 from facesculpt.runtime.process_limits import limit_threads  # noqa: E402
 
+BASELINE_REV = "7c619da"  # the compositor before the source-map warp (issue 15)
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
 SIZE = (856, 480)
@@ -79,6 +84,28 @@ def geometry(frames, model_name: str):
         source = "SFM posed by hand-marked landmarks on frame 0 (no networks: run `facesculpt setup`)"
         out = [(pose.fitted, pose.projected, pose.triangles, deformed)] * len(frames)
     return out, source, model.model_id
+
+
+def baseline_compositor(rev: str):
+    """The Compositor class of ``nodes/renderer/compositor.py`` at git revision ``rev`` (its
+    relative imports resolved in today's package), or None when git cannot show it."""
+    import importlib.util
+    import subprocess
+    import tempfile
+
+    try:
+        source = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:nodes/renderer/compositor.py"],
+                                capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
+        f.write(source)
+    spec = importlib.util.spec_from_file_location("facesculpt.nodes.renderer._baseline_compositor", f.name)
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = "facesculpt.nodes.renderer"
+    spec.loader.exec_module(module)
+    Path(f.name).unlink()
+    return module.Compositor
 
 
 class GpuComposite:
@@ -128,6 +155,8 @@ def main(argv=None) -> int:
     ap.add_argument("--model", default="sfm", choices=("sfm", "facemesh"))
     ap.add_argument("--rounds", type=int, default=2, help="passes over the frames (the first warms up)")
     ap.add_argument("--json", help="write the figures here")
+    ap.add_argument("--baseline", default=BASELINE_REV,
+                    help=f"git revision whose compositor is timed alongside (default {BASELINE_REV}; '' for none)")
     ap.add_argument("--threads", type=int, default=1,
                     help="OpenBLAS and OpenCV threads, as in the renderer node (default 1; 0: the libraries' defaults)")
     args = ap.parse_args(argv)
@@ -139,6 +168,10 @@ def main(argv=None) -> int:
     geo, source, model_id = geometry(frames, args.model)
     W, H = SIZE
     comps = {m: Compositor(W, H, inpaint=m) for m in ("pushpull", "telea")}
+    comps["lanczos"] = Compositor(W, H, ctx=comps["pushpull"].ctx, interpolation="lanczos")
+    Baseline = baseline_compositor(args.baseline) if args.baseline else None
+    if Baseline is not None:
+        comps["baseline"] = Baseline(W, H, ctx=comps["pushpull"].ctx)
     gpu = GpuComposite(comps["pushpull"].ctx, W, H)
     stats: dict[str, list[float]] = {}
 
@@ -162,6 +195,8 @@ def main(argv=None) -> int:
             if rnd == 0:
                 continue
             comp = comps["pushpull"]
+            if comp.box is None:
+                continue
             full = np.zeros((H, W), np.uint8)
             x0, y0, x1, y1 = comp.box
             full[y0:y1, x0:x1] = comp.inpainted_region
@@ -215,6 +250,11 @@ def main(argv=None) -> int:
               f"paper {PAPER_INPAINT_MS} ms")
     print(f"  texture + draw + readback: {tex_draw:.2f} ms (paper texture + texcoord + rendering {PAPER_TEXTURE_DRAW_MS} ms)")
     print(f"  composite step: CPU {med['composite_cpu_blend']:.3f} ms, GPU {med['composite_gpu_blend']:.3f} ms")
+    print(f"  Lanczos-4 sampling: total {med['lanczos.total']:.2f} ms (texture {med['lanczos.texture']:.2f})")
+    if "baseline.total" in med:
+        print(f"  baseline compositor ({args.baseline}): total {med['baseline.total']:.2f} ms, this one "
+              f"{med[f'{pp}.total']:.2f} ms (same frames, same run)")
+        fig["baseline"] = args.baseline
     print(f"  whole renderer stage (push-pull): {med[f'{pp}.total']:.2f} ms (target <= 10 ms)")
     if args.json:
         Path(args.json).write_text(json.dumps(fig, indent=2))

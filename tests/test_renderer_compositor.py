@@ -18,7 +18,6 @@ from renderer_scene import (
     issue_edit,
     place_fitted,
     place_marked,
-    psnr,
     rasterize_region,
     read_frames,
 )
@@ -77,19 +76,14 @@ def sample(image: np.ndarray, px: np.ndarray) -> np.ndarray:
     return cv2.remap(image, m[..., 0], m[..., 1], cv2.INTER_LINEAR).reshape(-1, 3).astype(np.float64)
 
 
-def test_zero_deformation_reproduces_the_frame(gl, scene):
+def test_zero_deformation_leaves_every_pixel_bit_identical(gl, scene):
     video, frame, pose, _ = scene
     original = frame.copy()
     H, W = frame.shape[:2]
     comp = Compositor(W, H, ctx=gl)
     out = comp.render(frame, pose.fitted, pose.projected, pose.triangles, pose.fitted.copy())
-    region = rasterize_region(pose.projected, pose.triangles, (H, W))
-    drawn = comp.full_frame_regions()["deformed"]
-    # The face really was drawn: the GL coverage is the independently rasterised silhouette.
-    assert region.sum() > 5000
-    assert (drawn & region).sum() / (drawn | region).sum() > 0.97
-    assert np.array_equal(out[~region], frame[~region])
-    assert psnr(out[region], frame[region]) >= 40.0
+    assert out is not frame and np.array_equal(out, frame)
+    assert comp.box is None  # nothing moved: nothing re-rendered, inpainted or blended
     assert np.array_equal(frame, original)  # input untouched
     comp.release()
 
@@ -102,9 +96,21 @@ def test_edit_keeps_background_and_fills_what_the_face_uncovered(gl, scene, inpa
     deformed_px = pose.project(deformed)
     comp = Compositor(W, H, ctx=gl, inpaint=inpaint)
     out = comp.render(frame, pose.fitted, pose.projected, pose.triangles, deformed)
+    regions = comp.full_frame_regions()
+    box = comp.box
     comp.release()
     original = rasterize_region(pose.projected, pose.triangles, (H, W))
     moved = rasterize_region(deformed_px, pose.triangles, (H, W))
+    # The GL coverage (the subdivided mesh, in the work box) is the independently rasterised
+    # silhouette there; only covered pixels are re-rendered; every pixel neither re-rendered
+    # nor inpainted is the input's, bit for bit.
+    inside = np.zeros((H, W), bool)
+    inside[box[1]:box[3], box[0]:box[2]] = True
+    drawn, expected = regions["deformed"] & inside, moved & inside
+    assert (drawn & expected).sum() / (drawn | expected).sum() > 0.95
+    assert regions["changed"].sum() > 1000 and not (regions["changed"] & ~regions["deformed"]).any()
+    kept = ~(regions["changed"] | regions["inpainted"])
+    assert np.array_equal(out[kept], frame[kept])
 
     # No background distortion: bit-identical outside the union of both regions (+2 px).
     outside = ~dilate(original | moved, 2)
@@ -182,3 +188,101 @@ def test_bad_input_is_refused_with_a_clear_error(gl, data_dir, sfm):
     # After the errors it still renders correctly.
     assert np.array_equal(comp.render(frame, X, px, T, X), frame)
     comp.release()
+
+
+# -- the warp itself, on a known mesh ------------------------------------------------------------
+def plane_mesh(centre, side: float, n: int = 12):
+    """A square grid mesh ``side`` px wide around ``centre`` (x, y) in the fitter's orthographic
+    camera space (x, y in pixels), bulged slightly in depth so that the camera is determined:
+    (vertices (n*n, 3), pixels (n*n, 2), triangles)."""
+    u = np.linspace(-side / 2, side / 2, n)
+    x, y = np.meshgrid(u + centre[0], u + centre[1])
+    r2 = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
+    vertices = np.column_stack([x.ravel(), y.ravel(), 0.002 * r2.ravel()])
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    triangles = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
+    return vertices, vertices[:, :2].copy(), triangles
+
+
+def laplacian_variance(image: np.ndarray, mask: np.ndarray) -> float:
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return float(cv2.Laplacian(grey, cv2.CV_64F, ksize=1)[mask].var())
+
+
+@pytest.mark.parametrize("shift", [(3.0, -2.0), (0.4, 0.3), (-1.5, 0.5)], ids=str)
+def test_translated_plane_is_the_frame_warped_once_at_full_quality(gl, data_dir, shift):
+    """A flat mesh over the face of a real frame, moved by ``shift`` px: inside it, the output is
+    cv2.remap of the input (bicubic) at the translated positions, as sharp as that; an integer
+    shift moves the pixels exactly."""
+    frame = read_frames(data_dir, "s18")[0]
+    H, W = frame.shape[:2]
+    vertices, projected, triangles = plane_mesh((530, 200), 160)
+    moved = vertices + [shift[0], shift[1], 0.0]
+    comp = Compositor(W, H, ctx=gl)
+    out = comp.render(frame, vertices, projected, triangles, moved)
+    feather = comp.feather_width(projected)
+    comp.release()
+    yy, xx = np.mgrid[:H, :W].astype(np.float32)
+    expected = cv2.remap(frame, xx - np.float32(shift[0]), yy - np.float32(shift[1]), cv2.INTER_CUBIC,
+                         borderMode=cv2.BORDER_REPLICATE)
+    inner = 80 - feather - 4  # inside both squares, past the soft edge
+    inside = (np.abs(xx - 530 - shift[0]) < inner) & (np.abs(yy - 200 - shift[1]) < inner)
+    inside &= (np.abs(xx - 530) < inner) & (np.abs(yy - 200) < inner)
+    diff = np.abs(out[inside].astype(int) - expected[inside])
+    if float(shift[0]).is_integer() and float(shift[1]).is_integer():
+        assert np.array_equal(out[inside], expected[inside])
+        assert np.array_equal(out[inside], np.roll(frame, (int(shift[1]), int(shift[0])), axis=(0, 1))[inside])
+    assert diff.max() <= 2 and diff.mean() < 0.2
+    assert laplacian_variance(out, inside) / laplacian_variance(expected, inside) >= 0.95
+    assert laplacian_variance(out, inside) / laplacian_variance(frame, inside) >= 0.75  # the kernel's own loss only
+    # Far from the square nothing changed.
+    far = (np.abs(xx - 530) > 100) | (np.abs(yy - 200) > 100)
+    assert np.array_equal(out[far], frame[far])
+
+
+# -- smooth outlines -----------------------------------------------------------------------------
+def outline_turning(region: np.ndarray, centre, radius: float, chord: int = 6) -> float:
+    """The largest turn (degrees) between consecutive ``chord``-px chords of the outline of
+    ``region`` (H, W) bool, smoothed along the contour (sigma 1.5 px, the pixel staircase),
+    within ``radius`` px of ``centre`` (x, y)."""
+    contours, _ = cv2.findContours(region.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    c = max(contours, key=len)[:, 0, :].astype(float)
+    k = np.arange(-5, 6)
+    w = np.exp(-0.5 * (k / 1.5) ** 2)
+    w /= w.sum()
+    smooth = sum(wi * np.roll(c, -ki, axis=0) for ki, wi in zip(k, w))
+    step = np.roll(smooth, -chord, axis=0) - smooth
+    angle = np.arctan2(step[:, 1], step[:, 0])
+    turn = np.abs(np.angle(np.exp(1j * (np.roll(angle, -chord) - angle))))
+    near = np.linalg.norm(smooth - np.asarray(centre), axis=1) < radius
+    assert near.sum() > 50
+    return float(np.degrees(turn[near]).max())
+
+
+def test_chin_preset_outline_is_a_smooth_curve_not_a_polygon(gl, data_dir, detector):
+    """The `chin` preset on the 468-vertex face mesh pulls the chin down: drawn from the mesh as
+    it is, the new outline is a polygon with corners at the vertices; subdivided (the default),
+    it turns gradually."""
+    from facesculpt.app.pipeline import read_preset
+    from facesculpt.nodes.deformer import EditStack
+    from facesculpt.nodes.fitter import facemesh_model
+
+    frame = read_frames(data_dir, "d0")[0]
+    H, W = frame.shape[:2]
+    pose = place_fitted(facemesh_model(), frame, detector)
+    stack = EditStack(pose.rest, pose.triangles, list(pose.landmarks), list(pose.landmarks.values()))
+    stack.apply_preset(read_preset("chin"))
+    deformed = merge_deformation(pose.fitted, pose.R, pose.scale, stack.solve())
+    width = float(np.ptp(pose.projected[:, 0]))
+    turning = {}
+    for levels in (0, None):
+        comp = Compositor(W, H, ctx=gl, subdivision=levels)
+        comp.render(frame, pose.fitted, pose.projected, pose.triangles, deformed)
+        chin = comp.deformed_px[pose.landmarks["chin"]]
+        assert chin[1] > pose.projected[pose.landmarks["chin"], 1] + 5  # the chin did move down
+        turning[levels] = outline_turning(comp.full_frame_regions()["deformed"], chin, 0.25 * width)
+        comp.release()
+    assert turning[0] > 30.0             # the polygon's corners
+    assert turning[None] < 22.0          # a curve
+    assert turning[None] < 0.55 * turning[0]

@@ -11,6 +11,7 @@ from facesculpt.geometry import boundary_loops
 from facesculpt.nodes.renderer.camera import estimate_projection, project
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
 from facesculpt.nodes.renderer.mesh import close_holes
+from facesculpt.nodes.renderer.subdivision import levels_for, loop_subdivision
 from facesculpt.nodes.renderer.video_out import VideoOutput
 
 
@@ -171,6 +172,66 @@ def test_close_holes_leaves_only_the_outline(data_dir):
     assert len(closed) == len(tri) + 48 - 2
     assert [len(loop) for loop in boundary_loops(closed)] == [112]
     assert close_holes(closed).shape == closed.shape
+
+
+# -- subdivision ------------------------------------------------------------------------------
+def test_loop_subdivision_is_affine_and_keeps_a_plane_planar(data_dir):
+    from facesculpt.nodes.fitter import facemesh_model
+
+    model = facemesh_model()
+    tri = close_holes(model.triangles)
+    V = len(model.mean)
+    for levels in (1, 2):
+        S, fine = loop_subdivision(tri, V, levels)
+        assert S.shape[1] == V and len(fine) == len(tri) * 4 ** levels
+        assert fine.max() == S.shape[0] - 1
+        assert np.abs(np.asarray(S.sum(axis=1)).ravel() - 1.0).max() < 1e-5   # rows sum to 1
+        assert S.min() >= 0.0                                                   # convex combinations
+        # One outline still (the holes are closed), four times (per level) as many vertices on it.
+        assert [len(loop) for loop in boundary_loops(fine)] == [len(boundary_loops(tri)[0]) * 2 ** levels]
+        # The face mesh's vertices put on a tilted plane stay on it; a translation translates.
+        rng = np.random.default_rng(levels)
+        xy = model.mean[:, :2].astype(np.float64)
+        plane = np.column_stack([xy, 0.3 * xy[:, 0] - 0.7 * xy[:, 1] + 5.0])
+        finer = S @ plane
+        assert np.abs(finer[:, 2] - (0.3 * finer[:, 0] - 0.7 * finer[:, 1] + 5.0)).max() < 1e-3
+        shift = rng.normal(size=3)
+        assert np.allclose(S @ (plane + shift), finer + shift, atol=1e-3)
+        # Zero stays exactly zero: an unmoved vertex neighbourhood keeps an offset of 0.
+        offset = np.zeros((V, 2), np.float32)
+        offset[0] = 1.0
+        moved = S @ offset
+        assert (moved == 0).all(axis=1).sum() > 0.9 * S.shape[0]
+
+
+def test_loop_subdivision_smooths_a_polygon_outline():
+    """A coarse disc (a fan around a centre): its outline's corners turn 45 degrees each; after two
+    levels the outline is the cubic B-spline of the octagon, turning about 11 degrees per vertex."""
+    n = 8
+    angles = np.arange(n) * 2 * np.pi / n
+    points = np.vstack([[0.0, 0.0], np.column_stack([np.cos(angles), np.sin(angles)])])
+    tri = np.array([(0, 1 + i, 1 + (i + 1) % n) for i in range(n)])
+    S, fine = loop_subdivision(tri, len(points), 2)
+    loop = boundary_loops(fine)[0]
+    outline = S @ points
+    edges = np.diff(outline[np.r_[loop, loop[0]]], axis=0)
+    heading = np.arctan2(edges[:, 1], edges[:, 0])
+    turn = np.degrees(np.abs(np.angle(np.exp(1j * np.diff(np.r_[heading, heading[0]])))))
+    assert len(loop) == 4 * n
+    assert turn.max() < 15.0 and abs(turn.sum() - 360.0) < 1e-6
+    # The boundary rule: the outline depends on outline vertices only (moving the centre moves
+    # no fine outline vertex).
+    lifted = points.copy()
+    lifted[0] = [0.3, -0.2]
+    assert np.allclose((S @ lifted)[loop], outline[loop])
+
+
+def test_subdivision_levels_and_errors():
+    assert levels_for(898) == 2 and levels_for(6782) == 0 and levels_for(3000) == 1
+    with pytest.raises(ValueError, match="levels"):
+        loop_subdivision(np.array([[0, 1, 2]]), 3, -1)
+    with pytest.raises(ValueError, match="indices"):
+        loop_subdivision(np.array([[0, 1, 5]]), 3, 1)
 
 
 # -- video ------------------------------------------------------------------------------------

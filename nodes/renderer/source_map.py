@@ -1,0 +1,162 @@
+"""Where each output pixel's colour comes from: the source map, rasterised with OpenGL (moderngl).
+
+The deformed mesh is drawn (z-buffered) with, as a per-vertex attribute, the offset from its
+deformed pixel back to its undeformed one (``d = source - destination``, pixels). Interpolated
+over each triangle without perspective, the offset at a pixel p says where in the input
+frame p's colour is: ``p + d(p)``. Drawing the offset rather than the source position keeps a
+zero offset exactly zero (every vertex 0, so every interpolated value 0), whatever the
+rasteriser's sub-pixel snapping, so pixels that do not move can be recognised exactly.
+
+The target is RG32F, cleared to :data:`UNCOVERED` (no triangle there). A second pass draws the
+moving part of the mesh undeformed (its pixels ``dst + d``) into an R8 target: where the moving
+face was (the rest of the face does not move). Both are read back for the work box only. The colours are sampled afterwards on the CPU, once
+(:mod:`.warp`), so no frame texture, mipmap or second resampling is involved.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+UNCOVERED = 1.0e9  # the clear value of the offset target: no triangle drew this pixel
+
+_MAP_VS = """
+#version 330
+uniform vec4 u_box;        // x0, y0, w, h of the target in frame pixels
+uniform vec2 u_depth;      // depth offset, 1 / depth range
+in vec2 in_dst;            // deformed vertex, frame pixels (pixel centres at integers)
+in float in_depth;         // grows away from the camera
+in vec2 in_offset;         // undeformed minus deformed pixel position
+noperspective out vec2 v_offset;
+void main() {
+    vec2 ndc = (in_dst + 0.5 - u_box.xy) / u_box.zw * 2.0 - 1.0;
+    float z = clamp((in_depth - u_depth.x) * u_depth.y, 0.0, 1.0) * 1.98 - 0.99;
+    gl_Position = vec4(ndc, z, 1.0);
+    v_offset = in_offset;
+}
+"""
+
+_MAP_FS = """
+#version 330
+noperspective in vec2 v_offset;
+out vec2 f_offset;
+void main() {
+    f_offset = v_offset;
+}
+"""
+
+_MASK_VS = """
+#version 330
+uniform vec4 u_box;
+in vec2 in_dst;
+in vec2 in_offset;
+void main() {
+    gl_Position = vec4((in_dst + in_offset + 0.5 - u_box.xy) / u_box.zw * 2.0 - 1.0, 0.0, 1.0);
+}
+"""
+
+_MASK_FS = """
+#version 330
+out float f_mask;
+void main() {
+    f_mask = 1.0;
+}
+"""
+
+
+class SourceMapRenderer:
+    """Draws the offset map and the original region of a mesh into targets of one frame size.
+
+    SourceMapRenderer(ctx, width, height): ``ctx`` a moderngl context; targets ``width`` x
+    ``height`` pixels (the work box of a frame fits in them). :meth:`set_mesh` once per mesh
+    size, :meth:`draw` per frame, :meth:`release` at the end.
+    """
+
+    def __init__(self, ctx: moderngl.Context, width: int, height: int):
+        self.ctx = ctx
+        self._map_color = ctx.renderbuffer((width, height), 2, dtype="f4")
+        self._map_depth = ctx.depth_renderbuffer((width, height))
+        self.fbo_map = ctx.framebuffer([self._map_color], self._map_depth)
+        self._orig_color = ctx.renderbuffer((width, height), 1)
+        self.fbo_orig = ctx.framebuffer([self._orig_color])
+        self.map_prog = ctx.program(vertex_shader=_MAP_VS, fragment_shader=_MAP_FS)
+        self.mask_prog = ctx.program(vertex_shader=_MASK_VS, fragment_shader=_MASK_FS)
+        self._vbo = self._ibo = self._vao_map = self._vao_mask = None
+        self._n_vertices = self._max_triangles = 0
+
+    def set_mesh(self, n_vertices: int, max_triangles: int) -> None:
+        """Make room for meshes of ``n_vertices`` vertices and up to ``max_triangles`` triangles."""
+        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo"):
+            old = getattr(self, name)
+            if old is not None:
+                old.release()
+        self._ibo = self.ctx.buffer(reserve=max(int(max_triangles), 1) * 3 * 4)
+        self._vbo = self.ctx.buffer(reserve=max(int(n_vertices), 1) * 5 * 4)
+        self._n_vertices = int(n_vertices)
+        self._max_triangles = int(max_triangles)
+        self._vao_map = self.ctx.vertex_array(
+            self.map_prog, [(self._vbo, "2f 1f 2f", "in_dst", "in_depth", "in_offset")], index_buffer=self._ibo)
+        self._vao_mask = self.ctx.vertex_array(
+            self.mask_prog, [(self._vbo, "2f 4x 2f", "in_dst", "in_offset")], index_buffer=self._ibo)
+
+    def draw(self, dst_px: np.ndarray, depth: np.ndarray, offset: np.ndarray, triangles: np.ndarray,
+             n_original: int, box: tuple[int, int, int, int]) -> None:
+        """Rasterise a mesh in ``box`` (x0, y0, x1, y1 frame pixels), at the origin of the
+        targets; :meth:`read` reads it back.
+
+        dst_px: (V, 2) deformed vertex pixels; depth: (V,) growing away from the camera;
+        offset: (V, 2) undeformed minus deformed pixels; triangles: (T, 3) int into them, all
+        drawn into the offset map, the first ``n_original`` of them into the original region.
+        """
+        tri = np.ascontiguousarray(triangles, np.uint32)
+        if len(tri) > self._max_triangles:
+            raise ValueError(f"{len(tri)} triangles, room for {self._max_triangles}")
+        self._ibo.write(tri.tobytes())
+        x0, y0, x1, y1 = box
+        bw, bh = x1 - x0, y1 - y0
+        dmin, dmax = float(depth.min()), float(depth.max())
+        drange = max(dmax - dmin, 1e-9)
+        data = np.empty((self._n_vertices, 5), np.float32)
+        data[:, 0:2] = dst_px
+        data[:, 2] = depth
+        data[:, 3:5] = offset
+        self._vbo.write(data.tobytes())
+        box_uniform = (float(x0), float(y0), float(bw), float(bh))
+        self.map_prog["u_box"].value = box_uniform
+        self.map_prog["u_depth"].value = (dmin - 0.01 * drange, 1.0 / (1.02 * drange))
+        self.mask_prog["u_box"].value = box_uniform
+        ctx = self.ctx
+        viewport = (0, 0, bw, bh)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        self.fbo_map.use()
+        ctx.viewport = viewport
+        ctx.enable(moderngl.DEPTH_TEST)
+        self.fbo_map.clear(UNCOVERED, UNCOVERED, 0.0, 0.0, depth=1.0, viewport=viewport)
+        self._vao_map.render(moderngl.TRIANGLES, vertices=3 * len(tri))
+        ctx.disable(moderngl.DEPTH_TEST)
+        self.fbo_orig.use()
+        ctx.viewport = viewport
+        self.fbo_orig.clear(0.0, viewport=viewport)
+        if n_original > 0:
+            self._vao_mask.render(moderngl.TRIANGLES, vertices=3 * int(n_original))
+
+    def read(self, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """The last :meth:`draw`, ``box`` in size: (offset map (h, w, 2) float32, pixels;
+        :data:`UNCOVERED` where no triangle is; original region (h, w) uint8 0/1)."""
+        x0, y0, x1, y1 = box
+        bw, bh = x1 - x0, y1 - y0
+        viewport = (0, 0, bw, bh)
+        offsets = np.frombuffer(self.fbo_map.read(viewport=viewport, components=2, dtype="f4", alignment=1),
+                                np.float32).reshape(bh, bw, 2)
+        orig = np.frombuffer(self.fbo_orig.read(viewport=viewport, components=1, alignment=1),
+                             np.uint8).reshape(bh, bw)
+        return offsets, orig >> 7  # the mask target holds exactly 0 or 255
+
+    def release(self) -> None:
+        """Free the GL objects."""
+        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo", "fbo_map", "fbo_orig", "_map_color",
+                     "_map_depth", "_orig_color", "map_prog", "mask_prog"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.release()
+                setattr(self, name, None)
