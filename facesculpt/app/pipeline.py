@@ -116,18 +116,22 @@ class Pipeline:
     are not fitted (the other fitter options are :class:`FitterConfig`'s defaults, the fitter
     node's); faces: which faces are fitted and edited, "largest", "all" or a face number from 1
     (:func:`facesculpt.nodes.fitter.parse_faces`), each with its own fitter and neutral;
-    inpaint, feather_px, dilate_px: the compositor's. The detector and the GL context are made
-    here; call :meth:`close` (or use ``with``) to free them.
+    inpaint, feather_px, dilate_px: the compositor's; detector: a :class:`LandmarkDetector` to
+    reuse (reset here), else one is made. The GL context is made here; call :meth:`close` (or use
+    ``with``) to free it.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
                  neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
-                 faces: str | int = "largest"):
+                 faces: str | int = "largest", detector: LandmarkDetector | None = None):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
-        self.detector = LandmarkDetector(models_dir=models_dir, threads=threads,
-                                         max_faces=max_faces_for(self.selection))
+        if detector is None:
+            detector = LandmarkDetector(models_dir=models_dir, threads=threads)
+        detector.reset()  # a detector reused from another video starts afresh
+        detector.max_faces = max_faces_for(self.selection)
+        self.detector = detector
         self.fov_deg = float(fov_deg)
         self.neutral_frames = int(neutral_frames)
         self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames)

@@ -17,8 +17,10 @@ what was written, a playable file (:mod:`.safe_output`).
 
 from __future__ import annotations
 
+import copy
 import signal
 import sys
+import threading
 from pathlib import Path
 
 import cv2
@@ -34,10 +36,19 @@ def register(sub) -> None:
                                    "written unchanged.",
                        epilog="Examples: facesculpt process in.mp4 -o out.mp4 --edits nose_longer; "
                               "facesculpt process in.mp4 -o frames/%05d.png --side-by-side")
-    p.add_argument("input", metavar="IN", help="input video file")
+    p.add_argument("input", metavar="IN", nargs="+",
+                   help="input video file; several files, folders or globs make a batch (-o is then a folder)")
     p.add_argument("-o", "--output", metavar="OUT", required=True,
                    help="output video (.mp4, .mov, .m4v, .avi, .mkv) or image pattern such as out/%%05d.png "
-                        "(lossless: png, bmp, tif)")
+                        "(lossless: png, bmp, tif); for a batch, a folder (each output named after its input)")
+    p.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="batch: parallel workers on this machine (default: one per core)")
+    p.add_argument("--cluster", default="", metavar="ADDRESS",
+                   help="batch: run on a Dask distributed cluster, e.g. tcp://scheduler:8786 (workers need facesculpt "
+                        "installed and set up)")
+    p.add_argument("--suffix", default=".mp4", metavar=".EXT", help="batch: output video suffix (default .mp4)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="batch: process inputs whose output already exists (default: skip them, so a rerun resumes)")
     p.add_argument("--edits", action="append", default=[], metavar="[N:]PRESET",
                    help="a deformer preset file, or the name of a shipped one (nose_longer, chin, cheeks); "
                         "repeat to stack several, in order; N:PRESET edits face N only (with --faces all)")
@@ -127,7 +138,8 @@ def open_input(path: str):
 
 
 class _Stop:
-    """SIGINT/SIGTERM set a flag; the frame loop stops after the current frame."""
+    """SIGINT/SIGTERM set a flag; the frame loop stops after the current frame. Off the main
+    thread (a batch worker's task) signals are the worker's to handle: nothing is installed."""
 
     def __init__(self):
         self.signal: str | None = None
@@ -136,6 +148,8 @@ class _Stop:
     def __enter__(self):
         def on_signal(signum, frame):
             self.signal = signal.Signals(signum).name
+        if threading.current_thread() is not threading.main_thread():
+            return self
         for s in (signal.SIGINT, signal.SIGTERM):
             self.previous[s] = signal.signal(s, on_signal)
         return self
@@ -212,15 +226,31 @@ def _finish(output, completed: bool) -> None:
 
 
 def cmd_process(args) -> int:
-    from facesculpt.app.pipeline import Pipeline, read_preset
-    from facesculpt.app.safe_output import refuse_output_over_input
-    from facesculpt.nodes.deformer.preset_format import check_strength, merge_presets, scale_preset
-    from facesculpt.nodes.fitter import parse_faces
+    from facesculpt.app.batch import expand_inputs, is_batch, run_batch
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)  # one thread per stage is faster here (see facesculpt.runtime.process_limits)
     if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:
         raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
+    if is_batch(args):
+        return run_batch(args, expand_inputs(args.input))
+    code, message = process_file(args, args.input[0], args.output)
+    print(message, file=sys.stderr, flush=True)
+    return code
+
+
+def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:
+    """One video through the pipeline with the options of ``args`` (the command line's); returns
+    (exit status, the one line that says what was written). ``detector``: a
+    :class:`LandmarkDetector` to reuse (a batch worker keeps its networks loaded); its tracks are
+    reset first, so the output is the same as with a fresh one. Raises on bad input."""
+    from facesculpt.app.pipeline import Pipeline, read_preset
+    from facesculpt.app.safe_output import refuse_output_over_input
+    from facesculpt.nodes.deformer.preset_format import check_strength, merge_presets, scale_preset
+    from facesculpt.nodes.fitter import parse_faces
+
+    args = copy.copy(args)
+    args.input, args.output = input_path, output_spec
     refuse_output_over_input(args.input, args.output)  # before anything is opened
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
@@ -232,7 +262,7 @@ def cmd_process(args) -> int:
         total = min(total, args.max_frames)
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input)
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
-                        faces=selection)
+                        faces=selection, detector=detector)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 
@@ -258,8 +288,7 @@ def cmd_process(args) -> int:
                         raise KeyboardInterrupt
     except KeyboardInterrupt:
         _finish(output, completed=False)
-        print(f"interrupted: kept {output.frames} frames in {output.path!s}", file=sys.stderr, flush=True)
-        return 130
+        return 130, f"interrupted: kept {output.frames} frames in {output.path!s}"
     except BaseException:
         if hasattr(output, "discard"):
             output.discard()  # the unfinished file is ours; the target keeps what it held
@@ -274,9 +303,6 @@ def cmd_process(args) -> int:
     _finish(output, completed=True)
     if presets and not faces_edited:
         how = "no face was found" if not frames_with_face else "no face the edits name was found"
-        print(f"wrote {output.frames} frames to {output.path!s} unedited: {how}", file=sys.stderr)
-    else:
-        edits = f", edits from {', '.join(args.edits)} on {len(faces_edited)} face(s)" if faces_edited else ""
-        print(f"wrote {output.frames} frames to {output.path!s} ({frames_with_face} with a face{edits})",
-              file=sys.stderr)
-    return 0
+        return 0, f"wrote {output.frames} frames to {output.path!s} unedited: {how}"
+    edits = f", edits from {', '.join(args.edits)} on {len(faces_edited)} face(s)" if faces_edited else ""
+    return 0, f"wrote {output.frames} frames to {output.path!s} ({frames_with_face} with a face{edits})"
