@@ -55,6 +55,7 @@ from .warp import (
 )
 
 FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's size
+STAGES = ("camera", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
 
 
 class Compositor:
@@ -214,9 +215,10 @@ class Compositor:
         moved = np.einsum("ij,ij->i", offset, offset) >= IDENTITY_PX ** 2
         box = self._work_box(projected, dst_px, moved) if moved.any() else None
         out = frame_bgr.copy()
-        if box is None:  # nothing moves, or not inside the frame
-            self.timings = {"camera": (time.perf_counter() - t0) * 1e3,
-                            "total": (time.perf_counter() - t_start) * 1e3}
+        if box is None:  # nothing moves, or not inside the frame: every later stage takes no time
+            self.timings = dict.fromkeys(STAGES, 0.0)
+            self.timings["camera"] = (time.perf_counter() - t0) * 1e3
+            self.timings["total"] = (time.perf_counter() - t_start) * 1e3
             return out
         fine = self._S @ np.column_stack([dst_px, depth, offset]).astype(np.float32)
         draw_tris, n_moving = self._draw_triangles(fine[:, 3:5])
