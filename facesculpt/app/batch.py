@@ -132,6 +132,7 @@ def run_batch(args, inputs: list[Path]) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     options = copy.copy(args)
     options.quiet, options.func = True, None
+    options.read_ahead = False  # one worker per core: no second thread each
     failed = []
     client, cluster = _client(args)
     try:

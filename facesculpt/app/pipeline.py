@@ -199,13 +199,23 @@ class Pipeline:
         fits = self.fit_faces(frame_bgr, stamp_s, timings)
         return fits[min(fits)] if fits else None
 
-    def process(self, frame_bgr: np.ndarray, stamp_s: float) -> FrameResult:
-        """One frame through every stage; each face's edit (if any) merged into it."""
+    def analyse(self, frame_bgr: np.ndarray, stamp_s: float) -> tuple[dict, dict]:
+        """Landmarks, fit and each fitted face's edit (solved now if new) of one frame: the part of
+        :meth:`process` that carries state from frame to frame. Returns (face key -> FitResult,
+        timings ms). :meth:`compose` then renders it; a second thread may compose frame i while
+        this analyses frame i + 1."""
         if not (isinstance(frame_bgr, np.ndarray) and frame_bgr.dtype == np.uint8 and frame_bgr.ndim == 3
                 and frame_bgr.shape[2] == 3):
             raise ValueError("frames must be (H, W, 3) uint8 BGR")
         timings: dict[str, float] = {}
         fits = self.fit_faces(frame_bgr, stamp_s, timings)
+        for key in fits:
+            self.displacement_of(key)
+        return fits, timings
+
+    def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict) -> FrameResult:
+        """The frame with every fitted face of ``fits`` (from :meth:`analyse`) merged with its edit
+        and composited; the GL work, in the thread that made this pipeline's compositor."""
         if not fits:
             return FrameResult(frame_bgr, None, timings)
         out, render_ms = frame_bgr, {}
@@ -213,7 +223,7 @@ class Pipeline:
         for key, fit in fits.items():
             t0 = time.perf_counter()
             deformed = fit.vertices
-            displacement = self.displacement_of(key)
+            displacement = self.displacements.get(key)
             if displacement is None and self.presets:
                 continue  # other faces are edited, not this one: its pixels stay the input's
             if displacement is not None:
@@ -227,6 +237,10 @@ class Pipeline:
                 if k != "total":
                     render_ms[k] = render_ms.get(k, 0.0) + v
         return FrameResult(out, fits[min(fits)], timings, render_ms, fits)
+
+    def process(self, frame_bgr: np.ndarray, stamp_s: float) -> FrameResult:
+        """One frame through every stage; each face's edit (if any) merged into it."""
+        return self.compose(frame_bgr, *self.analyse(frame_bgr, stamp_s))
 
     # -- the neutral and the edit -----------------------------------------------------------------
     def neutral_of(self, key: int | None = None) -> np.ndarray:

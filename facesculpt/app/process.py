@@ -21,6 +21,7 @@ import copy
 import signal
 import sys
 import threading
+from contextlib import nullcontext
 from pathlib import Path
 
 import cv2
@@ -245,6 +246,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     :class:`LandmarkDetector` to reuse (a batch worker keeps its networks loaded); its tracks are
     reset first, so the output is the same as with a fresh one. Raises on bad input."""
     from facesculpt.app.pipeline import Pipeline, read_preset
+    from facesculpt.app.read_ahead import ReadAhead
     from facesculpt.app.safe_output import refuse_output_over_input
     from facesculpt.nodes.deformer.preset_format import check_strength, merge_presets, scale_preset
     from facesculpt.nodes.fitter import parse_faces
@@ -276,9 +278,16 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
         with _Stop() as stop:
             if presets:
                 _calibrate(pipeline, args, total, fps, stop, presets)
-            with _progress(total, "process", args.quiet) as bar:
+            def analysed():
                 for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
-                    result = pipeline.process(frame, i / fps)
+                    yield frame, pipeline.analyse(frame, i / fps)
+
+            # Frame i + 1 is decoded and analysed on a second core while frame i is composited and
+            # encoded here (not in a batch worker, which is one core's worth of work already).
+            ahead = ReadAhead(analysed(), depth=2) if getattr(args, "read_ahead", True) else nullcontext(analysed())
+            with _progress(total, "process", args.quiet) as bar, ahead as frames:
+                for frame, (fits, timings) in frames:
+                    result = pipeline.compose(frame, fits, timings)
                     frames_with_face += bool(result.fits)
                     faces_edited.update(k for k in result.fits if pipeline.displacement_of(k) is not None)
                     image = np.hstack([frame, result.image]) if args.side_by_side else result.image
