@@ -1,0 +1,281 @@
+"""Ground-truth realism benchmark (issue 15): how close an edited frame of ``facesculpt process``
+is to the same edit filmed, on synthetic videos with exact ground truth, and how sharp and
+seamless the re-rendered region is on real videos.
+
+1. Synthetic set (code of the benchmark's own, ``benchmarks/realism/``; no project renderer or
+   deformer): the Surrey Face Model with a random identity, textured from a real face (the
+   first frame of ../shared/data/video/s18.mp4, fitted once with the project's landmarks and
+   SFM fitter), over a real background (a face-free region of that frame), turning smoothly
+   (yaw ±25°, pitch ±10°, 640x480, 25 fps), drawn by a numpy reference rasteriser
+   (perspective, z-buffer, perspective-correct interpolation, 3x3 supersampling, soft border).
+2. Per edit (nose pulled out, chin down, cheeks pushed in, jaw narrowed): the same sequence with
+   the edit applied in model space (a smooth radial falloff around the handle vertices, mm), and
+   the same edit as a deformer preset (``OUT/presets/EDIT.json``).
+3. ``facesculpt process SYNTH.mkv -o FRAMES/%05d.png --edits PRESET --model M`` (a subprocess,
+   as a user runs it, on a lossless FFV1 input) for each model, scored over the frames after the
+   neutral is learned (``--neutral-frames``) against the ground truth, next to "do nothing" (the
+   input) and a 2D liquify (the input warped by the true displacement projected into the image,
+   densified smoothly, ``cv2.remap``):
+   edit-region PSNR (dB) and SSIM (region: where the truth differs from the input, dilated);
+   sharpness (variance of the Laplacian over the edit region, result / truth); seam (mean
+   gradient magnitude on the boundary of the region the result changed, result / truth); handle
+   landing (how far the face around each handle moved along the handle's true image
+   displacement, by patch matching over the face from the input, over the same measurement on
+   the ground truth: the median of that reach and of its error |1 - reach| in %), per yaw bin.
+   The "ground truth (measurement check)" row is the truth's measurement over the true
+   projected displacement: the patch moves less than its centre where the edit falls off.
+4. Real videos (../shared/data/video/d3.mp4, d12.mp4; no ground truth): sharpness of the
+   re-rendered region (where the result differs from the input) against the input's, and the
+   seam against the input's gradients on the same band.
+
+Writes ``results.md``, ``results.json``, ``crops_EDIT_MODEL.png`` (rows: the most turned-left,
+frontal and most turned-right scored frames; columns: input | result | ground truth | 2D
+liquify, enlarged 2x without smoothing) and the presets to ``--out`` (default: a new temporary
+folder), and prints the tables.
+
+Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
+[--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90]``. Needs the shared
+data (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from realism.edits import EDITS, write_preset  # noqa: E402
+from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
+from realism.report import crop_box, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
+from realism.scene import make_scene  # noqa: E402
+from realism.scoring import landing, landing_by_yaw, score_frame, score_real_frame, summarise  # noqa: E402
+from realism.sequences import Sequences, read_video, render_sequences, run_process, write_lossless  # noqa: E402
+
+from facesculpt.paths import shared_data_dir  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
+    p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
+    p.add_argument("--models", default="facemesh,sfm", help="models to run process with (default facemesh,sfm)")
+    p.add_argument("--edits", default=",".join(EDITS), help=f"edits (default {','.join(EDITS)})")
+    p.add_argument("--real-videos", default="d3,d12", help="shared videos to score without ground truth ('' for none)")
+    p.add_argument("--real-frames", type=int, default=90, help="frames of each real video (default 90)")
+    p.add_argument("--neutral-frames", type=int, default=30, help="process --neutral-frames; scoring starts after them")
+    p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
+    p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
+    a = p.parse_args(argv)
+    a.models = [m for m in a.models.split(",") if m]
+    a.edits = [e for e in a.edits.split(",") if e]
+    a.real_videos = [v for v in a.real_videos.split(",") if v]
+    bad = [e for e in a.edits if e not in EDITS]
+    if bad:
+        p.error(f"unknown edit {bad[0]!r} (choose from {', '.join(EDITS)})")
+    if a.frames <= a.neutral_frames:
+        p.error(f"--frames {a.frames} leaves no frame after --neutral-frames {a.neutral_frames}")
+    return a
+
+
+def liquified(seq: Sequences, edit: str, i: int) -> np.ndarray:
+    """Frame ``i`` of the 2D liquify baseline of ``edit``."""
+    vis = seq.visible[edit][i]
+    return liquify(seq.inputs[i], seq.p0[i][vis], seq.p1[edit][i][vis])
+
+
+def handle_shifts(seq: Sequences, edit: str, frames: list, scored: list[int]) -> dict:
+    """(frame, handle vertex) -> how far (px) the face around the handle moved in ``frames``
+    along the handle's true image displacement (:func:`shift_along`), for every handle seen."""
+    out = {}
+    for i in scored:
+        for h in seq.handles[edit]:
+            d = seq.p1[edit][i][h] - seq.p0[i][h]
+            n = float(np.linalg.norm(d))
+            if seq.visible[edit][i][h] and n > 0:
+                out[i, h] = shift_along(seq.inputs[i], frames[i], seq.p0[i][h], d, seq.face[i], reach=2 * n + 3)
+    return out
+
+
+def landing_samples(seq: Sequences, edit: str, shifts: dict, reference: dict | None) -> list:
+    """(yaw, error %, reach) per handle and frame: ``shifts`` against the same measurement on
+    the truth (``reference``), or against the true displacement when ``reference`` is None."""
+    samples = []
+    for (i, h), m in shifts.items():
+        true = float(np.linalg.norm(seq.p1[edit][i][h] - seq.p0[i][h]))
+        ref = true if reference is None else reference.get((i, h))
+        if m is None or ref is None:
+            continue
+        got = landing(m, ref, true)
+        if got is not None:
+            samples.append((seq.yaw[i], *got))
+    return samples
+
+
+def score_sequence(seq: Sequences, edit: str, frames: list, scored: list[int], truth_shifts: dict) -> dict:
+    """PSNR, SSIM, sharpness, seam and handle landing of ``frames`` (a method's output) against
+    the truth of ``edit`` over the frame indices ``scored``."""
+    pool = Pooled()
+    for i in scored:
+        score_frame(pool, frames[i], seq.truth[edit][i], seq.inputs[i])
+    out = summarise(pool)
+    shifts = handle_shifts(seq, edit, frames, scored)
+    out["landing"] = landing_by_yaw(landing_samples(seq, edit, shifts, truth_shifts))
+    return out
+
+
+def crop_frames(seq: Sequences, scored: list[int]) -> list[int]:
+    """The most turned-left, the most frontal and the most turned-right scored frames."""
+    yaw = seq.yaw[scored]
+    return [scored[int(np.argmin(yaw))], scored[int(np.argmin(np.abs(yaw)))], scored[int(np.argmax(yaw))]]
+
+
+def save_crops(seq: Sequences, edit: str, label: str, frames: list, liq: dict, rows: list[int], path: Path) -> None:
+    H, W = seq.inputs[0].shape[:2]
+    box = crop_box([seq.truth[edit][i] for i in rows], [seq.inputs[i] for i in rows], (W, H))
+    panels = [[(f"input yaw {seq.yaw[i]:+.0f}", seq.inputs[i]), (label, frames[i]),
+               ("ground truth", seq.truth[edit][i]), ("2D liquify", liq[i])] for i in rows]
+    cv2.imwrite(str(path), side_by_side(panels, box))
+
+
+def synthetic(args, data: Path, out: Path) -> dict:
+    """Parts 1–3: render, run process per model and edit, score, crop."""
+    t0 = time.perf_counter()
+    scene = make_scene(data, args.frames)
+    specs = [EDITS[e] for e in args.edits]
+    seq = render_sequences(scene, specs, args.workers or None)
+    render_s = time.perf_counter() - t0
+    video = write_lossless(seq.inputs, out / "synthetic.mkv")
+    (out / "presets").mkdir(exist_ok=True)
+    model_rest = scene.rest[: int(scene.model_triangles.max()) + 1]  # without the mouth's fan centre
+    presets = {sp.name: write_preset(sp, model_rest, scene.landmarks, scene.model_triangles, out / "presets")
+               for sp in specs}
+    scored = list(range(args.neutral_frames, args.frames))
+    rows = crop_frames(seq, scored)
+    results, timings = {}, {"render_s": render_s}
+    for sp in specs:
+        e = sp.name
+        liq = {i: liquified(seq, e, i) for i in scored}
+        truth_shifts = handle_shifts(seq, e, seq.truth[e], scored)
+        results[e] = {"do nothing": score_sequence(seq, e, seq.inputs, scored, truth_shifts),
+                      "2D liquify": score_sequence(seq, e, [liq.get(i) for i in range(args.frames)], scored,
+                                                   truth_shifts)}
+        for m in args.models:
+            folder = out / "frames" / f"synthetic_{e}_{m}"
+            try:
+                frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames)
+            except RuntimeError as exc:
+                print(exc, file=sys.stderr)
+                results[e][m] = {"error": str(exc)}
+                continue
+            timings[f"process_{e}_{m}_s"] = took
+            if len(frames) < args.frames:
+                results[e][m] = {"error": f"process wrote {len(frames)} of {args.frames} frames"}
+                continue
+            results[e][m] = score_sequence(seq, e, frames, scored, truth_shifts)
+            save_crops(seq, e, f"result ({m})", frames, liq, rows, out / f"crops_{e}_{m}.png")
+            if not args.keep_frames:
+                shutil.rmtree(folder)
+        results[e]["ground truth (measurement check)"] = {
+            "landing": landing_by_yaw(landing_samples(seq, e, truth_shifts, None))}
+    return {"results": results, "presets": {k: str(v) for k, v in presets.items()}, "timings": timings,
+            "yaw_range": [float(seq.yaw[scored].min()), float(seq.yaw[scored].max())]}
+
+
+def real_videos(args, data: Path, out: Path, presets: dict) -> list[dict]:
+    """Part 4: each real video through process with each model and edit, against its input."""
+    rows = []
+    for name in args.real_videos:
+        video = data / "video" / f"{name}.mp4"
+        if not video.is_file():
+            rows.append({"video": name, "model": "–", "edit": "–", "error": f"{video} not found",
+                         "sharpness": float("nan"), "seam": float("nan"), "area": float("nan"), "frames": 0})
+            continue
+        inputs = read_video(video, args.real_frames)
+        for m in args.models:
+            for e, preset in presets.items():
+                folder = out / "frames" / f"{name}_{e}_{m}"
+                row = {"video": name, "model": m, "edit": e}
+                try:
+                    frames, took = run_process(video, folder, Path(preset), m, args.real_frames, args.neutral_frames)
+                except RuntimeError as exc:
+                    print(exc, file=sys.stderr)
+                    rows.append({**row, "error": str(exc), "sharpness": float("nan"), "seam": float("nan"),
+                                 "area": float("nan"), "frames": 0})
+                    continue
+                pool = Pooled()
+                for i in range(args.neutral_frames, min(len(frames), len(inputs))):
+                    score_real_frame(pool, frames[i], inputs[i])
+                s = summarise(pool)
+                rows.append({**row, "sharpness": s["sharpness"], "seam": s["seam"], "area": pool.mean("area"),
+                             "frames": int(pool.count.get("area", 0)), "process_s": took})
+                if not args.keep_frames:
+                    shutil.rmtree(folder)
+    return rows
+
+
+def git_revision() -> str:
+    try:
+        return subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"], capture_output=True,
+                              text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def markdown(report: dict) -> str:
+    return "\n\n".join([
+        f"# bench_realism ({report['revision']}, {report['frames']} frames, scored "
+        f"{report['frames'] - report['neutral_frames']}, yaw {report['yaw_range'][0]:+.0f}..{report['yaw_range'][1]:+.0f})",
+        "## Synthetic set against ground truth (edit region)", synthetic_table(report["results"]),
+        "## Handle landing by yaw: median error % of the true image displacement (reach)",
+        landing_table(report["results"]),
+        "## Real videos (no ground truth): re-rendered region against the input", real_table(report["real"]),
+    ]) + "\n"
+
+
+def _clean(x):
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_clean(v) for v in x]
+    if isinstance(x, float) and not np.isfinite(x):
+        return None if np.isnan(x) else ("inf" if x > 0 else "-inf")
+    return x
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    data = shared_data_dir()
+    if data is None or not (data / "sfm").is_dir() or not (data / "video" / "s18.mp4").is_file():
+        print("bench_realism needs the shared data (../shared/data or FACESCULPT_DATA: sfm/, video/s18.mp4)",
+              file=sys.stderr)
+        return 2
+    out = args.out or Path(tempfile.mkdtemp(prefix="bench_realism_"))
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    syn = synthetic(args, data, out)
+    real = real_videos(args, data, out, syn["presets"])
+    report = {"revision": git_revision(), "frames": args.frames, "neutral_frames": args.neutral_frames,
+              "models": args.models, "edits": args.edits, **syn, "real": real,
+              "total_s": time.perf_counter() - t0}
+    (out / "results.json").write_text(json.dumps(_clean(report), indent=1))
+    text = markdown(report)
+    (out / "results.md").write_text(text)
+    print(text)
+    print(f"results, crops and presets in {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

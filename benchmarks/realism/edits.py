@@ -1,0 +1,99 @@
+"""The ground-truth edits: model-space displacements with a smooth radial falloff around named
+handle vertices of the Surrey Face Model, and the same edits as deformer presets that both
+built-in models (``sfm``, ``facemesh``) can load.
+
+A handle at vertex h with offset o (mm) moves vertex v by ``o * w(|rest_v - rest_h| / R)``,
+w(r) = (1 + cos(pi r)) / 2 for r < 1 (0 beyond): the handle moves by exactly o, the surface
+around it follows smoothly and stops at R mm. Several handles add up. The preset says the same:
+the handle by landmark name (or, for a point no shared name covers, by its rest position
+relative to the named landmarks, with the SFM topology for an exact vertex), the offset, and an
+ROI of R mm.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class EditSpec:
+    """One edit: handles (name -> offset (3,) mm, model space: x to the subject's left, y up,
+    z out of the face), a falloff radius (mm) and a description. A handle name is a landmark
+    both models share, or ``vertex:N`` for an SFM vertex."""
+
+    name: str
+    handles: dict[str, tuple[float, float, float]]
+    radius: float
+    description: str
+    moves_outline: bool = field(default=False)
+
+
+#: The benchmark's edits. The jaw points are SFM vertices just inside the frontal outline of the
+#: jaw, level with iBUG 5 / 13 (no landmark name both models share lies there).
+EDITS = {
+    "nose": EditSpec("nose", {"nose_tip": (0.0, -3.0, 7.0)}, 30.0, "nose tip pulled 7 mm out and 3 mm down"),
+    "chin": EditSpec("chin", {"chin": (0.0, -9.0, 3.0)}, 45.0, "chin 9 mm down and 3 mm forward", True),
+    "cheeks": EditSpec("cheeks", {"left_cheek": (-6.0, 0.0, -4.0), "right_cheek": (6.0, 0.0, -4.0)}, 45.0,
+                       "both cheeks pushed 6 mm toward the midline and 4 mm in", True),
+    "jaw": EditSpec("jaw", {"vertex:1887": (-7.0, 0.0, 0.0), "vertex:1884": (7.0, 0.0, 0.0)}, 40.0,
+                    "both sides of the jaw 7 mm toward the midline", True),
+}
+
+
+def handle_vertex(name: str, landmarks: dict[str, int]) -> int:
+    """The SFM vertex of a handle name (a landmark name or ``vertex:N``)."""
+    return int(name.split(":", 1)[1]) if name.startswith("vertex:") else int(landmarks[name])
+
+
+def falloff(r: np.ndarray) -> np.ndarray:
+    """w(r) = (1 + cos(pi r)) / 2 for r in [0, 1), 0 beyond: (N,) float64."""
+    r = np.asarray(r, np.float64)
+    return np.where(r < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(r, 1.0))), 0.0)
+
+
+def displacement(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int]) -> np.ndarray:
+    """The edit's displacement (V, 3) mm of the rest vertices ``rest`` (V, 3) model space."""
+    rest = np.asarray(rest, np.float64)
+    out = np.zeros_like(rest)
+    for name, offset in spec.handles.items():
+        h = handle_vertex(name, landmarks)
+        w = falloff(np.linalg.norm(rest - rest[h], axis=1) / spec.radius)
+        out += w[:, None] * np.asarray(offset, np.float64)
+    return out
+
+
+def preset(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], triangles: np.ndarray) -> dict:
+    """The edit as a deformer preset document (nodes/deformer/preset_format.py). ``rest``
+    (V, 3) and ``triangles`` (T, 3) are the SFM mesh the edit is defined on (its original
+    topology, without closed holes), ``landmarks`` its landmark name -> vertex. Handles that
+    are vertices carry their rest position, the SFM topology and the named landmarks' rest
+    positions, so that the facemesh model places them through its own landmarks."""
+    from facesculpt.nodes.deformer.edits import topology_signature
+
+    handles = []
+    for name, offset in spec.handles.items():
+        if name.startswith("vertex:"):
+            v = handle_vertex(name, landmarks)
+            handles.append({"vertex": v, "point": [round(float(x), 4) for x in rest[v]], "offset": list(offset)})
+        else:
+            handles.append({"landmark": name, "offset": list(offset)})
+    doc = {"format": "facesculpt-deformer-preset", "version": 1, "units": "mm",
+           "description": f"bench_realism ground-truth edit: {spec.description}; ROI {spec.radius:g} mm",
+           "static": [], "edits": [{"handles": handles, "roi": {"radius": spec.radius, "metric": "geodesic"}}]}
+    if any(n.startswith("vertex:") for n in spec.handles):
+        doc["topology"] = topology_signature(len(rest), triangles)
+        doc["landmarks"] = {k: [round(float(x), 4) for x in rest[v]] for k, v in sorted(landmarks.items())
+                            if not k.isdigit()}
+    return doc
+
+
+def write_preset(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], triangles: np.ndarray,
+                 folder: Path) -> Path:
+    """Write :func:`preset` as ``folder/NAME.json``; returns the path."""
+    path = Path(folder) / f"{spec.name}.json"
+    path.write_text(json.dumps(preset(spec, rest, landmarks, triangles), indent=1))
+    return path

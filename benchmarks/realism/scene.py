@@ -1,0 +1,187 @@
+"""The synthetic scene: the Surrey Face Model with a random identity, textured from a real face
+(a frame of ../shared/data/video/s18.mp4, fitted with the project's landmarks and SFM fitter:
+analysis only), over a real background (a face-free region of the same frame), turning smoothly
+(yaw ±25°, pitch ±10°) in front of a pinhole camera with a 60° horizontal field of view (the
+default ``facesculpt process --fov``).
+
+Model space is the SFM's: mm, x to the subject's left, y up, z out of the face.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+#: Output frame size (W, H) px, frame rate.
+SIZE = (640, 480)
+FPS = 25
+#: Horizontal field of view, degrees (that of ``process --fov``'s default).
+FOV_DEG = 60.0
+#: Head motion: amplitudes (degrees) and periods (frames) of yaw and pitch; sideways drift (mm).
+YAW_DEG, YAW_PERIOD = 25.0, 60
+PITCH_DEG, PITCH_PERIOD = 10.0, 45
+DRIFT_MM, DRIFT_PERIOD = 12.0, 90
+#: The point the head turns about (model space, mm: behind the face) and its distance (mm).
+PIVOT = np.array([0.0, 0.0, -90.0])
+DISTANCE_MM = 510.0
+#: Width (mm) over which the mesh's border fades to transparent (a soft hair/skin border).
+BORDER_FADE_MM = 8.0
+#: Model space -> camera space of a face looking into the camera (OpenCV: y down, z away).
+FACING = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass
+class Scene:
+    """Everything that renders a frame: the head's rest vertices (V, 3) model mm, triangles
+    (T, 3), texture coordinates (V, 2) px into ``texture`` (h, w, 3) uint8 BGR, per-vertex
+    alpha (V,), the background (H, W, 3) uint8 BGR, intrinsics K (3, 3), landmark name ->
+    vertex, the number of frames, and the model's own triangles (its first vertices are the
+    model's; ``triangles`` adds fans that close the mouth)."""
+
+    rest: np.ndarray
+    triangles: np.ndarray
+    texcoords: np.ndarray
+    alpha: np.ndarray
+    texture: np.ndarray
+    background: np.ndarray
+    K: np.ndarray
+    landmarks: dict[str, int]
+    frames: int
+    model_triangles: np.ndarray
+
+    def pose(self, i: int) -> tuple[float, float, np.ndarray]:
+        """Frame ``i``'s yaw, pitch (degrees) and head translation (3,) camera mm."""
+        return head_pose(i)
+
+    def to_camera(self, V: np.ndarray, i: int) -> np.ndarray:
+        """Model-space vertices (V, 3) mm into frame ``i``'s camera space (V, 3) mm."""
+        yaw, pitch, t = head_pose(i)
+        R = rotation(yaw, pitch) @ FACING
+        return (np.asarray(V, np.float64) - PIVOT) @ R.T + t
+
+
+def head_pose(i: int) -> tuple[float, float, np.ndarray]:
+    """Yaw, pitch (degrees) and translation (3,) camera mm of frame ``i``."""
+    yaw = YAW_DEG * np.sin(2 * np.pi * i / YAW_PERIOD)
+    pitch = PITCH_DEG * np.sin(2 * np.pi * i / PITCH_PERIOD + 0.6)
+    t = np.array([DRIFT_MM * np.sin(2 * np.pi * i / DRIFT_PERIOD), 6.0, DISTANCE_MM])
+    return float(yaw), float(pitch), t
+
+
+def rotation(yaw_deg: float, pitch_deg: float) -> np.ndarray:
+    """Camera-space rotation (3, 3): yaw about the camera's y axis after pitch about its x axis."""
+    a, b = np.radians(yaw_deg), np.radians(pitch_deg)
+    Ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    return Ry @ Rx
+
+
+def intrinsics(size=SIZE, fov_deg: float = FOV_DEG) -> np.ndarray:
+    W, H = size
+    f = W / 2 / np.tan(np.radians(fov_deg) / 2)
+    return np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1.0]])
+
+
+def source_frame(data: Path) -> np.ndarray:
+    """The first frame of s18.mp4 (1280x720 BGR): the texture's face and the background."""
+    cap = cv2.VideoCapture(str(data / "video" / "s18.mp4"))
+    ok, frame = cap.read()
+    cap.release()
+    if not ok:
+        raise RuntimeError(f"cannot read {data / 'video' / 's18.mp4'}")
+    return frame
+
+
+def background_from(frame: np.ndarray, size=SIZE) -> np.ndarray:
+    """A face-free region of s18's first frame (the room left of the person), resized to
+    ``size`` (W, H)."""
+    W, H = size
+    crop = frame[140:140 + 372, 0:496]
+    return cv2.resize(crop, (W, H), interpolation=cv2.INTER_CUBIC)
+
+
+def fit_photo(model, photo: np.ndarray) -> np.ndarray:
+    """Pixel positions (V, 2) of the model's vertices on the face in ``photo``: the project's
+    landmark detector and SFM fitter (several iterations, no smoothing) on the still image."""
+    from facesculpt.geometry import to_ibug68
+    from facesculpt.nodes.fitter import FitterConfig, make_fitter
+    from facesculpt.nodes.landmarks.detector import LandmarkDetector
+
+    faces = LandmarkDetector().detect(photo)
+    if not faces:
+        raise RuntimeError("no face found in the texture photo")
+    h, w = photo.shape[:2]
+    config = FitterConfig(iterations=10, smoothing=False, accumulate_identity=False)
+    fitter = make_fitter(model, config, (w, h), intrinsics((w, h)))
+    pts = to_ibug68(faces[0].points[:, :2].astype(np.float64))
+    fit = fitter.fit(pts, [str(i) for i in range(1, 69)])
+    return np.asarray(fit.projected, np.float64)
+
+
+def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
+    """The open mesh's boundary loops, each (n,) vertex indices in order, longest first."""
+    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    present = {(int(a), int(b)) for a, b in directed}
+    nxt = {a: b for a, b in present if (b, a) not in present}
+    loops, seen = [], set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen and v in nxt:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        loops.append(np.array(loop, np.int64))
+    return sorted(loops, key=len, reverse=True)
+
+
+def close_holes(rest: np.ndarray, triangles: np.ndarray, texcoords: np.ndarray):
+    """The mesh with every boundary loop but the outer one (the mouth) closed by a fan around a
+    new centre vertex: (rest, triangles, texcoords, outer loop)."""
+    loops = boundary_loops(triangles)
+    rest, tris, tex = [rest], [triangles], [texcoords]
+    n = len(rest[0])
+    for loop in loops[1:]:
+        rest.append(rest[0][loop].mean(axis=0, keepdims=True))
+        tex.append(texcoords[loop].mean(axis=0, keepdims=True))
+        # the hole's orientation is the reverse of the loop's boundary edges
+        tris.append(np.column_stack([np.roll(loop, -1), loop, np.full(len(loop), n)]))
+        n += 1
+    return np.concatenate(rest), np.concatenate(tris), np.concatenate(tex), loops[0]
+
+
+def border_alpha(rest: np.ndarray, border: np.ndarray, fade_mm: float = BORDER_FADE_MM) -> np.ndarray:
+    """(V,) alpha: 0 on the ``border`` vertices (the mesh's outer loop), rising smoothly to 1 at
+    ``fade_mm`` from them."""
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(rest[border]).query(rest)
+    s = np.clip(d / fade_mm, 0.0, 1.0)
+    return s * s * (3 - 2 * s)
+
+
+def random_identity(model, seed: int, sigma: float = 0.8, components: int = 20) -> np.ndarray:
+    """Rest vertices (V, 3) mm: the model's mean plus the first ``components`` shape components
+    with coefficients drawn from N(0, sigma²) standard deviations."""
+    rng = np.random.default_rng(seed)
+    alpha = np.zeros(model.num_shape)
+    alpha[:components] = rng.normal(0.0, sigma, components)
+    return np.asarray(model.instance(alpha), np.float64)
+
+
+def make_scene(data: Path, frames: int = 90, seed: int = 7) -> Scene:
+    """The benchmark's scene from the shared data folder ``data`` (../shared/data)."""
+    from facesculpt.nodes.fitter import load_model
+
+    model = load_model("sfm")
+    frame = source_frame(data)
+    rest = np.asarray(random_identity(model, seed), np.float64).reshape(-1, 3)
+    rest, tris, tex, outer = close_holes(rest, np.asarray(model.triangles, np.int64), fit_photo(model, frame))
+    return Scene(rest=rest, triangles=tris, texcoords=tex, alpha=border_alpha(rest, outer),
+                 texture=frame, background=background_from(frame), K=intrinsics(),
+                 landmarks={str(k): int(v) for k, v in zip(model.landmark_names, model.landmark_vertices)},
+                 frames=int(frames), model_triangles=np.asarray(model.triangles, np.int64))
