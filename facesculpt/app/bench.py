@@ -89,6 +89,9 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, default=1,
                    help="OpenBLAS and OpenCV threads per process, in-process and in the graph's nodes "
                         "(default 1; 0: the libraries' own defaults, one per core)")
+    p.add_argument("--size", default="", metavar="WxH",
+                   help="measure at this frame size, e.g. 1280x720 (the input is scaled to cover it and cropped "
+                        "to its aspect); default: the paper's 856x480 pixel count at the input's aspect")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)
@@ -121,18 +124,29 @@ def bench_size(width: int, height: int) -> tuple[int, int]:
     return w, 2 * max(1, round(pixels / w / 2))
 
 
-def read_frames(spec: str, count: int) -> tuple[list[np.ndarray], float, tuple[int, int]]:
-    """The first ``count`` frames of a camera source (a video loops) at :func:`bench_size`, its fps
-    and that size."""
+def parse_size(text: str) -> tuple[int, int] | None:
+    """"WxH" -> (W, H) px; "" -> None; ValueError in one sentence otherwise."""
+    if not text:
+        return None
+    w, sep, h = text.lower().partition("x")
+    if not (sep and w.isdigit() and h.isdigit() and 16 <= int(w) <= 16384 and 16 <= int(h) <= 16384):
+        raise ValueError(f"--size {text!r} must be WIDTHxHEIGHT in pixels, e.g. 1280x720 (16 to 16384 each)")
+    return int(w), int(h)
+
+
+def read_frames(spec: str, count: int, size: tuple[int, int] | None = None
+                ) -> tuple[list[np.ndarray], float, tuple[int, int]]:
+    """The first ``count`` frames of a camera source (a video loops) at ``size`` (scaled to cover
+    it and cropped) or else :func:`bench_size`, its fps and that size."""
     from facesculpt.nodes.camera.sources import open_source, resize_frame
 
     source = open_source(spec, loop=True)
-    size = None
+    mode = "fill" if size else "stretch"  # bench_size keeps the input's aspect: nothing to crop
     try:
         frames = []
         for frame, _ in source.frames():
             size = size or bench_size(frame.shape[1], frame.shape[0])
-            frames.append(resize_frame(frame, *size, mode="stretch"))  # the size has the input's aspect
+            frames.append(resize_frame(frame, *size, mode=mode))
             if len(frames) >= count:
                 break
     finally:
@@ -249,11 +263,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def launch_spec(source: str, model: str, camera_fps: float, size: tuple[int, int] = SIZE) -> dict:
-    """The launch file of the measured graph; the camera delivers ``size`` (px, :func:`bench_size`)."""
+def launch_spec(source: str, model: str, camera_fps: float, size: tuple[int, int] = SIZE,
+                resize: str = "stretch") -> dict:
+    """The launch file of the measured graph; the camera delivers ``size`` (px: :func:`bench_size`,
+    stretched, or ``--size``, filled)."""
     return {"nodes": [
         {"name": "camera", "node": "camera", "required": True,
-         "params": {"source": source, "width": size[0], "height": size[1], "resize": "stretch",
+         "params": {"source": source, "width": size[0], "height": size[1], "resize": resize,
                     "fps": camera_fps, "loop": True}},
         {"name": "landmarks", "node": "landmarks"},
         {"name": "fitter", "node": "fitter", "params": {"model": model}},
@@ -352,8 +368,11 @@ def _launch(workdir: Path, address: str, spec: dict) -> tuple[subprocess.Popen, 
 
 
 def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
-                  warmup_s: float, size: tuple[int, int] = SIZE, start_timeout_s: float = 90.0) -> dict:
-    """Frames out per second and end-to-end latency of the graph as separate processes."""
+                  warmup_s: float, size: tuple[int, int] = SIZE, start_timeout_s: float = 90.0,
+                  resize: str = "stretch") -> dict:
+    """Frames out per second, end-to-end latency (p50/p95/p99), the longest stall (the longest gap
+    between two output frames) and the camera frames that never came out, of the graph as
+    separate processes."""
     from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVERY_MESSAGE
@@ -361,7 +380,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
     address = f"tcp://127.0.0.1:{_free_port()}"
     log_path = workdir / "launch.log"
-    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size))
+    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size, resize))
     listener = None
     try:
         arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns)
@@ -370,8 +389,15 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         listener = Node(name=f"_bench_{os.getpid()}", master=address)
         listener.subscribe("render/image", Image, lambda m: arrivals.append((time.time_ns(), m.stamp)),
                            qos=EVERY_MESSAGE)
-        listener.subscribe("diagnostics", Diagnostics,
-                           lambda m: diagnostics.setdefault(m.node, []).append(m.values), qos=EVERY_MESSAGE)
+        camera_sent: list[tuple[int, int]] = []  # (arrival ns, camera/image published so far)
+
+        def on_diagnostics(m):
+            diagnostics.setdefault(m.node, []).append(m.values)
+            sent = (m.values.get("published") or {}).get("camera/image")
+            if m.node == "camera" and sent is not None:
+                camera_sent.append((time.time_ns(), int(sent)))
+
+        listener.subscribe("diagnostics", Diagnostics, on_diagnostics, qos=EVERY_MESSAGE)
         listener.subscribe("face/deformation", Deformation,
                            lambda m: deformed.append(float(np.abs(m.displacement).max()) if m.displacement.size else 0.0))
         events = listener.advertise("input/events", InputEvent)
@@ -403,6 +429,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         cpu0 = _cpu_seconds(procs)
         arrivals.clear()
         diagnostics.clear()
+        camera_sent.clear()
         t0 = time.monotonic()
         spin_for(window_s)
         elapsed = time.monotonic() - t0
@@ -417,6 +444,12 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         raise RuntimeError(f"the graph gave {len(window)} frames in {window_s} s (see {log_path})")
     shutil.rmtree(workdir, ignore_errors=True)  # kept when something failed: its launch.log says why
     latency = np.array([(a - s) / 1e6 for a, s in window])
+    gaps_ms = np.diff([a for a, _ in window]) / 1e6
+    dropped = None
+    if len(camera_sent) >= 2:  # camera frames sent between two of its reports, against frames out then
+        (t_first, n_first), (t_last, n_last) = camera_sent[0], camera_sent[-1]
+        came_out = sum(1 for a, s in window if t_first <= s <= t_last)
+        dropped = max(0, (n_last - n_first) - came_out)
     nodes = node_figures(diagnostics)
     for name in cpu1:
         if name in cpu0:
@@ -426,8 +459,11 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         "frames_out": len(window),
         "window_s": round(elapsed, 2),
         "latency_ms": {"p50": round(float(np.percentile(latency, 50)), 2),
+                       "p95": round(float(np.percentile(latency, 95)), 2),
                        "p99": round(float(np.percentile(latency, 99)), 2),
                        "mean": round(float(latency.mean()), 2)},
+        "longest_stall_ms": round(float(gaps_ms.max()), 2),
+        "frames_dropped": dropped,
         "nodes": nodes,
     }
 
@@ -450,7 +486,10 @@ def table(result: dict) -> str:
     extra = [("sequential rate (fps)", None, lambda r: r.get("sequential_fps")),
              ("pipelined rate (fps)", PAPER_PIPELINED_FPS, lambda r: r.get("pipelined_fps")),
              ("end-to-end latency p50 (ms)", None, lambda r: r.get("latency_ms", {}).get("p50")),
-             ("end-to-end latency p99 (ms)", None, lambda r: r.get("latency_ms", {}).get("p99"))]
+             ("end-to-end latency p95 (ms)", None, lambda r: r.get("latency_ms", {}).get("p95")),
+             ("end-to-end latency p99 (ms)", None, lambda r: r.get("latency_ms", {}).get("p99")),
+             ("longest stall (ms)", None, lambda r: r.get("longest_stall_ms")),
+             ("camera frames dropped", None, lambda r: r.get("frames_dropped"))]
     for label, paper, get in extra:
         lines.append(f"{label:<42}{_fmt(paper):>9}" + "".join(f"{_fmt(get(result['models'][m])):>12}" for m in models))
     for m in models:
@@ -489,7 +528,8 @@ def cmd_bench(args) -> int:
     preset = merge_presets([read_preset(p) for p in paths])
     preset_file = Path(tempfile.mkdtemp(prefix="fs-bench-preset-")) / "fig6e.json"
     preset_file.write_text(json.dumps(preset))
-    frames, fps, size = read_frames(source, args.frames)
+    wanted = parse_size(args.size)
+    frames, fps, size = read_frames(source, args.frames, wanted)
     load_start = os.getloadavg()
     print(f"facesculpt bench: {description}, {size[0]}x{size[1]}, {len(frames)} frames; "
           f"{os.cpu_count()} CPUs, load average {load_start[0]:.2f}", file=sys.stderr, flush=True)
@@ -507,7 +547,8 @@ def cmd_bench(args) -> int:
             if not args.no_graph:
                 print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
                       file=sys.stderr, flush=True)
-                entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size))
+                entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size,
+                                           resize="fill" if wanted else "stretch"))
             result["models"][model] = entry
     finally:
         shutil.rmtree(preset_file.parent, ignore_errors=True)
