@@ -1,8 +1,9 @@
-"""Bags: a real video recorded through the camera node, replayed byte-identically,
+"""Bags (MCAP): a real video recorded through the camera node, replayed byte-identically,
 and recovered record by record after being cut at random offsets."""
 
 from __future__ import annotations
 
+import io
 import json
 import random
 import struct
@@ -10,6 +11,10 @@ import struct
 import cv2
 import numpy as np
 import pytest
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Chunk
+from mcap.stream_reader import breakup_chunk
 
 from facesculpt.msgs import Image, decode, encode
 from facesculpt.runtime.bag import MAGIC, BagError, BagReader, BagWriter
@@ -59,13 +64,14 @@ class _Collector:
 def test_bag_round_trip_of_a_real_video_is_byte_identical(graph, data_dir, tmp_path):
     video = data_dir / "video" / "d3.mp4"
     truth = _video_frames(video)
-    bag = tmp_path / "d3.bag"
+    bag = tmp_path / "d3.mcap"
     _record(graph, video, bag, len(truth))
 
     records = list(BagReader(bag))
     assert len(records) == len(truth) == 354
     info = json.loads(graph.run("bag", "info", str(bag), "--json").stdout)
     assert info["records"] == 354 and info["ignored_bytes"] == 0
+    assert info["format"] == "mcap" and info["indexed"] and info["undecodable"] is None
     assert info["topics"]["camera/image"] == {"count": 354, "types": ["Image"]}
 
     received = _Collector(graph).play(graph, bag, len(records))
@@ -77,37 +83,48 @@ def test_bag_round_trip_of_a_real_video_is_byte_identical(graph, data_dir, tmp_p
         assert np.array_equal(msg.image, frame)          # and equal to the decoded video
 
 
-def _record_ends(path) -> list[int]:
-    """Byte offsets where each record ends, read independently of the project's reader."""
+def _record_ends(path) -> list[tuple[int, int]]:
+    """(byte offset where each top-level MCAP record ends, messages in it), read independently
+    of the project's reader: the record framing (u8 opcode, u64 length) by hand, a chunk's
+    messages by the mcap library."""
     data = path.read_bytes()
     pos, ends = len(MAGIC), []
-    while pos + 8 <= len(data):
-        (length,) = struct.unpack_from("<I", data, pos)
-        pos += 8 + length
+    while pos + 9 <= len(data):
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        body = data[pos + 9:pos + 9 + length]
+        pos += 9 + length
         if pos > len(data):
             break
-        ends.append(pos)
+        messages = 0
+        if opcode == Opcode.CHUNK:
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+            messages = sum(type(r).__name__ == "Message" for r in breakup_chunk(chunk))
+        ends.append((pos, messages))
+        if opcode == Opcode.FOOTER:
+            break
     return ends
 
 
 def test_bag_cut_at_random_offsets_recovers_every_complete_record(graph, data_dir, tmp_path):
     video = data_dir / "video" / "d0.mp4"
     truth = _video_frames(video)[:40]
-    bag = tmp_path / "d0.bag"
+    bag = tmp_path / "d0.mcap"
     _record(graph, video, bag, len(truth), "--compression", "png")
     ends = _record_ends(bag)
-    assert len(ends) == len(truth) and ends[-1] == bag.stat().st_size
+    assert sum(n for _, n in ends) == len(truth) and ends[-1][0] + len(MAGIC) == bag.stat().st_size
+    assert sum(1 for _, n in ends if n) >= 3, "the recording should span several chunks"
 
     collector = _Collector(graph)
     rng = random.Random(2)
-    for offset in sorted(rng.sample(range(len(MAGIC), ends[-1]), 20)):
-        cut = tmp_path / f"cut-{offset}.bag"
+    for offset in sorted(rng.sample(range(len(MAGIC), bag.stat().st_size - 1), 20)):
+        cut = tmp_path / f"cut-{offset}.mcap"
         with open(bag, "rb") as src, open(cut, "wb") as dst:
             dst.write(src.read(offset))
-        complete = sum(1 for e in ends if e <= offset)
+        complete = sum(n for e, n in ends if e <= offset)     # the messages of every whole chunk
+        last_end = max([e for e, _ in ends if e <= offset], default=len(MAGIC))
         info = json.loads(graph.run("bag", "info", str(cut), "--json").stdout)
-        assert info["records"] == complete
-        assert info["ignored_bytes"] == offset - (ends[complete - 1] if complete else len(MAGIC))
+        assert info["records"] == complete and not info["indexed"]
+        assert info["ignored_bytes"] == offset - last_end
         if complete == 0:
             continue
         received = collector.play(graph, cut, complete)
@@ -118,24 +135,24 @@ def test_bag_cut_at_random_offsets_recovers_every_complete_record(graph, data_di
 
 
 def test_bag_errors_name_the_file(tmp_path):
-    with pytest.raises(FileNotFoundError, match="nope.bag"):
-        BagReader(tmp_path / "nope.bag")
+    with pytest.raises(FileNotFoundError, match="nope.mcap"):
+        BagReader(tmp_path / "nope.mcap")
     not_a_bag = tmp_path / "x.bag"
     not_a_bag.write_bytes(b"hello world")
     with pytest.raises(BagError, match="not a facesculpt bag"):
         BagReader(not_a_bag)
     with pytest.raises(BagError, match="cannot write bag"):
-        BagWriter(tmp_path / "missing-dir" / "y.bag")
+        BagWriter(tmp_path / "missing-dir" / "y.mcap")
 
 
 def test_bag_jpeg_compression_is_close_and_small(tmp_path):
     rng = np.random.default_rng(0)
     img = cv2.GaussianBlur(rng.integers(0, 255, (120, 160, 3), dtype=np.uint8), (9, 9), 3)
     frames = encode(Image(stamp=5, image=img), "camera/image")[1:]
-    with BagWriter(tmp_path / "j.bag", compression="jpeg") as w:
+    with BagWriter(tmp_path / "j.mcap", compression="jpeg") as w:
         w.write(1, "camera/image", frames)
-    (rec,) = list(BagReader(tmp_path / "j.bag"))
+    (rec,) = list(BagReader(tmp_path / "j.mcap"))
     _, msg = decode([b"camera/image"] + rec.frames)
     assert msg.stamp == 5
-    assert (tmp_path / "j.bag").stat().st_size < img.nbytes / 2
+    assert (tmp_path / "j.mcap").stat().st_size < img.nbytes / 2
     assert np.abs(msg.image.astype(int) - img).mean() < 3

@@ -52,15 +52,19 @@ def register(sub) -> None:
     q.add_argument("--json", action="store_true")
     q.set_defaults(func=cmd_topic_hz)
 
-    p = sub.add_parser("bag", help="record, play and inspect bag files")
+    p = sub.add_parser("bag", help="record, play and inspect bag files (MCAP)")
     bsub = p.add_subparsers(dest="bag_command", metavar="record|play|info", required=True)
-    q = bsub.add_parser("record", help="record topics into a bag")
+    q = bsub.add_parser("record", help="record topics into an MCAP bag")
     q.add_argument("topics", nargs="+")
-    q.add_argument("-o", "--output", required=True, help="bag file to write")
+    q.add_argument("-o", "--output", required=True,
+                   help="bag file to write (MCAP; .mcap is added to a name without a suffix)")
     q.add_argument("--duration", type=float, default=0, help="stop after S seconds")
     q.add_argument("--count", type=int, default=0, help="stop after N messages")
     q.add_argument("--compression", choices=["none", "png", "jpeg"], default="none",
                    help="store images losslessly (png) or as jpeg; default raw")
+    q.add_argument("--chunk-compression", choices=["lz4", "zstd", "none"], default="lz4",
+                   help="compression of the MCAP chunks: lz4 (default: keeps up with a live camera), "
+                        "zstd (smaller, about 4x the CPU), none")
     q.set_defaults(func=cmd_bag_record)
     q = bsub.add_parser("play", help="publish a bag's messages again")
     q.add_argument("file")
@@ -68,6 +72,8 @@ def register(sub) -> None:
     rate.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: as recorded)")
     rate.add_argument("--fast", action="store_true", help="as fast as subscribers take them, losing none")
     q.add_argument("--loop", action="store_true")
+    q.add_argument("--start", type=float, default=0.0,
+                   help="begin S seconds after the bag's first message (found through the MCAP index)")
     q.add_argument("--wait", type=float, default=2.0, help="seconds to wait for subscribers before playing")
     q.set_defaults(func=cmd_bag_play)
     q = bsub.add_parser("info", help="topics, counts, duration, types")
@@ -241,9 +247,13 @@ def cmd_topic_hz(args) -> int:
 
 # -- bags ----------------------------------------------------------------------------------------
 def cmd_bag_record(args) -> int:
+    from pathlib import Path
+
     from facesculpt.runtime.bag import BagError, BagWriter
 
-    writer = BagWriter(args.output, compression=args.compression)
+    if not Path(args.output).suffix:
+        args.output += ".mcap"
+    writer = BagWriter(args.output, compression=args.compression, chunk_compression=args.chunk_compression)
     node = _ToolNode("bag_record")
     failure: list[str] = []
 
@@ -259,7 +269,8 @@ def cmd_bag_record(args) -> int:
         node.subscribe(topic, None, lambda m, f, t=topic: on_msg(m, f, t), qos=EVERY_MESSAGE, raw=True)
     start = time.monotonic()
     try:
-        _run_tool(node, lambda: bool(failure) or (args.count and writer.count >= args.count)
+        _run_tool(node, lambda: _flush_due(writer, failure) or bool(failure)
+                  or (args.count and writer.count + writer.pending >= args.count)
                   or (args.duration and time.monotonic() - start > args.duration))
     finally:
         writer.close()
@@ -270,16 +281,26 @@ def cmd_bag_record(args) -> int:
     return 0
 
 
+def _flush_due(writer, failure: list) -> bool:
+    """Write a chunk that waited long enough while no message came (False: never a reason to stop)."""
+    from facesculpt.runtime.bag import BagError
+
+    try:
+        writer.flush_if_due()
+    except BagError as exc:
+        failure.append(str(exc))
+    return False
+
+
 def cmd_bag_play(args) -> int:
     from facesculpt.runtime.bag import BagReader
 
     reader = BagReader(args.file)
     node = _ToolNode("bag_play")
-    publishers = {}
-    for rec in reader:
-        if rec.topic not in publishers:
-            msg_type = REGISTRY.get(rec.header.get("type"))
-            publishers[rec.topic] = node.advertise(rec.topic, msg_type, qos=EVENTS if args.fast else SENSOR_DATA)
+    publishers = {topic: node.advertise(topic, REGISTRY.get(typ), qos=EVENTS if args.fast else SENSOR_DATA)
+                  for topic, typ in reader.topics().items()}
+    first = reader.start_ns()
+    start_ns = None if not args.start or first is None else first + int(args.start * 1e9)
     if not publishers:
         print(f"{args.file}: no complete records", file=sys.stderr)
         return 1
@@ -294,7 +315,7 @@ def cmd_bag_play(args) -> int:
             pub.wait_for_subscribers(1, args.wait)
         while node.running:
             t0_rec = t0_wall = None
-            for rec in reader:
+            for rec in reader.messages(start_ns):
                 if not node.running:
                     break
                 if not args.fast:
@@ -312,8 +333,11 @@ def cmd_bag_play(args) -> int:
         node.spin_once(0.0)
     finally:
         node.close()
+    foreign = sum(reader.foreign.values())
     print(f"played {sent} messages from {args.file}"
-          + (f" ({reader.ignored_bytes} trailing bytes ignored)" if reader.ignored_bytes else ""), file=sys.stderr)
+          + (f" ({reader.ignored_bytes} trailing bytes ignored)" if reader.ignored_bytes else "")
+          + (f"; skipped {foreign} messages of channels that are not facesculpt's "
+             f"({', '.join(sorted(reader.foreign))})" if foreign else ""), file=sys.stderr)
     return 0
 
 
@@ -325,9 +349,13 @@ def cmd_bag_info(args) -> int:
         print(json.dumps(info, indent=1))
         return 0
     print(f"path:      {info['path']}")
+    how = "" if info["format"] != "mcap" else " (indexed)" if info["indexed"] else " (no summary: read record by record)"
+    print(f"format:    {info['format']}{how}")
     print(f"size:      {info['bytes']} bytes, {info['records']} complete records"
           + (f", {info['ignored_bytes']} bytes ignored (incomplete last record)" if info["ignored_bytes"] else ""))
     print(f"duration:  {info['duration_s']} s")
     for topic, t in info["topics"].items():
         print(f"  {topic:<24} {t['count']:>7} msgs   {', '.join(t['types'])}")
+    if info["undecodable"]:
+        print(f"note:      {info['undecodable']}")
     return 0
