@@ -1,0 +1,146 @@
+"""The ground-truth realism benchmark's own parts (benchmarks/bench_realism.py): its reference
+rasteriser, ground-truth edits, presets and metrics on a few synthetic frames. The full benchmark
+(which runs ``facesculpt process``) is not run here."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+
+from realism.edits import EDITS, preset  # noqa: E402
+from realism.metrics import (  # noqa: E402
+    Pooled,
+    changed,
+    edit_region,
+    liquify,
+    psnr_from_mse,
+    shift_along,
+    squared_error,
+    ssim_map,
+)
+from realism.raster import render_textured  # noqa: E402
+from realism.scoring import score_frame, summarise  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def synth(data_dir, models_dir):
+    """Three frames (yaw 0, +10, +19 degrees) of the scene, unedited and with the nose and jaw
+    edits."""
+    if not (data_dir / "sfm").is_dir() or not (data_dir / "video" / "s18.mp4").is_file():
+        pytest.skip("the benchmark needs ../shared/data/sfm and video/s18.mp4")
+    from realism.scene import make_scene
+    from realism.sequences import render_sequences
+
+    scene = make_scene(data_dir, frames=3)
+    scene_frames = [0, 4, 9]
+    scene.frames = len(scene_frames)
+    # the three frames of interest, renumbered 0..2
+    pose = scene.pose
+    scene.pose = lambda i: pose(scene_frames[i])
+    to_camera = scene.to_camera
+    scene.to_camera = lambda V, i: to_camera(V, scene_frames[i])
+    seq = render_sequences(scene, [EDITS["nose"], EDITS["jaw"]], workers=1)
+    return scene, seq
+
+
+def test_the_edited_render_differs_from_the_unedited_one_only_near_the_edit(synth):
+    scene, seq = synth
+    for i in range(3):
+        diff = changed(seq.truth["nose"][i], seq.inputs[i], level=0)
+        assert diff.sum() > 200, "the nose edit must show"
+        ys, xs = np.nonzero(diff)
+        tip = seq.p0[i][scene.landmarks["nose_tip"]]
+        depth = scene.to_camera(scene.rest, i)[scene.landmarks["nose_tip"], 2]
+        reach_px = (EDITS["nose"].radius + 10.0) * scene.K[0, 0] / depth
+        far = np.hypot(xs + 0.5 - tip[0], ys + 0.5 - tip[1]) > reach_px
+        assert not far.any(), f"frame {i}: {far.sum()} changed pixels farther than {reach_px:.0f} px from the nose tip"
+        # pixels more than a few px from the head are the background, exactly
+        near = cv2.dilate(seq.face[i].astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+        assert near.sum() < 0.5 * near.size
+        assert np.array_equal(seq.inputs[i][~near], scene.background[~near])
+
+
+def test_the_reference_rasteriser_antialiases_the_head_over_the_background(synth):
+    scene, _ = synth
+    X = scene.to_camera(scene.rest, 0)
+    args = (scene.K, X, scene.triangles, scene.texcoords, scene.alpha, scene.texture)
+    black = render_textured(*args, np.zeros_like(scene.background, np.float32))
+    white = render_textured(*args, np.full_like(scene.background, 255.0, np.float32))
+    alpha = 1.0 - (white - black).mean(axis=2) / 255.0
+    assert alpha.min() >= -1e-4 and alpha.max() <= 1 + 1e-4
+    assert (alpha > 0.999).sum() > 10000, "a solid face"
+    assert (alpha < 1e-6).sum() > 200000, "untouched background"
+    assert ((alpha > 0.05) & (alpha < 0.95)).sum() > 300, "soft, anti-aliased borders"
+
+
+def test_metrics_of_the_truth_against_itself_and_of_doing_nothing(synth):
+    _, seq = synth
+    for edit in ("nose", "jaw"):
+        gt, inp = seq.truth[edit][1], seq.inputs[1]
+        region = edit_region(gt, inp)
+        assert region.any()
+        se, n = squared_error(gt, gt, region)
+        assert psnr_from_mse(se / n) == float("inf")
+        assert abs(ssim_map(gt, gt)[region].mean() - 1.0) < 1e-9
+        se, n = squared_error(inp, gt, region)
+        nothing = psnr_from_mse(se / n)
+        assert 10 < nothing < 45
+        pool = Pooled()
+        score_frame(pool, gt, gt, inp)
+        s = summarise(pool)
+        assert s["psnr"] == float("inf") and abs(s["sharpness"] - 1) < 1e-9 and abs(s["seam"] - 1) < 1e-9
+        pool = Pooled()
+        score_frame(pool, inp, gt, inp)
+        s = summarise(pool)
+        assert abs(s["psnr"] - nothing) < 1e-9 and np.isnan(s["seam"]), "doing nothing changes no region: no seam"
+        vis = seq.visible[edit][1]
+        liq = liquify(inp, seq.p0[1][vis], seq.p1[edit][1][vis])
+        se, n = squared_error(liq, gt, region)
+        assert psnr_from_mse(se / n) > nothing, f"{edit}: the ideal 2D warp is closer to the truth than nothing"
+
+
+def test_handle_landing_measures_the_truths_displacement(synth):
+    scene, seq = synth
+    h = scene.landmarks["nose_tip"]
+    for i in range(3):
+        p0, d = seq.p0[i][h], seq.p1["nose"][i][h] - seq.p0[i][h]
+        n = float(np.linalg.norm(d))
+        moved = shift_along(seq.inputs[i], seq.truth["nose"][i], p0, d, seq.face[i], reach=2 * n + 3)
+        still = shift_along(seq.inputs[i], seq.inputs[i], p0, d, seq.face[i], reach=2 * n + 3)
+        assert abs(still) < 0.2
+        assert 0.6 * n < moved < 1.1 * n, (moved, n)  # the patch around the tip moves a little less than the tip
+
+
+def test_the_presets_load_on_both_models(synth):
+    from facesculpt.nodes.deformer.edits import EditStack
+    from facesculpt.nodes.fitter import load_model
+
+    scene, _ = synth
+    rest = scene.rest[: int(scene.model_triangles.max()) + 1]
+    for name in ("sfm", "facemesh"):
+        model = load_model(name)
+        stack = EditStack(np.asarray(model.mean, np.float64), np.asarray(model.triangles), model.landmark_names,
+                          model.landmark_vertices)
+        for spec in EDITS.values():
+            stack.apply_preset(preset(spec, rest, scene.landmarks, scene.model_triangles))
+            handles = list(stack.edits[0].offsets)
+            assert len(handles) == len(spec.handles), (name, spec.name)
+            if name == "sfm":
+                from realism.edits import handle_vertex
+
+                assert handles == [handle_vertex(k, scene.landmarks) for k in spec.handles]
+
+
+def test_the_command_line_refuses_an_unknown_edit(capsys):
+    import bench_realism
+
+    with pytest.raises(SystemExit) as exc:
+        bench_realism.parse_args(["--edits", "nose,ears"])
+    assert exc.value.code == 2
+    assert "unknown edit 'ears'" in capsys.readouterr().err
