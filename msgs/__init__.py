@@ -6,6 +6,7 @@ from .types import (
     INPUT_KINDS,
     Deformation,
     Diagnostics,
+    FaceExpression,
     FaceLandmarks,
     FaceModel,
     FaceState,
@@ -16,6 +17,6 @@ from .types import (
 
 __all__ = [
     "REGISTRY", "DecodeError", "Message", "decode", "encode", "summarize",
-    "Image", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
+    "Image", "FaceExpression", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
     "INPUT_KINDS", "INPUT_COMMANDS",
 ]

@@ -208,3 +208,20 @@ class FrameDone(Message):
 
     TYPE = "FrameDone"
     rendered: bool = False
+
+
+@register
+@dataclass
+class FaceExpression(Message):
+    """One fitted face's head pose and expression parameters, on `face/expression`.
+
+    face_id: as FaceState.face_id.  pose: (6,) float64 yaw, pitch, roll (degrees) and the
+    camera-space translation (mm).  names[i] names values[i] ((E,) float32; units in README
+    "Expression parameters": percent of the inter-ocular distance, eye closure 0..1).
+    """
+
+    TYPE = "FaceExpression"
+    face_id: int = 0
+    pose: np.ndarray = array("f8", 6)
+    names: list = field(default_factory=list)
+    values: np.ndarray = array("f4", "E")
