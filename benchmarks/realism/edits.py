@@ -32,14 +32,14 @@ class EditSpec:
     moves_outline: bool = field(default=False)
 
 
-#: The benchmark's edits. The jaw points are SFM vertices just inside the frontal outline of the
+#: The benchmark's edits. The jaw points are SFM vertices on the frontal outline of the
 #: jaw, level with iBUG 5 / 13 (no landmark name both models share lies there).
 EDITS = {
     "nose": EditSpec("nose", {"nose_tip": (0.0, -3.0, 7.0)}, 30.0, "nose tip pulled 7 mm out and 3 mm down"),
     "chin": EditSpec("chin", {"chin": (0.0, -9.0, 3.0)}, 45.0, "chin 9 mm down and 3 mm forward", True),
     "cheeks": EditSpec("cheeks", {"left_cheek": (-6.0, 0.0, -4.0), "right_cheek": (6.0, 0.0, -4.0)}, 45.0,
                        "both cheeks pushed 6 mm toward the midline and 4 mm in", True),
-    "jaw": EditSpec("jaw", {"vertex:1887": (-7.0, 0.0, 0.0), "vertex:1884": (7.0, 0.0, 0.0)}, 40.0,
+    "jaw": EditSpec("jaw", {"vertex:1886": (-7.0, 0.0, 0.0), "vertex:1882": (7.0, 0.0, 0.0)}, 40.0,
                     "both sides of the jaw 7 mm toward the midline", True),
 }
 
@@ -66,28 +66,49 @@ def displacement(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int]) ->
     return out
 
 
+def _mirror_name(name: str) -> str:
+    for a, b in (("left", "right"), ("right", "left")):
+        if name.startswith(a + "_"):
+            return b + name[len(a):]
+    return name
+
+
+def _symmetric(p: np.ndarray, q: np.ndarray) -> list[float]:
+    """The mean of p (3,) and the mirror image (x -> -x) of its counterpart q (3,), rounded."""
+    m = 0.5 * (np.asarray(p, np.float64) + np.asarray(q, np.float64) * [-1.0, 1.0, 1.0])
+    return [round(float(x), 4) for x in m]
+
+
 def preset(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], triangles: np.ndarray) -> dict:
     """The edit as a deformer preset document (nodes/deformer/preset_format.py). ``rest``
     (V, 3) and ``triangles`` (T, 3) are the SFM mesh the edit is defined on (its original
     topology, without closed holes), ``landmarks`` its landmark name -> vertex. Handles that
     are vertices carry their rest position, the SFM topology and the named landmarks' rest
-    positions, so that the facemesh model places them through its own landmarks."""
+    positions, so that the facemesh model places them through its own landmarks; those
+    positions are made left-right symmetric (each averaged with its mirrored counterpart: the
+    handle with the mirrored offset, the landmark with the mirrored name), so that the two
+    sides of a symmetric edit land on mirrored vertices of a symmetric mesh (the nearest vertex
+    to a carried point can jump between neighbours on the face mesh's sparse outline)."""
     from facesculpt.nodes.deformer.edits import topology_signature
 
+    names = list(spec.handles)
     handles = []
     for name, offset in spec.handles.items():
         if name.startswith("vertex:"):
             v = handle_vertex(name, landmarks)
-            handles.append({"vertex": v, "point": [round(float(x), 4) for x in rest[v]], "offset": list(offset)})
+            mirrored = [n for n in names if np.allclose(spec.handles[n], np.multiply(offset, [-1, 1, 1]))]
+            partner = handle_vertex(mirrored[0], landmarks) if mirrored else v
+            point = _symmetric(rest[v], rest[partner]) if mirrored else [round(float(x), 4) for x in rest[v]]
+            handles.append({"vertex": v, "point": point, "offset": list(offset)})
         else:
             handles.append({"landmark": name, "offset": list(offset)})
     doc = {"format": "facesculpt-deformer-preset", "version": 1, "units": "mm",
            "description": f"bench_realism ground-truth edit: {spec.description}; ROI {spec.radius:g} mm",
            "static": [], "edits": [{"handles": handles, "roi": {"radius": spec.radius, "metric": "geodesic"}}]}
     if any(n.startswith("vertex:") for n in spec.handles):
+        named = {k: v for k, v in landmarks.items() if not k.isdigit()}
         doc["topology"] = topology_signature(len(rest), triangles)
-        doc["landmarks"] = {k: [round(float(x), 4) for x in rest[v]] for k, v in sorted(landmarks.items())
-                            if not k.isdigit()}
+        doc["landmarks"] = {k: _symmetric(rest[v], rest[named.get(_mirror_name(k), v)]) for k, v in sorted(named.items())}
     return doc
 
 
