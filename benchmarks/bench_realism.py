@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from realism.edits import EDITS, write_preset  # noqa: E402
 from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
-from realism.report import crop_box, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
+from realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
 from realism.scene import make_scene  # noqa: E402
 from realism.scoring import landing, landing_by_yaw, score_frame, score_real_frame, summarise  # noqa: E402
 from realism.sequences import Sequences, read_video, render_sequences, run_process, write_lossless  # noqa: E402
@@ -143,10 +143,10 @@ def crop_frames(seq: Sequences, scored: list[int]) -> list[int]:
 
 def save_crops(seq: Sequences, edit: str, label: str, frames: list, liq: dict, rows: list[int], path: Path) -> None:
     H, W = seq.inputs[0].shape[:2]
-    box = crop_box([seq.truth[edit][i] for i in rows], [seq.inputs[i] for i in rows], (W, H))
+    boxes = crop_boxes([seq.truth[edit][i] for i in rows], [seq.inputs[i] for i in rows], (W, H))
     panels = [[(f"input yaw {seq.yaw[i]:+.0f}", seq.inputs[i]), (label, frames[i]),
                ("ground truth", seq.truth[edit][i]), ("2D liquify", liq[i])] for i in rows]
-    cv2.imwrite(str(path), side_by_side(panels, box))
+    cv2.imwrite(str(path), side_by_side(panels, boxes))
 
 
 def synthetic(args, data: Path, out: Path) -> dict:

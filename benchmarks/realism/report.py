@@ -66,27 +66,34 @@ def _label(img: np.ndarray, text: str) -> np.ndarray:
     return np.vstack([strip, img])
 
 
-def crop_box(gts: list, inputs: list, size: tuple[int, int], pad: int = 18, min_side: int = 110):
-    """A box (x0, y0, x1, y1) around the edit regions of the given ground-truth frames."""
-    m = np.zeros(gts[0].shape[:2], bool)
-    for g, i in zip(gts, inputs):
-        m |= edit_region(g, i)
+def crop_boxes(gts: list, inputs: list, size: tuple[int, int], pad: int = 18, min_side: int = 110) -> list:
+    """One box (x0, y0, x1, y1) per frame around its edit region, all of one size (the largest
+    region's, with ``pad`` px around it, at least ``min_side``), kept inside the image."""
     W, H = size
-    if not m.any():
-        return 0, 0, W, H
-    ys, xs = np.nonzero(m)
-    cx, cy = (xs.min() + xs.max()) / 2, (ys.min() + ys.max()) / 2
-    half = max(xs.max() - xs.min(), ys.max() - ys.min(), min_side) / 2 + pad
-    x0, y0 = int(max(cx - half, 0)), int(max(cy - half, 0))
-    return x0, y0, int(min(x0 + 2 * half, W)), int(min(y0 + 2 * half, H))
+    regions = [edit_region(g, i) for g, i in zip(gts, inputs)]
+    spans, centres = [], []
+    for m in regions:
+        if not m.any():
+            spans.append(min_side)
+            centres.append((W / 2, H / 2))
+            continue
+        ys, xs = np.nonzero(m)
+        spans.append(max(xs.max() - xs.min(), ys.max() - ys.min()))
+        centres.append(((xs.min() + xs.max()) / 2, (ys.min() + ys.max()) / 2))
+    side = int(min(max(max(spans), min_side) + 2 * pad, W, H))
+    boxes = []
+    for cx, cy in centres:
+        x0 = int(np.clip(cx - side / 2, 0, W - side))
+        y0 = int(np.clip(cy - side / 2, 0, H - side))
+        boxes.append((x0, y0, x0 + side, y0 + side))
+    return boxes
 
 
-def side_by_side(panels: list[list[tuple[str, np.ndarray]]], box, zoom: int = 2) -> np.ndarray:
-    """Rows of labelled panels (label, full frame), each cropped to ``box`` and enlarged
-    ``zoom`` times (nearest neighbour: every pixel shows)."""
-    x0, y0, x1, y1 = box
+def side_by_side(panels: list[list[tuple[str, np.ndarray]]], boxes: list, zoom: int = 2) -> np.ndarray:
+    """Rows of labelled panels (label, full frame), each row cropped to its box of ``boxes``
+    (all of one size) and enlarged ``zoom`` times (nearest neighbour: every pixel shows)."""
     rows = []
-    for row in panels:
+    for row, (x0, y0, x1, y1) in zip(panels, boxes):
         cells = []
         for label, img in row:
             c = cv2.resize(img[y0:y1, x0:x1], None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
