@@ -80,11 +80,15 @@ def _detector(threads: int):
 
 
 def run_job(options, input_path: str, output_path: str) -> tuple[str, int, str]:
-    """One video on a worker: (input, exit status, the line that says what happened)."""
+    """One video on a worker: (input, exit status, the line that says what happened). With
+    ``--export-params`` (its suffix), the parameters go beside the video: ``OUT.csv`` / ``OUT.json``."""
     from facesculpt.app.process import process_file
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)
+    if options.export_params:
+        options = copy.copy(options)
+        options.export_params = str(Path(output_path).with_suffix(Path(options.export_params).suffix))
     try:
         code, message = process_file(options, input_path, output_path, detector=_detector(options.threads))
     except Exception as exc:  # reported for this input; the other jobs go on

@@ -367,6 +367,14 @@ def _launch(workdir: Path, address: str, spec: dict) -> tuple[subprocess.Popen, 
     return proc, log
 
 
+def _keep_diagnostics(msg, diagnostics: dict, camera_sent: list) -> None:
+    """Keep a node's diagnostics; the camera's frames sent so far, with the arrival time (ns)."""
+    diagnostics.setdefault(msg.node, []).append(msg.values)
+    sent = (msg.values.get("published") or {}).get("camera/image")
+    if msg.node == "camera" and sent is not None:
+        camera_sent.append((time.time_ns(), int(sent)))
+
+
 def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
                   warmup_s: float, size: tuple[int, int] = SIZE, start_timeout_s: float = 90.0,
                   resize: str = "stretch") -> dict:
@@ -390,14 +398,8 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         listener.subscribe("render/image", Image, lambda m: arrivals.append((time.time_ns(), m.stamp)),
                            qos=EVERY_MESSAGE)
         camera_sent: list[tuple[int, int]] = []  # (arrival ns, camera/image published so far)
-
-        def on_diagnostics(m):
-            diagnostics.setdefault(m.node, []).append(m.values)
-            sent = (m.values.get("published") or {}).get("camera/image")
-            if m.node == "camera" and sent is not None:
-                camera_sent.append((time.time_ns(), int(sent)))
-
-        listener.subscribe("diagnostics", Diagnostics, on_diagnostics, qos=EVERY_MESSAGE)
+        listener.subscribe("diagnostics", Diagnostics, lambda m: _keep_diagnostics(m, diagnostics, camera_sent),
+                           qos=EVERY_MESSAGE)
         listener.subscribe("face/deformation", Deformation,
                            lambda m: deformed.append(float(np.abs(m.displacement).max()) if m.displacement.size else 0.0))
         events = listener.advertise("input/events", InputEvent)
@@ -443,6 +445,16 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     if len(window) < 2:
         raise RuntimeError(f"the graph gave {len(window)} frames in {window_s} s (see {log_path})")
     shutil.rmtree(workdir, ignore_errors=True)  # kept when something failed: its launch.log says why
+    nodes = node_figures(diagnostics)
+    for name in cpu1:
+        if name in cpu0:
+            nodes.setdefault(name, {})["cpu_percent"] = round(100.0 * (cpu1[name] - cpu0[name]) / elapsed, 1)
+    return {**output_figures(window, camera_sent), "window_s": round(elapsed, 2), "nodes": nodes}
+
+
+def output_figures(window: list[tuple[int, int]], camera_sent: list[tuple[int, int]]) -> dict:
+    """The rate, latency, longest stall and dropped frames of the output frames ``window``
+    ((arrival ns, capture stamp ns)), with the camera's reports (arrival ns, frames sent so far)."""
     latency = np.array([(a - s) / 1e6 for a, s in window])
     gaps_ms = np.diff([a for a, _ in window]) / 1e6
     dropped = None
@@ -450,21 +462,15 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         (t_first, n_first), (t_last, n_last) = camera_sent[0], camera_sent[-1]
         came_out = sum(1 for a, s in window if t_first <= s <= t_last)
         dropped = max(0, (n_last - n_first) - came_out)
-    nodes = node_figures(diagnostics)
-    for name in cpu1:
-        if name in cpu0:
-            nodes.setdefault(name, {})["cpu_percent"] = round(100.0 * (cpu1[name] - cpu0[name]) / elapsed, 1)
     return {
         "pipelined_fps": round((len(window) - 1) / max(1e-9, (window[-1][0] - window[0][0]) / 1e9), 2),
         "frames_out": len(window),
-        "window_s": round(elapsed, 2),
         "latency_ms": {"p50": round(float(np.percentile(latency, 50)), 2),
                        "p95": round(float(np.percentile(latency, 95)), 2),
                        "p99": round(float(np.percentile(latency, 99)), 2),
                        "mean": round(float(latency.mean()), 2)},
         "longest_stall_ms": round(float(gaps_ms.max()), 2),
         "frames_dropped": dropped,
-        "nodes": nodes,
     }
 
 

@@ -43,6 +43,7 @@ from facesculpt.nodes.fitter import (
     max_faces_for,
     parse_faces,
 )
+from facesculpt.nodes.fitter.expression import face_expression
 from facesculpt.nodes.landmarks import LandmarkDetector
 
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
@@ -188,7 +189,10 @@ class Pipeline:
         for face in self.faces.fit([f.points for f in found], [f.score for f in found],
                                    [f.track_id for f in found], stamp_s, self.min_score):
             if face.outcome.fit is not None:
-                fits[face.key] = face.outcome.fit
+                fit = face.outcome.fit
+                fitter = self.faces.fitters[face.key]
+                fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
+                fits[face.key] = fit
                 self.fitted_per_face[face.key] = self.fitted_per_face.get(face.key, 0) + 1
         timings["fit"] = (time.perf_counter() - t0) * 1e3
         self.fitted_frames += bool(fits)

@@ -62,6 +62,9 @@ def register(sub) -> None:
                    help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
                         "non-commercial) or a .npz from `facesculpt model import-eos`")
     p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
+    p.add_argument("--export-params", default="", metavar="FILE.csv|json",
+                   help="also write each frame's head pose and expression parameters (README: Expression parameters); "
+                        "in a batch, beside each output video with this suffix")
     p.add_argument("--codec", default=None, metavar="NAME",
                    help="video encoder (default by suffix: libx264 (H.264) for .mp4/.mov/.m4v/.mkv, mjpeg for .avi; "
                         "others: libx265, mpeg4, ffv1, ...)")
@@ -240,13 +243,37 @@ def cmd_process(args) -> int:
     return code
 
 
+def _render_frames(pipeline, source, args, fps: float, total, output, export, stop, seen: dict) -> None:
+    """The rendering pass: every frame analysed (a frame ahead, on a second core: decoding,
+    landmarks and fitting release the GIL) and composited, encoded and exported here, where the GL
+    context is; not ahead in a batch worker, which is one core's worth of work already. ``seen``
+    counts frames with a face and the faces edited. Raises KeyboardInterrupt on a stop signal."""
+    from facesculpt.app.read_ahead import ReadAhead
+
+    def analysed():
+        for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
+            yield frame, pipeline.analyse(frame, i / fps)
+
+    ahead = ReadAhead(analysed(), depth=2) if getattr(args, "read_ahead", True) else nullcontext(analysed())
+    with _progress(total, "process", args.quiet) as bar, ahead as frames:
+        for frame, (fits, timings) in frames:
+            if export is not None:
+                export.add(output.frames, output.frames / fps, fits)
+            result = pipeline.compose(frame, fits, timings)
+            seen["frames_with_face"] += bool(result.fits)
+            seen["faces_edited"].update(k for k in result.fits if pipeline.displacement_of(k) is not None)
+            output.write(np.hstack([frame, result.image]) if args.side_by_side else result.image)
+            bar.update(1)
+            if stop.signal:
+                raise KeyboardInterrupt
+
+
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:
     """One video through the pipeline with the options of ``args`` (the command line's); returns
     (exit status, the one line that says what was written). ``detector``: a
     :class:`LandmarkDetector` to reuse (a batch worker keeps its networks loaded); its tracks are
     reset first, so the output is the same as with a fresh one. Raises on bad input."""
     from facesculpt.app.pipeline import Pipeline, read_preset
-    from facesculpt.app.read_ahead import ReadAhead
     from facesculpt.app.safe_output import refuse_output_over_input
     from facesculpt.nodes.deformer.preset_format import check_strength, merge_presets, scale_preset
     from facesculpt.nodes.fitter import parse_faces
@@ -254,6 +281,12 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     args = copy.copy(args)
     args.input, args.output = input_path, output_spec
     refuse_output_over_input(args.input, args.output)  # before anything is opened
+    export = None
+    if getattr(args, "export_params", ""):
+        from facesculpt.app.params_export import ParamsExport
+
+        refuse_output_over_input(args.input, args.export_params)
+        export = ParamsExport(args.export_params)
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
@@ -272,31 +305,16 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
             pipeline.edit_stack().apply_preset(merge_presets([p for _, p in presets]))
         except DeformerError as exc:
             raise ValueError(f"the edits do not fit the {args.model} model: {exc}") from None
-    frames_with_face = 0
-    faces_edited: set[int] = set()
+    seen = {"frames_with_face": 0, "faces_edited": set()}
     try:
         with _Stop() as stop:
             if presets:
                 _calibrate(pipeline, args, total, fps, stop, presets)
-            def analysed():
-                for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
-                    yield frame, pipeline.analyse(frame, i / fps)
-
-            # Frame i + 1 is decoded and analysed on a second core while frame i is composited and
-            # encoded here (not in a batch worker, which is one core's worth of work already).
-            ahead = ReadAhead(analysed(), depth=2) if getattr(args, "read_ahead", True) else nullcontext(analysed())
-            with _progress(total, "process", args.quiet) as bar, ahead as frames:
-                for frame, (fits, timings) in frames:
-                    result = pipeline.compose(frame, fits, timings)
-                    frames_with_face += bool(result.fits)
-                    faces_edited.update(k for k in result.fits if pipeline.displacement_of(k) is not None)
-                    image = np.hstack([frame, result.image]) if args.side_by_side else result.image
-                    output.write(image)
-                    bar.update(1)
-                    if stop.signal:
-                        raise KeyboardInterrupt
+            _render_frames(pipeline, source, args, fps, total, output, export, stop, seen)
     except KeyboardInterrupt:
         _finish(output, completed=False)
+        if export is not None:
+            export.write()
         return 130, f"interrupted: kept {output.frames} frames in {output.path!s}"
     except BaseException:
         if hasattr(output, "discard"):
@@ -310,6 +328,9 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
             output.discard()
         raise ValueError(f"cannot read {args.input}: it holds no frames")
     _finish(output, completed=True)
+    if export is not None:
+        export.write()
+    frames_with_face, faces_edited = seen["frames_with_face"], seen["faces_edited"]
     if presets and not faces_edited:
         how = "no face was found" if not frames_with_face else "no face the edits name was found"
         return 0, f"wrote {output.frames} frames to {output.path!s} unedited: {how}"

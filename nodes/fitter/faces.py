@@ -51,11 +51,13 @@ def max_faces_for(selection: FaceSelection, limit: int = 8) -> int:
 @dataclass
 class FaceFit:
     """One face of a frame: ``key`` the fitter (identity) it was fitted with (0 for "largest",
-    else the track id), ``track_id`` the detector's, ``outcome`` the :class:`LandmarksFit`."""
+    else the track id), ``track_id`` the detector's, ``outcome`` the :class:`LandmarksFit`,
+    ``index`` its row in the frame's landmarks."""
 
     key: int
     track_id: int
     outcome: LandmarksFit
+    index: int = 0  # the face's row in the frame's landmarks
 
 
 class FaceFitters:
@@ -114,7 +116,7 @@ class FaceFitters:
             key = self._key(ids[i])
             face_scores = scores[i:i + 1] if scores.size == points.shape[0] else scores[:0]
             outcome = fit_landmarks(self.fitter(key), points[i:i + 1], face_scores, stamp_s, min_score)
-            out.append(FaceFit(key, ids[i], outcome))
+            out.append(FaceFit(key, ids[i], outcome, i))
         return out
 
     def reset_tracking(self) -> None:

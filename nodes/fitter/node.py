@@ -1,4 +1,4 @@
-"""The fitter node: ``face/landmarks`` -> ``face/state``, and ``face/model`` (latched).
+"""The fitter node: ``face/landmarks`` -> ``face/state`` and ``face/expression``, and ``face/model`` (latched).
 
 A thin shell over stage 2, :func:`facesculpt.nodes.fitter.fit_landmarks` (docs/architecture.md,
 "Stages"), which the in-process pipeline calls too. The model is the ``model`` param:
@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
+from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import LATCHED
 
 from .config import FitterConfig
+from .expression import NAMES, face_expression, head_pose
 from .faces import FaceFitters, parse_faces
 from .fitter import Fitter, make_fitter
 from .model import MorphableModel, load_model
@@ -63,6 +64,7 @@ class FitterNode(Node):
     def setup(self):
         self.state_pub = self.advertise("face/state", FaceState)
         self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
+        self.expression_pub = self.advertise("face/expression", FaceExpression)
         self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
         self.model: MorphableModel | None = None
         self.faces: FaceFitters | None = None
@@ -238,5 +240,11 @@ class FitterNode(Node):
                 image_size=[size[0], size[1]], projection=result.projection, face_id=f.key, faces=len(fitted),
             ))
             self.count("fitted")
+            fitter = self.faces.fitters[f.key]
+            with self.stage("expression"):
+                values = face_expression(result, fitter.model, fitter.neutral, msg.points[f.index])
+            self.expression_pub.publish(FaceExpression(
+                stamp=msg.stamp, frame_id=msg.frame_id, face_id=f.key, pose=head_pose(result), names=list(NAMES),
+                values=values))
         if fitted:
             self.maybe_publish_model(msg.stamp, msg.stamp * 1e-9)

@@ -26,7 +26,8 @@ class FitResult:
     deviations; residual_px: RMS landmark reprojection error of the fit (before smoothing);
     model_vertices (V, 3) float32 the fitted shape in model space (mm); landmarks_used: points
     that took part; correspondences (sparse): the model points (vertex triples (L, 3) and
-    barycentric weights (L, 3)) the landmarks were matched to."""
+    barycentric weights (L, 3)) the landmarks were matched to; expression (E,) float32 the
+    expression parameters (:mod:`.expression`) when the caller computed them."""
 
     vertices: np.ndarray
     projected: np.ndarray
@@ -41,6 +42,7 @@ class FitResult:
     model_vertices: np.ndarray
     landmarks_used: int = 0
     correspondences: tuple[np.ndarray, np.ndarray] = field(default=None, repr=False)
+    expression: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def yaw_pitch_roll(self) -> tuple[float, float, float]:

@@ -1,0 +1,81 @@
+"""Expression parameters: zero on the neutral, each component moved by its own facial motion,
+and on a real video the jaw-open parameter follows the mouth opening the landmark network sees,
+with both built-in models; `process --export-params` writes them, one row per frame."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from facesculpt.nodes.fitter.expression import NAMES, expression_parameters, expression_points
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_neutral_is_zero_and_components_answer_their_own_motion():
+    from facesculpt.nodes.fitter import load_model
+
+    m = load_model("facemesh")
+    neutral = expression_points(m.mean, True, m.landmark_names, m.landmark_vertices)
+    assert len(NAMES) >= 20 and np.allclose(expression_parameters(neutral, neutral), 0.0)
+    iod = np.linalg.norm(neutral[36] - neutral[45])
+    moved = neutral.copy()
+    moved[[65, 66, 67], 1] -= 0.1 * iod  # lower inner lip down: the mouth opens by 10 % IOD
+    e = dict(zip(NAMES, expression_parameters(moved, neutral)))
+    assert e["jaw_open"] == pytest.approx(10.0, abs=0.01)
+    assert all(abs(v) < 1e-6 for k, v in e.items() if k != "jaw_open")
+    smile = neutral.copy()
+    smile[[48, 54], 1] += 0.05 * iod  # both mouth corners up
+    e = dict(zip(NAMES, expression_parameters(smile, neutral)))
+    assert e["lip_corner_up_right"] == pytest.approx(5.0, abs=0.01) and e["lip_corner_up_left"] == pytest.approx(5.0, abs=0.01)
+    shut = neutral.copy()
+    shut[[37, 38], 1] = shut[[41, 40], 1]  # right upper lid down onto the lower lid
+    e = dict(zip(NAMES, expression_parameters(shut, neutral)))
+    assert e["eye_close_right"] == pytest.approx(1.0, abs=0.05) and abs(e["eye_close_left"]) < 1e-6
+
+
+@pytest.mark.parametrize("model", ["facemesh", "sfm"])
+def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir):
+    from facesculpt.app.pipeline import Pipeline
+    from facesculpt.geometry import to_ibug68
+
+    cap = cv2.VideoCapture(str(data_dir / "video" / "d3.mp4"))
+    jaw, opening = [], []
+    with Pipeline(model, neutral_frames=30) as pipeline:
+        for i in range(150):
+            ok, frame = cap.read()
+            if not ok:
+                break
+            fits = pipeline.fit_faces(frame, i / 30.0)
+            if not fits:
+                continue
+            jaw.append(float(fits[0].expression[NAMES.index("jaw_open")]))
+            points = to_ibug68(pipeline.detector._faces()[0].points)
+            opening.append(np.linalg.norm(points[62] - points[66]) / np.linalg.norm(points[36] - points[45]))
+    cap.release()
+    assert len(jaw) > 100
+    assert np.corrcoef(jaw, opening)[0, 1] >= 0.9
+
+
+def test_process_exports_one_row_per_frame(data_dir, models_dir, tmp_path):
+    out_csv, out_json = tmp_path / "p.csv", tmp_path / "p.json"
+    for path in (out_csv, out_json):
+        r = subprocess.run([sys.executable, "-m", "facesculpt.cli", "process", str(data_dir / "video" / "d0.mp4"),
+                            "-o", str(tmp_path / f"{path.suffix[1:]}.mp4"), "--export-params", str(path),
+                            "--max-frames", "12", "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(out_csv.open()))
+    assert [int(r["frame"]) for r in rows] == list(range(12))
+    assert {"yaw_deg", "tz_mm", *NAMES} <= set(rows[0])
+    assert all(r["face"] == "0" and float(r["tz_mm"]) > 0 for r in rows)
+    doc = json.loads(out_json.read_text())
+    assert doc["columns"] == list(rows[0]) and len(doc["rows"]) == 12
+    assert doc["rows"][5]["jaw_open"] == pytest.approx(float(rows[5]["jaw_open"]), abs=1e-3)
+    assert not list(tmp_path.glob(".*writing*"))
