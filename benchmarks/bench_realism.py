@@ -34,8 +34,10 @@ liquify, enlarged 2x without smoothing) and the presets to ``--out`` (default: a
 folder), and prints the tables.
 
 Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
-[--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90]``. Needs the shared
-data (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
+[--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--pythonpath DIR]``
+(``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
+revision, to compare compositors on the same ground truth). Needs the shared data
+(../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
 """
 
 from __future__ import annotations
@@ -77,6 +79,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--neutral-frames", type=int, default=30, help="process --neutral-frames; scoring starts after them")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
+    p.add_argument("--pythonpath", default="", help="run process with this folder first on PYTHONPATH (a copy of "
+                   "another revision of facesculpt, to compare compositors); default: the installed one")
     a = p.parse_args(argv)
     a.models = [m for m in a.models.split(",") if m]
     a.edits = [e for e in a.edits.split(",") if e]
@@ -174,7 +178,8 @@ def synthetic(args, data: Path, out: Path) -> dict:
         for m in args.models:
             folder = out / "frames" / f"synthetic_{e}_{m}"
             try:
-                frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames)
+                frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames,
+                                           pythonpath=args.pythonpath)
             except RuntimeError as exc:
                 print(exc, file=sys.stderr)
                 results[e][m] = {"error": str(exc)}
@@ -208,7 +213,8 @@ def real_videos(args, data: Path, out: Path, presets: dict) -> list[dict]:
                 folder = out / "frames" / f"{name}_{e}_{m}"
                 row = {"video": name, "model": m, "edit": e}
                 try:
-                    frames, took = run_process(video, folder, Path(preset), m, args.real_frames, args.neutral_frames)
+                    frames, took = run_process(video, folder, Path(preset), m, args.real_frames, args.neutral_frames,
+                                               args.pythonpath)
                 except RuntimeError as exc:
                     print(exc, file=sys.stderr)
                     rows.append({**row, "error": str(exc), "sharpness": float("nan"), "seam": float("nan"),
@@ -225,7 +231,11 @@ def real_videos(args, data: Path, out: Path, presets: dict) -> list[dict]:
     return rows
 
 
-def git_revision() -> str:
+def git_revision(pythonpath: str = "") -> str:
+    """The revision of the facesculpt that process runs: the checkout's (``git describe``), or
+    the folder given by ``--pythonpath``."""
+    if pythonpath:
+        return f"facesculpt from {pythonpath}"
     try:
         return subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"], capture_output=True,
                               text=True, timeout=10).stdout.strip()
@@ -266,7 +276,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     syn = synthetic(args, data, out)
     real = real_videos(args, data, out, syn["presets"])
-    report = {"revision": git_revision(), "frames": args.frames, "neutral_frames": args.neutral_frames,
+    report = {"revision": git_revision(args.pythonpath), "frames": args.frames, "neutral_frames": args.neutral_frames,
               "models": args.models, "edits": args.edits, **syn, "real": real,
               "total_s": time.perf_counter() - t0}
     (out / "results.json").write_text(json.dumps(_clean(report), indent=1))

@@ -124,9 +124,10 @@ def read_video(path: Path, max_frames: int = 0) -> list:
 
 
 def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames: int = 0,
-                neutral_frames: int = 30) -> tuple[list, float]:
+                neutral_frames: int = 30, pythonpath: str = "") -> tuple[list, float]:
     """``facesculpt process VIDEO -o OUT/%05d.png --edits PRESET --model MODEL`` in a
-    subprocess: (the frames written, seconds taken). RuntimeError with its stderr on failure."""
+    subprocess (with ``pythonpath`` first on its PYTHONPATH when given: another build of
+    facesculpt): (the frames written, seconds taken). RuntimeError with its stderr on failure."""
     import time
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -135,7 +136,10 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]
     t0 = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True)
+    env = dict(os.environ)
+    if pythonpath:
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (pythonpath, env.get("PYTHONPATH", "")) if p)
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env)
     took = time.perf_counter() - t0
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
