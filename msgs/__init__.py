@@ -11,6 +11,7 @@ from .types import (
     FaceModel,
     FaceState,
     FrameDone,
+    HandLandmarks,
     Image,
     InputEvent,
 )
@@ -18,5 +19,6 @@ from .types import (
 __all__ = [
     "REGISTRY", "DecodeError", "Message", "decode", "encode", "summarize",
     "Image", "FaceExpression", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
+    "HandLandmarks",
     "INPUT_KINDS", "INPUT_COMMANDS",
 ]

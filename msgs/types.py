@@ -225,3 +225,28 @@ class FaceExpression(Message):
     pose: np.ndarray = array("f8", 6)
     names: list = field(default_factory=list)
     values: np.ndarray = array("f4", "E")
+
+
+@register
+@dataclass
+class HandLandmarks(Message):
+    """The hands in one frame, on `hands/landmarks` (N = 0 when there is none).
+
+    points: (N, 21, 3) float32: x, y in image pixels, z depth relative to the wrist in the same
+    scale (smaller = nearer the camera); mediapipe's joint order (0 wrist, 1-4 thumb, 5-8 index,
+    9-12 middle, 13-16 ring, 17-20 little finger, base to tip).
+    scores: (N,) float32 hand presence in 0..1.
+    right: (N,) float32 the probability that the hand is the person's right hand.
+    rois: (N, 5) float32 crop of each hand: cx, cy, w, h (pixels), angle (radians).
+    track_ids: (N,) int32 the same number for the same tracked hand across frames.
+    image_size: [W, H] of the source frame.  K: (3, 3) float64 its intrinsics.
+    """
+
+    TYPE = "HandLandmarks"
+    points: np.ndarray = array("f4", "N", 21, 3)
+    scores: np.ndarray = array("f4", "N")
+    right: np.ndarray = array("f4", "N")
+    rois: np.ndarray = array("f4", "N", 5)
+    track_ids: np.ndarray = array("i4", "N")
+    image_size: list = field(default_factory=lambda: [0, 0])
+    K: np.ndarray = array("f8", 3, 3)

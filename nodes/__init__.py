@@ -12,4 +12,5 @@ BUILTIN_NODES = {
     "renderer": "facesculpt.nodes.renderer.node:RendererNode",
     "joystick": "facesculpt.nodes.input.joystick:JoystickNode",
     "script": "facesculpt.nodes.input.script:ScriptNode",
+    "hands": "facesculpt.nodes.hands.node:HandsNode",
 }

@@ -1,15 +1,17 @@
-"""`facesculpt setup`: fetch the face networks once and convert them to ONNX.
+"""`facesculpt setup`: fetch the face and hand networks once and convert them to ONNX.
 
-The networks are the face detector (short range) and the 468-point face mesh that the
-``mediapipe==0.10.14`` wheel on PyPI ships as .tflite files (Apache-2.0). Setup downloads that
+The networks are the face detector (short range), the 468-point face mesh, the palm detector
+(full) and the 21-point hand landmark network (full) that the ``mediapipe==0.10.14`` wheel on
+PyPI ships as .tflite files (Apache-2.0). Setup downloads that
 exact wheel with ``pip download --no-deps`` (fixed python version and platform, so any
 interpreter fetches the same file), checks its sha256, extracts the networks and the mesh
 tessellation (read as data), converts the networks with the project's own converter
 (:mod:`facesculpt.nodes.landmarks.tflite_to_onnx`) and writes into the model directory
 (:func:`facesculpt.paths.model_home`):
 
-    face_detector.onnx, face_landmark.onnx    the converted networks (run by onnxruntime)
-    face_detector.tflite, face_landmark.tflite the originals (reference for tests/benchmarks)
+    face_detector.onnx, face_landmark.onnx    the converted face networks (run by onnxruntime)
+    palm_detector.onnx, hand_landmark.onnx    the converted hand networks
+    *.tflite (same names)                      the originals (reference for tests/benchmarks)
     facemesh_triangles.npy                     (T, 3) int32 triangles of the 468-point mesh
     manifest.json                              versions and the sha256 of every file
     downloads/<wheel>                          the wheel, so a re-run never needs the network
@@ -52,6 +54,8 @@ PIP_DOWNLOAD_ARGS = [
 NETWORKS = {
     "face_detector": "mediapipe/modules/face_detection/face_detection_short_range.tflite",
     "face_landmark": "mediapipe/modules/face_landmark/face_landmark.tflite",
+    "palm_detector": "mediapipe/modules/palm_detection/palm_detection_full.tflite",
+    "hand_landmark": "mediapipe/modules/hand_landmark/hand_landmark_full.tflite",
 }
 CONNECTIONS_MEMBER = "mediapipe/python/solutions/face_mesh_connections.py"
 TRIANGLES_FILE = "facemesh_triangles.npy"
@@ -254,8 +258,8 @@ def _main(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "setup", help="download and convert the face networks (run once)",
-        description="Download the pinned mediapipe wheel, convert its face networks to ONNX and write "
+        "setup", help="download and convert the face and hand networks (run once)",
+        description="Download the pinned mediapipe wheel, convert its face and hand networks to ONNX and write "
                     "them with the face-mesh triangles into the model directory.")
     p.add_argument("--home", type=Path, default=None,
                    help="model directory (default: $FACESCULPT_HOME or ~/.cache/facesculpt)")

@@ -65,6 +65,11 @@ _OPTION_FIELDS: dict[str, list[tuple[str, str, object]]] = {
     "SUB": [("fused_activation_function", "b", 0)],
     "CONCATENATION": [("axis", "i", 0), ("fused_activation_function", "b", 0)],
     "RESHAPE": [("new_shape", "[i", None)],
+    "FULLY_CONNECTED": [("fused_activation_function", "b", 0), ("weights_format", "b", 0),
+                        ("keep_num_dims", "b", 0), ("asymmetric_quantize_inputs", "b", 0)],
+    "MEAN": [("keep_dims", "b", 0)],
+    "RESIZE_BILINEAR": [("new_height", "i", 0), ("new_width", "i", 0), ("align_corners", "b", 0),
+                        ("half_pixel_centers", "b", 0)],
 }
 
 PADDING_NAMES = {0: "SAME", 1: "VALID"}

@@ -1,4 +1,4 @@
-"""The project's own TFLite -> ONNX converter, for the operators of mediapipe's face networks.
+"""The project's own TFLite -> ONNX converter, for the operators of mediapipe's face and hand networks.
 
 Layout: TFLite is NHWC, ONNX convolutions are NCHW. The converted graph keeps the TFLite
 model's NHWC inputs and outputs (so the same arrays feed both runtimes) and runs NCHW
@@ -9,9 +9,11 @@ Each converted value remembers its layout; transposes are made on demand and cac
 Constants: DEQUANTIZE of a constant float16 tensor (how mediapipe stores weights) is folded
 into a float32 initializer, exactly; weights are permuted to ONNX layouts at conversion.
 
-Supported operators: DEQUANTIZE (float16 constants), CONV_2D, DEPTHWISE_CONV_2D (any depth
-multiplier), PRELU, ADD, MAX_POOL_2D, AVERAGE_POOL_2D, PAD, RELU, RELU6, LOGISTIC, TANH,
-RESHAPE, CONCATENATION. Anything else raises :class:`UnsupportedOperatorError` naming it.
+Supported operators (those of the face networks and of the palm detector and hand landmark
+networks): DEQUANTIZE (float16 constants), CONV_2D, DEPTHWISE_CONV_2D (any depth multiplier),
+PRELU, ADD, MAX_POOL_2D, AVERAGE_POOL_2D, PAD, RELU, RELU6, LOGISTIC, TANH, RESHAPE,
+CONCATENATION, MEAN, FULLY_CONNECTED (constant weights), RESIZE_BILINEAR (constant size; the
+three sampling rules). Anything else raises :class:`UnsupportedOperatorError` naming it.
 SAME padding is computed explicitly from the static shapes (TensorFlow's rule: the extra
 pixel goes after), fused activations become separate ONNX nodes.
 
@@ -29,7 +31,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from .tflite_reader import ACTIVATION_NAMES, TfliteGraph, read_tflite
 
-CONVERTER_VERSION = "1"
+CONVERTER_VERSION = "2"
 OPSET = 13
 NHWC_TO_NCHW = (0, 3, 1, 2)
 NCHW_TO_NHWC = (0, 2, 3, 1)
@@ -297,6 +299,56 @@ class _Converter:
             axis = NHWC_TO_NCHW.index(axis)
         out = self.node("Concat", [self.value(i, layout) for i in op.inputs], "concat", axis=axis)
         self.set(op.outputs[0], self.activation(out, op.options["fused_activation_function"], "concat"), layout)
+
+    def op_MEAN(self, op):
+        axes = sorted(int(a) % self.rank(op.inputs[0]) for a in
+                      np.atleast_1d(self.const(op.inputs[1], "MEAN axes")))
+        keep = bool(op.options.get("keep_dims", 0))
+        index = op.inputs[0]
+        if self.rank(index) == 4 and axes == [1, 2]:
+            # The spatial mean (global average pooling) runs in NCHW, in onnxruntime's blocked kernels.
+            out = self.node("GlobalAveragePool", [self.value(index, "nchw")], "mean")
+            if keep:
+                self.set(op.outputs[0], out, "nchw")
+                return
+            shape = np.array(self.g.tensors[op.outputs[0]].shape, np.int64)
+            self.set(op.outputs[0], self.node("Reshape", [out, self.add_const(shape, "shape")], "mean_flat"),
+                     "plain")
+            return
+        out = self.node("ReduceMean", [self.value(index, "plain")], "mean", axes=axes, keepdims=int(keep))
+        self.set(op.outputs[0], out, "plain")
+
+    def op_FULLY_CONNECTED(self, op):
+        o = op.options
+        if o.get("weights_format", 0) != 0:
+            raise UnsupportedOperatorError("FULLY_CONNECTED with shuffled weights is not supported")
+        w = self.const(op.inputs[1], "FULLY_CONNECTED weights").astype(np.float32)  # (O, I)
+        x = self.value(op.inputs[0], "plain")
+        if self.rank(op.inputs[0]) != 2:  # TFLite flattens every leading axis into the batch
+            x = self.node("Reshape", [x, self.add_const(np.array([-1, w.shape[1]], np.int64), "shape")], "fc_in")
+        inputs = [x, self.add_const(w, "weight")]
+        if len(op.inputs) > 2 and op.inputs[2] >= 0:
+            inputs.append(self.add_const(self.const(op.inputs[2], "bias").astype(np.float32), "bias"))
+        out = self.node("Gemm", inputs, "fc", transB=1)
+        out_shape = self.g.tensors[op.outputs[0]].shape
+        if len(out_shape) != 2:
+            out = self.node("Reshape", [out, self.add_const(np.array(out_shape, np.int64), "shape")], "fc_out")
+        self.set(op.outputs[0], self.activation(out, o["fused_activation_function"], "fc"), "plain")
+
+    def op_RESIZE_BILINEAR(self, op):
+        o = op.options
+        if self.rank(op.inputs[0]) != 4:
+            raise UnsupportedOperatorError("RESIZE_BILINEAR of a tensor that is not 4-D")
+        height, width = (int(v) for v in self.const(op.inputs[1], "RESIZE_BILINEAR size"))
+        channels = self.g.tensors[op.inputs[0]].shape[3]
+        # TFLite's three sampling rules are ONNX's coordinate transformation modes (the
+        # half-pixel rule clamps the source coordinate to the image, as onnxruntime does).
+        mode = ("align_corners" if o.get("align_corners") else
+                "half_pixel" if o.get("half_pixel_centers") else "asymmetric")
+        sizes = self.add_const(np.array([1, channels, height, width], np.int64), "sizes")
+        out = self.node("Resize", [self.value(op.inputs[0], "nchw"), "", "", sizes], "resize",
+                        mode="linear", coordinate_transformation_mode=mode)
+        self.set(op.outputs[0], out, "nchw")
 
     # ---- driver ----------------------------------------------------------------------------
     def convert(self, name: str) -> onnx.ModelProto:

@@ -1,0 +1,124 @@
+"""The palm detector's outputs decoded: SSD anchors, boxes with seven keypoints, weighted NMS,
+and the hand crop (ROI) a palm gives. Arrays in, arrays out.
+
+mediapipe's palm detector (``palm_detection_full``, 192x192 RGB input in [0, 1], the frame
+letterboxed) regresses, per anchor, a box (centre offset, width, height) and seven keypoints
+in input pixels relative to the anchor centre (0 the wrist centre, 2 the middle finger's
+knuckle; the others on the palm and the thumb's base). Its score is a logit.
+
+The hand crop follows mediapipe's palm-to-ROI rule: rotated so the wrist -> middle-knuckle
+direction points up the crop, centre shifted half a box height towards the fingers, side 2.6x
+the box's longer side. Coordinates are continuous image pixels (pixel i spans [i, i + 1]).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+PALM_SIZE = 192
+NUM_PALM_KEYPOINTS = 7
+PALM_WRIST, PALM_MIDDLE_MCP = 0, 2
+_ANCHOR_STRIDES = (8, 16, 16, 16)
+PALM_ROI_SCALE = 2.6
+PALM_ROI_SHIFT_Y = -0.5
+
+
+@dataclass
+class Palm:
+    """A palm detection in image pixels (continuous): ``box`` (4,) [xmin, ymin, xmax, ymax],
+    ``keypoints`` (7, 2), ``score`` in [0, 1]."""
+
+    box: np.ndarray
+    keypoints: np.ndarray
+    score: float
+
+
+def palm_anchors(size: int = PALM_SIZE, strides=_ANCHOR_STRIDES) -> np.ndarray:
+    """Anchor centres (2016, 2) float32, normalised [0, 1]: two per cell on the 24x24 grid (stride
+    8), six per cell on the 12x12 grid (the three stride-16 layers), row by row."""
+    centres = []
+    i = 0
+    while i < len(strides):
+        stride, per_cell = strides[i], 0
+        while i < len(strides) and strides[i] == stride:
+            per_cell += 2
+            i += 1
+        grid = int(math.ceil(size / stride))
+        ys, xs = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
+        cell = np.stack([(xs + 0.5) / grid, (ys + 0.5) / grid], axis=-1).reshape(-1, 1, 2)
+        centres.append(np.repeat(cell, per_cell, axis=1).reshape(-1, 2))
+    return np.concatenate(centres).astype(np.float32)
+
+
+def decode_palms(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndarray,
+                 min_score: float = 0.5, size: int = PALM_SIZE):
+    """The anchors scoring at least ``min_score``: normalised ``boxes`` (N, 4), ``keypoints``
+    (N, 7, 2) and ``scores`` (N,). raw_boxes (2016, 18) float32, raw_scores (2016,) logits."""
+    scores = 1.0 / (1.0 + np.exp(-np.clip(raw_scores.astype(np.float64), -100.0, 100.0)))
+    keep = np.flatnonzero(scores >= min_score)
+    raw = raw_boxes[keep].astype(np.float64) / size
+    centre = anchors[keep].astype(np.float64)
+    cxcy = raw[:, 0:2] + centre
+    half = raw[:, 2:4] / 2.0
+    boxes = np.concatenate([cxcy - half, cxcy + half], axis=1)
+    keypoints = raw[:, 4:4 + 2 * NUM_PALM_KEYPOINTS].reshape(-1, NUM_PALM_KEYPOINTS, 2) + centre[:, None, :]
+    return boxes.astype(np.float32), keypoints.astype(np.float32), scores[keep].astype(np.float32)
+
+
+def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Intersection over union of one box (4,) with boxes (N, 4), [xmin, ymin, xmax, ymax]."""
+    lo = np.maximum(box[:2], boxes[:, :2])
+    hi = np.minimum(box[2:], boxes[:, 2:])
+    inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
+    areas = np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
+    return inter / np.maximum(np.prod(box[2:] - box[:2]) + areas - inter, 1e-12)
+
+
+def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
+                 iou_threshold: float = 0.3) -> list[Palm]:
+    """mediapipe's weighted non-maximum suppression: each cluster (IoU > ``iou_threshold`` with
+    its best box) becomes its score-weighted mean box and keypoints, with the top score; best first."""
+    order = np.argsort(-scores, kind="stable")
+    boxes, keypoints, scores = boxes[order], keypoints[order], scores[order]
+    remaining = np.ones(len(scores), bool)
+    out = []
+    for i in range(len(scores)):
+        if not remaining[i]:
+            continue
+        cluster = np.union1d(np.flatnonzero(remaining & (box_iou(boxes[i], boxes) > iou_threshold)), [i])
+        remaining[cluster] = False
+        w = scores[cluster].astype(np.float64)
+        w /= w.sum()
+        out.append(Palm(box=(boxes[cluster] * w[:, None]).sum(0).astype(np.float32),
+                        keypoints=(keypoints[cluster] * w[:, None, None]).sum(0).astype(np.float32),
+                        score=float(scores[i])))
+    return out
+
+
+def up_angle(base: np.ndarray, tip: np.ndarray) -> float:
+    """The crop angle (radians, of the crop's x axis from the image's) that makes ``base`` ->
+    ``tip`` (image pixels) point up the crop (towards its smaller y)."""
+    d = np.asarray(base, np.float64) - np.asarray(tip, np.float64)  # the crop's +y axis
+    return math.atan2(-float(d[0]), float(d[1]))
+
+
+def transform_roi(centre, width: float, height: float, angle: float, scale: float, shift_y: float) -> np.ndarray:
+    """mediapipe's rect transformation: shift the centre by ``shift_y`` heights along the crop's
+    y axis, make it square on its longer side, scale. Returns (5,) [cx, cy, side, side, angle]."""
+    c, s = math.cos(angle), math.sin(angle)
+    shift = shift_y * height
+    cx = float(centre[0]) - s * shift
+    cy = float(centre[1]) + c * shift
+    side = max(width, height) * scale
+    return np.array([cx, cy, side, side, angle], np.float64)
+
+
+def roi_from_palm(palm: Palm) -> np.ndarray:
+    """The hand crop (5,) [cx, cy, side, side, angle] of a palm detection (continuous pixels)."""
+    angle = up_angle(palm.keypoints[PALM_WRIST], palm.keypoints[PALM_MIDDLE_MCP])
+    centre = (palm.box[:2] + palm.box[2:]) / 2.0
+    w, h = float(palm.box[2] - palm.box[0]), float(palm.box[3] - palm.box[1])
+    return transform_roi(centre, w, h, angle, PALM_ROI_SCALE, PALM_ROI_SHIFT_Y)
