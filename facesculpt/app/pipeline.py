@@ -217,9 +217,12 @@ class Pipeline:
             self.displacement_of(key)
         return fits, timings
 
-    def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict) -> FrameResult:
+    def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict,
+                keep_mask: np.ndarray | None = None) -> FrameResult:
         """The frame with every fitted face of ``fits`` (from :meth:`analyse`) merged with its edit
-        and composited; the GL work, in the thread that made this pipeline's compositor."""
+        and composited; the GL work, in the thread that made this pipeline's compositor.
+        ``keep_mask``: optional (H, W) bool pixels kept from the input (hands in front of the face,
+        :func:`facesculpt.geometry.hand_regions.hand_region_mask`)."""
         if not fits:
             return FrameResult(frame_bgr, None, timings)
         out, render_ms = frame_bgr, {}
@@ -235,16 +238,18 @@ class Pipeline:
             timings["merge"] += (time.perf_counter() - t0) * 1e3
             t0 = time.perf_counter()
             compositor = self._compositor()
-            out = compositor.render(out, fit.vertices, fit.projected, self.model.triangles, deformed)
+            out = compositor.render(out, fit.vertices, fit.projected, self.model.triangles, deformed,
+                                    keep_mask=keep_mask)
             timings["render"] += (time.perf_counter() - t0) * 1e3
             for k, v in compositor.timings.items():
                 if k != "total":
                     render_ms[k] = render_ms.get(k, 0.0) + v
         return FrameResult(out, fits[min(fits)], timings, render_ms, fits)
 
-    def process(self, frame_bgr: np.ndarray, stamp_s: float) -> FrameResult:
-        """One frame through every stage; each face's edit (if any) merged into it."""
-        return self.compose(frame_bgr, *self.analyse(frame_bgr, stamp_s))
+    def process(self, frame_bgr: np.ndarray, stamp_s: float, keep_mask: np.ndarray | None = None) -> FrameResult:
+        """One frame through every stage; each face's edit (if any) merged into it; ``keep_mask``
+        as in :meth:`compose`."""
+        return self.compose(frame_bgr, *self.analyse(frame_bgr, stamp_s), keep_mask=keep_mask)
 
     # -- the neutral and the edit -----------------------------------------------------------------
     def neutral_of(self, key: int | None = None) -> np.ndarray:

@@ -6,7 +6,8 @@
 * :mod:`.boundary_loops`: the boundary loops of a triangle mesh;
 * :mod:`.merge_deformation`: the paper's Eq. 5, the user's edit merged into a fitted mesh;
 * :mod:`.ibug68`: the 468 face-mesh points in the iBUG-68 landmark scheme;
-* :mod:`.axes_velocity`: joystick axes to a model-space velocity (and its parameters).
+* :mod:`.axes_velocity`: joystick axes to a model-space velocity (and its parameters);
+* :mod:`.hand_regions`: the 21 hand joints by name, a hand's size, the region hands cover.
 
 Nodes import from here instead of from each other (docs/architecture.md "Layers").
 """

@@ -183,7 +183,8 @@ class Compositor:
 
     # -- the frame ---------------------------------------------------------------------------
     def render(self, frame_bgr: np.ndarray, fitted_vertices: np.ndarray, projected_px: np.ndarray,
-               triangles: np.ndarray, deformed_vertices: np.ndarray) -> np.ndarray:
+               triangles: np.ndarray, deformed_vertices: np.ndarray,
+               keep_mask: np.ndarray | None = None) -> np.ndarray:
         """The frame with the face replaced by its deformed version.
 
         frame_bgr: (H, W, 3) uint8, the frame the face was fitted on (not modified).
@@ -193,6 +194,8 @@ class Compositor:
         triangles: (T, 3) int vertex indices of the mesh (holes are closed internally).
         deformed_vertices: (V, 3) float, the deformed mesh in the same camera space
             (Eq. 5: fitted + the edit rotated and scaled into the head pose).
+        keep_mask: optional (H, W) bool, pixels composited back from the input afterwards (what
+            is in front of the face, e.g. a hand: nothing re-rendered covers it); None: none.
         V = 0 (no face) returns a copy of the frame. Returns a new (H, W, 3) uint8 frame; it
         equals ``frame_bgr`` exactly wherever the source position is unchanged (offset under
         ``IDENTITY_PX``) and outside the union of the original and deformed face regions
@@ -200,6 +203,8 @@ class Compositor:
         """
         t_start = time.perf_counter()
         fitted, projected, deformed = self._check(frame_bgr, fitted_vertices, projected_px, deformed_vertices)
+        if keep_mask is not None and np.shape(keep_mask) != (self.height, self.width):
+            raise ValueError(f"keep_mask must be ({self.height}, {self.width}), got {np.shape(keep_mask)}")
         self.box = None
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None
         self.deformed_px = None
@@ -244,6 +249,8 @@ class Compositor:
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write,
                             self.feather_width(projected))
+        if keep_mask is not None:  # what is in front of the face is the input's, bit for bit
+            np.copyto(crop, frame_bgr[y0:y1, x0:x1], where=np.asarray(keep_mask[y0:y1, x0:x1], bool)[..., None])
         t7 = time.perf_counter()
 
         self.box = box

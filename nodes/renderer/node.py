@@ -1,7 +1,9 @@
 """The renderer node: pairs frames with face states, merges the edit, composites, shows.
 
 Subscribes: camera/image (Image), face/state (FaceState), face/model (FaceModel,
-latched: the triangles), face/deformation (Deformation). Publishes: render/image
+latched: the triangles), face/deformation (Deformation), hands/landmarks (HandLandmarks, when a
+hands node runs: the hands' region is composited back from the input, so nothing re-rendered
+covers a hand in front of the face). Publishes: render/image
 (Image, when ``publish``), input/events (InputEvent, from the window), diagnostics
 (stage times: pair, merge, camera, texture, draw, readback, inpaint, composite,
 output). Writes ``output`` (a video file) when set.
@@ -10,7 +12,7 @@ Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames
 for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea"),
 feather_px, dilate_px, output (video path), fps (of the video file), publish, overlay
 (fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
-the window stops: "graph" | "node").
+the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ import time
 import numpy as np
 
 from facesculpt.geometry import merge_deformation
-from facesculpt.msgs import Deformation, FaceModel, FaceState, FrameDone, Image, InputEvent
+from facesculpt.geometry.hand_regions import hand_region_mask
+from facesculpt.msgs import Deformation, FaceModel, FaceState, FrameDone, HandLandmarks, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
@@ -56,6 +59,10 @@ class RendererNode(Node):
         "close": Param("graph", "what Q, Escape or the window's close button stop: graph (every node; "
                                 "launch exits 0) or node (this renderer only; the launcher does not respawn it)",
                        choices=("graph", "node")),
+        "hands": Param(True, "keep the hands of hands/landmarks (a hands node) in front of the face: their region "
+                             "is composited back from the input"),
+        "hands_max_age_s": Param(0.25, "the oldest hands message (relative to the frame) still used when the "
+                                       "frame's own has not arrived, s", range=(0.0, 10.0)),
     }
     NOTICE_S = 3.0                    # how long the window shows a notice (a saved preset), s
     _notice: tuple[str, float] | None = None   # (text, monotonic time it ends)
@@ -79,6 +86,9 @@ class RendererNode(Node):
         self.subscribe("face/state", FaceState, self.on_state, qos=qos)
         self.subscribe("face/model", FaceModel, self.on_model)
         self.subscribe("face/deformation", Deformation, self.on_deformation)
+        self._hands: list[HandLandmarks] = []  # the newest hands messages, oldest first
+        if p.hands:
+            self.subscribe("hands/landmarks", HandLandmarks, self.on_hands, qos=EVERY_MESSAGE)
         self.model: FaceModel | None = None
         self.deformation: Deformation | None = None
         self.compositor: Compositor | None = None
@@ -95,6 +105,23 @@ class RendererNode(Node):
 
     def on_deformation(self, msg: Deformation) -> None:
         self.deformation = msg
+
+    def on_hands(self, msg: HandLandmarks) -> None:
+        self._hands = (self._hands + [msg])[-self.params.buffer:]
+
+    def _keep_mask(self, stamp: int, w: int, h: int) -> np.ndarray | None:
+        """(h, w) bool the hands' region of the frame stamped ``stamp``: from its own hands
+        message, else the newest one at most ``hands_max_age_s`` from it; None without hands."""
+        if not self._hands:
+            return None
+        own = [m for m in self._hands if m.stamp == stamp]
+        msg = own[-1] if own else self._hands[-1]
+        if not own and abs(stamp - msg.stamp) > self.params.hands_max_age_s * 1e9:
+            return None
+        if msg.points.shape[0] == 0 or list(msg.image_size) not in ([w, h], [0, 0]):
+            return None
+        self.count("hands_kept")
+        return hand_region_mask(msg.points, w, h)
 
     def on_image(self, msg: Image) -> None:
         with self.stage("pair"):
@@ -172,6 +199,7 @@ class RendererNode(Node):
         self._overlay_px = None
         if not states:
             self.count("no_face")
+        keep = self._keep_mask(frame_msg.stamp, w, h) if states else None
         for state in states or []:
             if self.model is None or self.model.model_id != state.model_id:
                 self.count("no_model")
@@ -181,7 +209,8 @@ class RendererNode(Node):
                 continue
             try:
                 deformed = self._deformed_vertices(state)
-                out = self.compositor.render(out, state.vertices, state.projected, self.model.triangles, deformed)
+                out = self.compositor.render(out, state.vertices, state.projected, self.model.triangles, deformed,
+                                             keep_mask=keep)
             except ValueError as exc:
                 self.count("bad_input")
                 self.log.warning("frame %d, face %d not rendered: %s", frame_msg.stamp, state.face_id, exc)
