@@ -13,4 +13,5 @@ BUILTIN_NODES = {
     "joystick": "facesculpt.nodes.input.joystick:JoystickNode",
     "script": "facesculpt.nodes.input.script:ScriptNode",
     "hands": "facesculpt.nodes.hands.node:HandsNode",
+    "pinch": "facesculpt.nodes.input.pinch:PinchNode",
 }
