@@ -112,7 +112,8 @@ class FaceState(Message):
 
 
 INPUT_KINDS = ("press", "drag", "release", "depth", "move", "axes", "buttons", "command")
-INPUT_COMMANDS = ("reset", "undo", "save_preset", "load_preset", "select_edit", "toggle_static")
+INPUT_COMMANDS = ("reset", "undo", "save_preset", "load_preset", "select_edit", "toggle_static",
+                  "correct_landmark", "clear_corrections")
 
 
 @register
@@ -126,7 +127,9 @@ class InputEvent(Message):
     depth: mm along the view ray, + toward the camera (kind "depth").
     vector: (3,) float32 model-space displacement in mm (kind "move").
     axes: (A,) float32 joystick axes in -1..1; buttons: bit mask.
-    command / argument: kind "command" (INPUT_COMMANDS; argument e.g. a preset path).
+    command / argument: kind "command" (INPUT_COMMANDS; argument e.g. a preset path, or for
+    correct_landmark the iBUG number 1..68 of the landmark to put at x, y; the fitter handles
+    correct_landmark and clear_corrections, the deformer the others).
     face: which face (FaceState.face_id) the event edits; -1: the face under the pointer for
     pixel events, every face for landmark presses and commands.
     """

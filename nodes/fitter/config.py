@@ -48,6 +48,8 @@ class FitterConfig:
     neutral_frames (>= 1): frames averaged into the learned neutral reference (dense).
     warm_start_gap_s (> 0, s): a frame later than this after the previous one (or earlier than
     it) starts cold: no warm start, filters reset.
+    correction_weight (> 0): weight of a user-corrected landmark relative to a detected one
+    (``Fitter.fit(..., corrections=...)``).
     """
 
     projection: str = "auto"
@@ -70,6 +72,7 @@ class FitterConfig:
     smooth_beta_mm: float = 0.05
     neutral_frames: int = 30
     warm_start_gap_s: float = 0.5
+    correction_weight: float = 20.0
 
     def __post_init__(self) -> None:
         _choice("projection", self.projection, PROJECTIONS)
@@ -85,7 +88,8 @@ class FitterConfig:
         for name in ("shape_lambda", "expression_lambda", "smooth_beta", "smooth_beta_mm"):
             if not getattr(self, name) >= 0:
                 raise FitError(f"{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("outline_weight", "identity_max_frames", "smooth_min_cutoff", "warm_start_gap_s"):
+        for name in ("outline_weight", "identity_max_frames", "smooth_min_cutoff", "warm_start_gap_s",
+                     "correction_weight"):
             if not getattr(self, name) > 0:
                 raise FitError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.identity_decay <= 1:

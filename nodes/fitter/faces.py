@@ -99,10 +99,12 @@ class FaceFitters:
         self._seen[key] = self._frame
         return self.fitters[key]
 
-    def fit(self, points, scores, track_ids, stamp_s: float, min_score: float = 0.5) -> list[FaceFit]:
+    def fit(self, points, scores, track_ids, stamp_s: float, min_score: float = 0.5,
+            corrections: dict | None = None) -> list[FaceFit]:
         """Fit the selected faces of one frame. points (F, N, 2|3) px, scores (F,), track_ids (F,)
-        (None: 0, 1, ...); stamp_s: frame time (s). Returns one :class:`FaceFit` per selected face
-        (fitted or not, with the reason), in the frame's order; [] when none is selected."""
+        (None: 0, 1, ...); stamp_s: frame time (s); corrections: face key -> {fit id: (x, y) px}.
+        Returns one :class:`FaceFit` per selected face (fitted or not, with the reason), in the
+        frame's order; [] when none is selected."""
         self._frame += 1
         points = np.asarray(points)
         if points.ndim != 3 or points.shape[0] == 0:
@@ -115,7 +117,8 @@ class FaceFitters:
         for i in self.selected(ids):
             key = self._key(ids[i])
             face_scores = scores[i:i + 1] if scores.size == points.shape[0] else scores[:0]
-            outcome = fit_landmarks(self.fitter(key), points[i:i + 1], face_scores, stamp_s, min_score)
+            outcome = fit_landmarks(self.fitter(key), points[i:i + 1], face_scores, stamp_s, min_score,
+                                    (corrections or {}).get(key))
             out.append(FaceFit(key, ids[i], outcome, i))
         return out
 

@@ -75,14 +75,20 @@ class Fitter:
         return True
 
     # ------------------------------------------------------------------ API
-    def fit(self, points2d: np.ndarray, ids=None, weights: np.ndarray | None = None, stamp: float | None = None) -> FitResult:
+    def fit(self, points2d: np.ndarray, ids=None, weights: np.ndarray | None = None, stamp: float | None = None,
+            corrections: dict | None = None) -> FitResult:
         """Fit one frame. points2d (N, 2) px (or (N, 3) with relative depth, used in dense mode);
         ids: the model landmark each point belongs to (iBUG numbers 1..68 for the SFM, vertex
         numbers 0..467 for facemesh; None for those two defaults); weights (N,) optional confidence;
         stamp: the frame time in seconds (for smoothing and warm start; default 1/30 s per call).
         Points with NaN, non-positive weight or an unknown id are ignored; raises :class:`FitError`
-        when too few usable ones remain or they are degenerate."""
+        when too few usable ones remain or they are degenerate. corrections: landmark id -> (x, y)
+        px a person placed by hand (seed 002's interactive correction): that landmark is moved
+        there and weighs ``config.correction_weight`` times a detected one, so a shape model moves
+        the other points with it."""
         pts, ids, w, finite = self._parse(points2d, ids, weights)
+        if corrections:
+            pts, ids, w, finite = self._corrected(pts, ids, w, finite, corrections)
         now = float(stamp) if stamp is not None else (self._last_time + 1 / 30 if self._last_time is not None else 0.0)
         if self._last_time is not None and (now - self._last_time > self.config.warm_start_gap_s or now < self._last_time):
             self._pose = None  # too long since the last frame (or time went back): start cold
@@ -101,6 +107,23 @@ class Fitter:
         """One frame: points (N, 2 or 3) float64 px, ids (N,) str, weights (N,), finite (N,) bool
         (the points to use), time ``now`` (s)."""
         raise NotImplementedError
+
+    def _corrected(self, pts, ids, w, finite, corrections: dict):
+        """The points with the corrected landmarks moved (or added) and weighted up."""
+        pts, w, finite, ids = pts.copy(), w.copy(), finite.copy(), list(ids)
+        where = {name: i for i, name in enumerate(ids)}
+        for name, xy in corrections.items():
+            xy = np.asarray(xy, np.float64).reshape(-1)
+            if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+                raise FitError(f"the correction of landmark {name!r} must be 2 finite pixel coordinates, got {xy}")
+            name = str(name)
+            if name not in where:
+                pts = np.vstack([pts, np.r_[xy, np.zeros(pts.shape[1] - 2)]])
+                w, finite, ids = np.r_[w, 1.0], np.r_[finite, True], ids + [name]
+                where[name] = len(ids) - 1
+            i = where[name]
+            pts[i, :2], w[i], finite[i] = xy, self.config.correction_weight, True
+        return pts, ids, w, finite
 
     def _parse(self, points2d, ids, weights):
         pts = np.asarray(points2d, dtype=np.float64)

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState
+from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
-from facesculpt.runtime.qos import LATCHED
+from facesculpt.runtime.qos import EVENTS, LATCHED
 
 from .config import FitterConfig
+from .corrections import LandmarkCorrections, fit_id
 from .expression import NAMES, face_expression, head_pose
 from .faces import FaceFitters, parse_faces
 from .fitter import Fitter, make_fitter
@@ -66,6 +67,9 @@ class FitterNode(Node):
         self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
         self.expression_pub = self.advertise("face/expression", FaceExpression)
         self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
+        self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
+        self.corrections: dict[int, LandmarkCorrections] = {}  # face key -> its landmark corrections
+        self.last_fits: dict = {}  # face key -> its last FitResult
         self.model: MorphableModel | None = None
         self.faces: FaceFitters | None = None
         self.camera_key = None
@@ -152,6 +156,40 @@ class FitterNode(Node):
             self.last_model_publish = now_s
             self.final_faces |= {k for k, f in self.faces.fitters.items() if f.model.dense and f.neutral_ready}
 
+    # -- landmark corrections (seed 002) -------------------------------------------------------
+    def on_event(self, msg: InputEvent) -> None:
+        """correct_landmark: put iBUG landmark ``argument`` of the face under (or named by) the
+        event at pixel (x, y), for this and every later frame; clear_corrections: forget them."""
+        if msg.kind != "command" or msg.command not in ("correct_landmark", "clear_corrections"):
+            return
+        faces = [msg.face] if msg.face >= 0 else list(self.last_fits)
+        if msg.command == "clear_corrections":
+            for key in faces:
+                self.corrections.pop(key, None)
+            self.count("corrections_cleared")
+            return
+        try:
+            if not (np.isfinite(msg.x) and np.isfinite(msg.y)):
+                raise ValueError("correct_landmark needs the pixel x, y to put the landmark at")
+            key = self._face_near(faces, msg.x, msg.y)
+            fitter = self.faces.fitters[key]
+            self.corrections.setdefault(key, LandmarkCorrections()).set(
+                fit_id(msg.argument, fitter.model.dense), (msg.x, msg.y), self.last_fits[key], fitter.model)
+        except (ValueError, KeyError) as exc:
+            self.count("bad_correction")
+            self.last_error = f"correct_landmark: {exc}"
+            self.log.warning("%s", self.last_error)
+            return
+        self.count("landmark_corrected")
+
+    def _face_near(self, faces: list[int], x: float, y: float) -> int:
+        """The fitted face (of ``faces``) whose fitted points come nearest pixel (x, y)."""
+        near = [(float(np.min(np.linalg.norm(self.last_fits[k].projected - [x, y], axis=1))), k)
+                for k in faces if k in self.last_fits]
+        if not near:
+            raise ValueError("no fitted face to correct yet")
+        return min(near)[1]
+
     # -- frames --------------------------------------------------------------------------------
     def fitter_config(self) -> FitterConfig:
         """The fitter's options from this node's params (the others at their defaults)."""
@@ -219,8 +257,10 @@ class FitterNode(Node):
             self.count("fit_refused")
             self.last_error = str(exc)
             return
+        targets = {k: c.targets(self.last_fits[k]) for k, c in self.corrections.items() if c and k in self.last_fits}
         with self.stage("fit"):
-            faces = self.faces.fit(msg.points, msg.scores, msg.track_ids, msg.stamp * 1e-9, self.params.min_score)
+            faces = self.faces.fit(msg.points, msg.scores, msg.track_ids, msg.stamp * 1e-9, self.params.min_score,
+                                   targets)
         if not faces:
             self.count("no_face" if np.shape(msg.points)[0] == 0 else "face_not_selected")
         fitted = [f for f in faces if f.outcome.fit is not None]
@@ -231,6 +271,7 @@ class FitterNode(Node):
                     self.last_error = f.outcome.error
         for f in fitted:
             result = f.outcome.fit
+            self.last_fits[f.key] = result
             self.state_pub.publish(FaceState(
                 stamp=msg.stamp, frame_id=msg.frame_id, model_id=self.model.model_id,
                 R=np.asarray(result.R, np.float64), t=np.asarray(result.t, np.float64), scale=float(result.scale),

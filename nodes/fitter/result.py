@@ -26,7 +26,8 @@ class FitResult:
     deviations; residual_px: RMS landmark reprojection error of the fit (before smoothing);
     model_vertices (V, 3) float32 the fitted shape in model space (mm); landmarks_used: points
     that took part; correspondences (sparse): the model points (vertex triples (L, 3) and
-    barycentric weights (L, 3)) the landmarks were matched to; expression (E,) float32 the
+    barycentric weights (L, 3)) the landmarks were matched to, and correspondence_ids the
+    landmark of each (L,); expression (E,) float32 the
     expression parameters (:mod:`.expression`) when the caller computed them."""
 
     vertices: np.ndarray
@@ -43,6 +44,7 @@ class FitResult:
     landmarks_used: int = 0
     correspondences: tuple[np.ndarray, np.ndarray] = field(default=None, repr=False)
     expression: np.ndarray | None = field(default=None, repr=False)
+    correspondence_ids: list[str] = field(default_factory=list, repr=False)
 
     @property
     def yaw_pitch_roll(self) -> tuple[float, float, float]:

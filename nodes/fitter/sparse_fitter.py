@@ -91,6 +91,7 @@ class SparseFitter(Fitter):
         fv = np.repeat(np.asarray(fixed_vert, int)[:, None], 3, axis=1)
         fw = np.tile([1.0, 0.0, 0.0], (len(fixed_idx), 1))
         cv, cw, x_all, w_all = fv, fw, x_fixed, w_fixed
+        self._outline_used = np.zeros(0, int)
 
         alpha, beta, init = self._alpha.copy(), self._beta.copy(), self._pose
         accumulate = self.config.accumulate_identity
@@ -113,6 +114,7 @@ class SparseFitter(Fitter):
         result = self._result(alpha, beta, R, t, s, now, residual)
         result.landmarks_used = len(fixed_idx) + len(out_idx)
         result.correspondences = (cv, cw)
+        result.correspondence_ids = [ids[i] for i in fixed_idx] + [ids[out_idx[j]] for j in self._outline_used]
         return result
 
     def _select_landmarks(self, ids: list[str], finite: np.ndarray):
@@ -206,6 +208,7 @@ class SparseFitter(Fitter):
         cell = max(1.0, self._edge_mm * px_per_mm)
         vis = outline_corr.visible_candidates(self._geometry, C, P, perspective, tol, cell)
         verts, wts, xs, ws = [fv], [fw], [x_fixed], [w_fixed]
+        self._outline_used = np.zeros(0, int)  # which outline landmarks got correspondences, in order
         for side in (0, 1):
             sel = out_side == side
             if not sel.any():
@@ -221,4 +224,5 @@ class SparseFitter(Fitter):
             wts.append(b)
             xs.append(x_out[sel])
             ws.append(w_out[sel])
+            self._outline_used = np.r_[self._outline_used, np.flatnonzero(sel)]
         return np.concatenate(verts), np.concatenate(wts), np.concatenate(xs), np.concatenate(ws)

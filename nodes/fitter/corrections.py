@@ -1,0 +1,94 @@
+"""Landmark corrections that follow the head (seed 002's interactive correction).
+
+A person drags a landmark to where it belongs on one frame. The correction is kept in the head's
+own frame: the 3D point under the pixel the person chose (at the depth of the fitted surface
+there, or of the landmark when the pixel is off the face), taken back through that frame's head
+pose into model coordinates. On every later frame it is projected with the latest fit of that face,
+so it moves with the head, and the fitter uses it with a high weight
+(``Fitter.fit(..., corrections=...)``). Landmarks are named by their iBUG-68 number (1..68) for
+both built-in models: the face mesh fits its own vertex numbers, which :func:`fit_id` gives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH
+from facesculpt.geometry.projection import pixel_ray
+from facesculpt.geometry.ray_mesh import ray_mesh_hit
+
+
+def fit_id(ibug: int | str, dense: bool) -> str:
+    """The id the fitter knows iBUG point ``ibug`` (1..68) by: the face-mesh vertex number for the
+    dense model, the iBUG number itself for a sparse one; ValueError outside 1..68."""
+    try:
+        k = int(ibug)
+    except (TypeError, ValueError):
+        k = 0
+    if not 1 <= k <= 68:
+        raise ValueError(f"a landmark to correct is an iBUG number from 1 to 68, got {ibug!r}")
+    return str(int(IBUG68_FROM_MESH[k - 1])) if dense else str(k)
+
+
+def _camera_point(fit, xy: np.ndarray, depth: float) -> np.ndarray:
+    """The camera-space point under pixel ``xy`` at ``depth`` (perspective) or the fit's plane."""
+    if fit.K is None or fit.projection != "perspective":
+        return np.array([xy[0], xy[1], depth])
+    K = np.asarray(fit.K, np.float64)
+    return np.array([(xy[0] - K[0, 2]) * depth / K[0, 0], (xy[1] - K[1, 2]) * depth / K[1, 1], depth])
+
+
+def _project(fit, X: np.ndarray) -> np.ndarray:
+    if fit.K is None or fit.projection != "perspective":
+        return X[:2].copy()
+    K = np.asarray(fit.K, np.float64)
+    return np.array([K[0, 0] * X[0] / X[2] + K[0, 2], K[1, 1] * X[1] / X[2] + K[1, 2]])
+
+
+class LandmarkCorrections:
+    """The corrections of one face: :meth:`set` on a frame's fit, :meth:`targets` for the next."""
+
+    def __init__(self):
+        self.anchors: dict[str, np.ndarray] = {}  # fit id -> (3,) point in the head's frame, model mm
+
+    def __len__(self) -> int:
+        return len(self.anchors)
+
+    def clear(self) -> None:
+        self.anchors.clear()
+
+    def set(self, landmark_id: str, xy, fit, model) -> None:
+        """Put landmark ``landmark_id`` (a fit id, :func:`fit_id`) under pixel ``xy`` (2,) on the
+        frame ``fit`` (a FitResult of ``model``) was made on. ValueError when the landmark took no
+        part in that fit and the pixel is off the face."""
+        xy = np.asarray(xy, np.float64)
+        K = fit.K if fit.K is not None else np.eye(3)
+        origin, direction = pixel_ray(float(xy[0]), float(xy[1]), K, fit.projection)
+        hit = ray_mesh_hit(origin, direction, fit.vertices, model.triangles,
+                           two_sided_line=fit.projection == "orthographic")
+        if hit is not None:  # on the face: the surface's depth there
+            depth = float((origin + hit[1] * direction)[2])
+        else:  # off the face: the landmark's own depth
+            v, b = self._surface_point(str(landmark_id), fit, model)
+            depth = float((np.asarray(fit.vertices, np.float64)[v] * b[:, None]).sum(axis=0)[2])
+        R, t, s = np.asarray(fit.R, np.float64), np.asarray(fit.t, np.float64), float(fit.scale)
+        # In the head's own frame (its pose only, not its shape: a shape the correction itself
+        # pulls must not carry the target along with it).
+        self.anchors[str(landmark_id)] = R.T @ (_camera_point(fit, xy, depth) - t) / s
+
+    @staticmethod
+    def _surface_point(landmark_id: str, fit, model) -> tuple[np.ndarray, np.ndarray]:
+        ids = list(getattr(fit, "correspondence_ids", []) or [])
+        if landmark_id in ids and fit.correspondences is not None:
+            k = ids.index(landmark_id)
+            return np.asarray(fit.correspondences[0][k], int), np.asarray(fit.correspondences[1][k], np.float64)
+        names = {str(n): int(i) for n, i in zip(model.landmark_names, model.landmark_vertices)}
+        if landmark_id not in names:
+            raise ValueError(f"landmark {landmark_id} took no part in this frame's fit: it cannot be corrected here")
+        return np.full(3, names[landmark_id]), np.array([1.0, 0.0, 0.0])
+
+    def targets(self, fit) -> dict[str, np.ndarray]:
+        """fit id -> (2,) pixels: where each corrected landmark is, by the head pose of the face's
+        latest ``fit``."""
+        R, t, s = np.asarray(fit.R, np.float64), np.asarray(fit.t, np.float64), float(fit.scale)
+        return {name: _project(fit, s * (R @ p) + t) for name, p in self.anchors.items()}
