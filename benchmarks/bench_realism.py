@@ -179,7 +179,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
             folder = out / "frames" / f"synthetic_{e}_{m}"
             try:
                 frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames,
-                                           pythonpath=args.pythonpath)
+                                           pythonpath=args.pythonpath, data=data)
             except RuntimeError as exc:
                 print(exc, file=sys.stderr)
                 results[e][m] = {"error": str(exc)}
@@ -214,7 +214,7 @@ def real_videos(args, data: Path, out: Path, presets: dict) -> list[dict]:
                 row = {"video": name, "model": m, "edit": e}
                 try:
                     frames, took = run_process(video, folder, Path(preset), m, args.real_frames, args.neutral_frames,
-                                               args.pythonpath)
+                                               args.pythonpath, data)
                 except RuntimeError as exc:
                     print(exc, file=sys.stderr)
                     rows.append({**row, "error": str(exc), "sharpness": float("nan"), "seam": float("nan"),

@@ -124,10 +124,11 @@ def read_video(path: Path, max_frames: int = 0) -> list:
 
 
 def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames: int = 0,
-                neutral_frames: int = 30, pythonpath: str = "") -> tuple[list, float]:
+                neutral_frames: int = 30, pythonpath: str = "", data: Path | None = None) -> tuple[list, float]:
     """``facesculpt process VIDEO -o OUT/%05d.png --edits PRESET --model MODEL`` in a
     subprocess (with ``pythonpath`` first on its PYTHONPATH when given: another build of
-    facesculpt): (the frames written, seconds taken). RuntimeError with its stderr on failure."""
+    facesculpt) and FACESCULPT_DATA set to ``data`` when given (where ``sfm`` is read): (the
+    frames written, seconds taken). RuntimeError with its stderr on failure."""
     import time
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -137,6 +138,8 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
         cmd += ["--max-frames", str(max_frames)]
     t0 = time.perf_counter()
     env = dict(os.environ)
+    if data is not None:
+        env["FACESCULPT_DATA"] = str(data)
     if pythonpath:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (pythonpath, env.get("PYTHONPATH", "")) if p)
     done = subprocess.run(cmd, capture_output=True, text=True, env=env)
