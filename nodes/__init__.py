@@ -14,4 +14,5 @@ BUILTIN_NODES = {
     "script": "facesculpt.nodes.input.script:ScriptNode",
     "hands": "facesculpt.nodes.hands.node:HandsNode",
     "pinch": "facesculpt.nodes.input.pinch:PinchNode",
+    "foxglove": "facesculpt.nodes.foxglove.node:FoxgloveNode",
 }

@@ -53,7 +53,7 @@ def register(sub) -> None:
     q.set_defaults(func=cmd_topic_hz)
 
     p = sub.add_parser("bag", help="record, play and inspect bag files (MCAP)")
-    bsub = p.add_subparsers(dest="bag_command", metavar="record|play|info", required=True)
+    bsub = p.add_subparsers(dest="bag_command", metavar="record|play|info|export", required=True)
     q = bsub.add_parser("record", help="record topics into an MCAP bag")
     q.add_argument("topics", nargs="+")
     q.add_argument("-o", "--output", required=True,
@@ -80,6 +80,13 @@ def register(sub) -> None:
     q.add_argument("file")
     q.add_argument("--json", action="store_true")
     q.set_defaults(func=cmd_bag_info)
+    q = bsub.add_parser("export", help="write a bag as another tool's MCAP: --foxglove (images, 3D scene)")
+    q.add_argument("file")
+    q.add_argument("--foxglove", action="store_true", required=True,
+                   help="Foxglove's schemas: images, camera calibration, landmarks, meshes and handles, diagnostics")
+    q.add_argument("-o", "--output", required=True, help="MCAP file to write")
+    q.add_argument("--jpeg-quality", type=int, default=90, help="images as JPEG of this quality; 0: raw")
+    q.set_defaults(func=cmd_bag_export)
 
 
 # -- master / run / launch -------------------------------------------------------------------
@@ -358,4 +365,38 @@ def cmd_bag_info(args) -> int:
         print(f"  {topic:<24} {t['count']:>7} msgs   {', '.join(t['types'])}")
     if info["undecodable"]:
         print(f"note:      {info['undecodable']}")
+    return 0
+
+
+def cmd_bag_export(args) -> int:
+    import foxglove
+
+    from facesculpt.msgs import DecodeError, decode
+    from facesculpt.nodes.foxglove.bridge import FoxgloveBridge
+    from facesculpt.runtime.bag import BagReader
+
+    reader = BagReader(args.file)
+    if os.path.exists(args.output) and os.path.samefile(args.file, args.output):
+        raise ValueError(f"bag export: the output {args.output} is the input bag")
+    if not 0 <= args.jpeg_quality <= 100:
+        raise ValueError(f"bag export: --jpeg-quality {args.jpeg_quality} is not in 0..100")
+    context = foxglove.Context()
+    shown = skipped = 0
+    try:
+        writer = foxglove.open_mcap(args.output, allow_overwrite=True, context=context)
+    except Exception as exc:  # the SDK raises its own error types for an unwritable path
+        raise ValueError(f"bag export: cannot write {args.output}: {exc}") from None
+    with writer:
+        bridge = FoxgloveBridge(context=context, jpeg_quality=args.jpeg_quality)
+        for rec in reader:
+            try:
+                _, msg = decode([rec.topic.encode()] + rec.frames)
+            except DecodeError:
+                skipped += 1
+                continue
+            if bridge.handle(rec.topic, msg, rec.time_ns):
+                shown += 1
+        bridge.close()
+    print(f"exported {shown} of {reader.records_read} messages from {args.file} into {args.output} "
+          f"with Foxglove schemas" + (f" ({skipped} did not decode)" if skipped else ""), file=sys.stderr)
     return 0

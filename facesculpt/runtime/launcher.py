@@ -10,6 +10,7 @@ A launch file is YAML::
         respawn: true                # restart when it dies (with backoff)
         required: false              # when it exits, stop the whole graph
         key: hostb                   # (with security) this node's client keypair name
+        enabled: false               # listed but not started unless `name.enabled=true` is given
 
 Optional top-level keys: ``transport: tcp`` (default ipc) with ``host: ADDRESS``
 (what tcp publishers bind to; default 127.0.0.1, loopback), and ``security:``
@@ -20,7 +21,8 @@ Optional top-level keys: ``transport: tcp`` (default ipc) with ``host: ADDRESS``
       server: graph                  # the graph's server keypair name (default graph)
       client: graph                  # the nodes' client keypair name (default: the server's)
 
-``facesculpt launch FILE name.param=value ...`` overrides params. A string param
+``facesculpt launch FILE name.param=value ...`` overrides params (``name.enabled=true|false``
+starts or leaves out an optional node; it is no param). A string param
 starting with ``./`` is a path relative to the launch file. Children are
 killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
 SIGINT/SIGTERM every node gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``; the master stops
@@ -78,6 +80,7 @@ class NodeSpec:
     host: str = "127.0.0.1"
     graph_env: dict = field(default_factory=dict)   # security for the whole graph (master included)
     env: dict = field(default_factory=dict)         # this node's own additions (its client key)
+    enabled: bool = True                            # false: listed but not started (NAME.enabled=true starts it)
 
 
 def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> list[NodeSpec]:
@@ -100,7 +103,7 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
     graph_env = _security_env(path, doc.get("security"))
     graph_env.update(_exposure_env(path, doc, transport, host))
     specs: list[NodeSpec] = []
-    allowed = {"name", "node", "params", "remap", "respawn", "required", "respawn_delay_s", "key"}
+    allowed = {"name", "node", "params", "remap", "respawn", "required", "respawn_delay_s", "key", "enabled"}
     for i, entry in enumerate(doc["nodes"]):
         if not isinstance(entry, dict) or "node" not in entry:
             raise ValueError(f"launch file {path}: node #{i + 1} needs at least 'node'")
@@ -112,7 +115,7 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
                         params=dict(entry.get("params") or {}), remap=dict(entry.get("remap") or {}),
                         respawn=bool(entry.get("respawn", False)), required=bool(entry.get("required", False)),
                         respawn_delay_s=float(entry.get("respawn_delay_s", 0.2)),
-                        transport=transport, host=host, graph_env=graph_env)
+                        transport=transport, host=host, graph_env=graph_env, enabled=entry.get("enabled", True))
         if "key" in entry:
             if "FACESCULPT_KEYS" not in graph_env:
                 raise ValueError(f"launch file {path}: node {spec.name} names a key but there is no security block")
@@ -135,14 +138,19 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
         if not dot or node_name not in by_name:
             raise ValueError(f"override {key}={value}: expected NODE.param=value with NODE one of "
                              f"{', '.join(by_name)}")
+        if param == "enabled":  # not a parameter: whether the launcher starts the node at all
+            if value.strip().lower() not in ("true", "false"):
+                raise ValueError(f"override {key}={value}: enabled must be true or false")
+            by_name[node_name].enabled = value.strip().lower() == "true"
+            continue
         by_name[node_name].params[param] = value
-    return specs
+    return [spec for spec in specs if spec.enabled]
 
 
 def _check_node_fields(path: Path, i: int, entry: dict) -> None:
     """One sentence naming the field, the value and what is allowed, for a node entry's fields."""
     where = f"launch file {path}: node #{i + 1} ({entry.get('name', entry['node'])})"
-    for key in ("respawn", "required"):
+    for key in ("respawn", "required", "enabled"):
         if key in entry and not isinstance(entry[key], bool):
             raise ValueError(f"{where}: {key} must be true or false, not {entry[key]!r}")
     delay = entry.get("respawn_delay_s", 0.2)
