@@ -68,16 +68,19 @@ class FoxgloveBridge:
         self.logged = 0
 
     def handle(self, topic: str, msg, log_time_ns: int) -> bool:
-        """Log ``msg`` (received on ``topic`` at ``log_time_ns``); False for a message it does not show."""
+        """Log ``msg`` (received on ``topic`` at ``log_time_ns``); False for a message it does not show.
+        Nothing is converted for a channel no sink wants (no client subscribed to it)."""
         t = int(log_time_ns)
         if isinstance(msg, Image) and topic in IMAGE_TOPICS:
-            self.images[topic].log(convert.image_message(msg.image, msg.stamp, self.frame_id, self.jpeg_quality),
-                                   log_time=t)
-            if topic == "camera/image":
+            if self.images[topic].has_sinks():
+                self.images[topic].log(convert.image_message(msg.image, msg.stamp, self.frame_id, self.jpeg_quality),
+                                       log_time=t)
+            if topic == "camera/image" and self.calibration.has_sinks():
                 h, w = msg.image.shape[:2]
                 self.calibration.log(convert.calibration_message(msg.K, w, h, msg.stamp, self.frame_id), log_time=t)
         elif isinstance(msg, FaceLandmarks):
-            self.landmarks.log(convert.landmark_annotations(msg.points, msg.stamp), log_time=t)
+            if self.landmarks.has_sinks():
+                self.landmarks.log(convert.landmark_annotations(msg.points, msg.stamp), log_time=t)
         elif isinstance(msg, FaceModel):
             self.model = msg
             return True
@@ -100,6 +103,8 @@ class FoxgloveBridge:
         model = self.model
         if model is None or not len(state.vertices) or len(state.vertices) != len(model.vertices):
             return False
+        if not self.scene.has_sinks():
+            return True
         fid = state.face_id
         entities = [convert.mesh_entity(f"fitted/{fid}", state.stamp, self.frame_id, triangles=[
             convert.mesh_primitive(state.vertices, model.triangles, FITTED_RGBA, self.units_to_m)])]
