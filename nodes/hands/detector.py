@@ -26,13 +26,13 @@ crops use continuous coordinates internally (pixel i spans [i, i + 1]).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from facesculpt.geometry.crops import crop_image, rotation_2d
 from facesculpt.paths import MissingModelsError, model_home
 
 from .palm import PALM_SIZE, decode_palms, palm_anchors, roi_from_palm, transform_roi, up_angle, weighted_nms
@@ -71,40 +71,6 @@ class Hand:
 # ---------------------------------------------------------------------------------------------
 # Crops
 # ---------------------------------------------------------------------------------------------
-def _rotation(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s], [s, c]])
-
-
-def crop_matrix(roi: np.ndarray, size: int) -> np.ndarray:
-    """2x3 affine map from crop pixel indices to image pixel indices (for WARP_INVERSE_MAP)."""
-    cx, cy, w, h, angle = (float(v) for v in roi)
-    rot = _rotation(angle)
-    lin = rot @ np.diag([w / size, h / size])
-    offset = np.array([cx, cy]) + rot @ ((0.5 / size - 0.5) * np.array([w, h])) - 0.5
-    return np.hstack([lin, offset[:, None]])
-
-
-def crop_image(image: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
-    """The rotated ROI (continuous pixels) of an (H, W, 3) uint8 image resampled to (size, size, 3).
-
-    A crop much larger than ``size`` is area-downsampled by a whole factor first, so the bilinear
-    warp does not alias."""
-    matrix = crop_matrix(roi, size)
-    shrink = float(max(roi[2], roi[3])) / size
-    if shrink >= 2.0:
-        factor = int(shrink)
-        h, w = image.shape[:2]
-        small = cv2.resize(image, (max(w // factor, 1), max(h // factor, 1)), interpolation=cv2.INTER_AREA)
-        sx, sy = w / small.shape[1], h / small.shape[0]
-        matrix = matrix.copy()
-        matrix[0] = (matrix[0] + np.array([0.0, 0.0, 0.5])) / sx - np.array([0.0, 0.0, 0.5])
-        matrix[1] = (matrix[1] + np.array([0.0, 0.0, 0.5])) / sy - np.array([0.0, 0.0, 0.5])
-        image = small
-    return cv2.warpAffine(image, matrix, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                          borderMode=border, borderValue=(0, 0, 0))
-
-
 def letterbox_roi(width: int, height: int) -> np.ndarray:
     """The square ROI that letterboxes a whole (width, height) frame (centred, black bars)."""
     side = float(max(width, height))
@@ -115,7 +81,7 @@ def project_hand(raw: np.ndarray, roi: np.ndarray, size: int = HAND_SIZE) -> np.
     """Network points (21, 3) in crop pixels -> (21, 3) image pixels (continuous; z scaled like x)."""
     cx, cy, w, h, angle = (float(v) for v in roi)
     local = (raw[:, :2] / size - 0.5) * np.array([w, h])
-    xy = local @ _rotation(angle).T + np.array([cx, cy])
+    xy = local @ rotation_2d(angle).T + np.array([cx, cy])
     return np.hstack([xy, raw[:, 2:3] / size * w])
 
 
@@ -124,7 +90,7 @@ def roi_from_hand(points_xy: np.ndarray) -> np.ndarray:
     knuckles = (points_xy[INDEX_MCP] + points_xy[RING_MCP]) / 2.0
     knuckles = (knuckles + points_xy[MIDDLE_MCP]) / 2.0
     angle = up_angle(points_xy[WRIST], knuckles)
-    rot = _rotation(angle)
+    rot = rotation_2d(angle)
     local = points_xy[list(_ROI_JOINTS)] @ rot  # along the crop's x and y axes
     lo, hi = local.min(0), local.max(0)
     centre = rot @ ((lo + hi) / 2.0)
@@ -350,7 +316,7 @@ class HandDetector:
 
 def _inside(point: np.ndarray, roi: np.ndarray) -> bool:
     """True when ``point`` lies inside the central half of the rotated ``roi``."""
-    local = (point - roi[:2]) @ _rotation(float(roi[4]))
+    local = (point - roi[:2]) @ rotation_2d(float(roi[4]))
     return bool(np.all(np.abs(local) < roi[2:4] / 4.0))
 
 

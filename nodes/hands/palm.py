@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facesculpt.geometry.detections import weighted_nms as nms
+
 PALM_SIZE = 192
 NUM_PALM_KEYPOINTS = 7
 PALM_WRIST, PALM_MIDDLE_MCP = 0, 2
@@ -68,34 +70,10 @@ def decode_palms(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndar
     return boxes.astype(np.float32), keypoints.astype(np.float32), scores[keep].astype(np.float32)
 
 
-def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Intersection over union of one box (4,) with boxes (N, 4), [xmin, ymin, xmax, ymax]."""
-    lo = np.maximum(box[:2], boxes[:, :2])
-    hi = np.minimum(box[2:], boxes[:, 2:])
-    inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
-    areas = np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
-    return inter / np.maximum(np.prod(box[2:] - box[:2]) + areas - inter, 1e-12)
-
-
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
                  iou_threshold: float = 0.3) -> list[Palm]:
-    """mediapipe's weighted non-maximum suppression: each cluster (IoU > ``iou_threshold`` with
-    its best box) becomes its score-weighted mean box and keypoints, with the top score; best first."""
-    order = np.argsort(-scores, kind="stable")
-    boxes, keypoints, scores = boxes[order], keypoints[order], scores[order]
-    remaining = np.ones(len(scores), bool)
-    out = []
-    for i in range(len(scores)):
-        if not remaining[i]:
-            continue
-        cluster = np.union1d(np.flatnonzero(remaining & (box_iou(boxes[i], boxes) > iou_threshold)), [i])
-        remaining[cluster] = False
-        w = scores[cluster].astype(np.float64)
-        w /= w.sum()
-        out.append(Palm(box=(boxes[cluster] * w[:, None]).sum(0).astype(np.float32),
-                        keypoints=(keypoints[cluster] * w[:, None, None]).sum(0).astype(np.float32),
-                        score=float(scores[i])))
-    return out
+    """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Palm`\ s, best first."""
+    return [Palm(box=b, keypoints=k, score=sc) for b, k, sc in nms(boxes, keypoints, scores, iou_threshold)]
 
 
 def up_angle(base: np.ndarray, tip: np.ndarray) -> float:

@@ -34,6 +34,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.geometry.crops import crop_image, rotation_2d
+from facesculpt.geometry.detections import weighted_nms as nms
 from facesculpt.paths import MissingModelsError, model_home
 
 log = logging.getLogger(__name__)
@@ -122,42 +124,10 @@ def decode_detections(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np
     return boxes.astype(np.float32), keypoints.astype(np.float32), scores[keep].astype(np.float32)
 
 
-def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Intersection over union of one box (4,) with boxes (N, 4), [xmin, ymin, xmax, ymax]."""
-    lo = np.maximum(box[:2], boxes[:, :2])
-    hi = np.minimum(box[2:], boxes[:, 2:])
-    inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
-    area = np.prod(box[2:] - box[:2])
-    areas = np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
-    return inter / np.maximum(area + areas - inter, 1e-12)
-
-
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
                  iou_threshold: float = 0.3) -> list[Detection]:
-    """mediapipe's weighted non-maximum suppression.
-
-    Repeatedly take the highest-scoring remaining box, gather every remaining box overlapping
-    it by IoU > ``iou_threshold``, and output the score-weighted mean box and keypoints of that
-    cluster with the top score. Input boxes (N, 4), keypoints (N, K, 2), scores (N,).
-    """
-    order = np.argsort(-scores, kind="stable")
-    boxes, keypoints, scores = boxes[order], keypoints[order], scores[order]
-    remaining = np.ones(len(scores), bool)
-    out = []
-    for i in range(len(scores)):
-        if not remaining[i]:
-            continue
-        cluster = np.flatnonzero(remaining & (box_iou(boxes[i], boxes) > iou_threshold))
-        cluster = np.union1d(cluster, [i])
-        remaining[cluster] = False
-        w = scores[cluster].astype(np.float64)
-        w /= w.sum()
-        out.append(Detection(
-            box=(boxes[cluster] * w[:, None]).sum(0).astype(np.float32),
-            keypoints=(keypoints[cluster] * w[:, None, None]).sum(0).astype(np.float32),
-            score=float(scores[i]),
-        ))
-    return out
+    """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Detection`\ s, best first."""
+    return [Detection(box=b, keypoints=k, score=sc) for b, k, sc in nms(boxes, keypoints, scores, iou_threshold)]
 
 
 def detection_tiles(width: int, height: int, min_face: float) -> list[tuple[float, float, float]]:
@@ -189,11 +159,6 @@ def detection_tiles(width: int, height: int, min_face: float) -> list[tuple[floa
 # ---------------------------------------------------------------------------------------------
 # Regions of interest and crops
 # ---------------------------------------------------------------------------------------------
-def _rotation(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s], [s, c]])
-
-
 def roi_from_detection(det: Detection, scale: float = ROI_SCALE) -> np.ndarray:
     """Crop ROI (5,) [cx, cy, side, side, angle] from a detection (continuous pixels)."""
     centre = (det.box[:2] + det.box[2:]) / 2.0
@@ -208,7 +173,7 @@ def roi_from_points(points_xy: np.ndarray, scale: float = ROI_SCALE) -> np.ndarr
     corners, square box around all points in that rotated frame, side ``scale`` x larger."""
     eye = points_xy[LEFT_EYE_OUTER] - points_xy[RIGHT_EYE_OUTER]
     angle = math.atan2(float(eye[1]), float(eye[0]))
-    rot = _rotation(angle)
+    rot = rotation_2d(angle)
     local = points_xy @ rot  # coordinates along the crop's x and y axes
     lo, hi = local.min(0), local.max(0)
     centre = rot @ ((lo + hi) / 2.0)
@@ -216,51 +181,11 @@ def roi_from_points(points_xy: np.ndarray, scale: float = ROI_SCALE) -> np.ndarr
     return np.array([centre[0], centre[1], side, side, angle], np.float64)
 
 
-def crop_matrix(roi: np.ndarray, size: int) -> np.ndarray:
-    """2x3 affine map from crop pixel indices to image pixel indices (for WARP_INVERSE_MAP)."""
-    cx, cy, w, h, angle = (float(v) for v in roi)
-    rot = _rotation(angle)
-    lin = rot @ np.diag([w / size, h / size])
-    # image_cont = c + rot @ ((q + 0.5) / size - 0.5) * (w, h); image index = image_cont - 0.5.
-    offset = np.array([cx, cy]) + rot @ ((0.5 / size - 0.5) * np.array([w, h])) - 0.5
-    return np.hstack([lin, offset[:, None]])
-
-
-def crop_image(image: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
-    """The rotated ROI (continuous pixels) of an (H, W, C) uint8 image resampled to (size, size, C)
-    (channel order kept). Outside the image:
-    ``border`` (replicate the edge pixels for the mesh, black for the detector's letterbox)."""
-    matrix = crop_matrix(roi, size)
-    # Work on the part of the image under the ROI (plus a margin for interpolation).
-    corners = matrix @ np.array([[0, 0, 1], [size, 0, 1], [0, size, 1], [size, size, 1]], np.float64).T
-    h, w = image.shape[:2]
-    x0, y0 = (int(np.clip(math.floor(v) - 2, 0, lim)) for v, lim in zip(corners.min(axis=1), (w - 1, h - 1)))
-    x1, y1 = (int(np.clip(math.ceil(v) + 3, 1, lim)) for v, lim in zip(corners.max(axis=1), (w, h)))
-    if x1 <= x0 or y1 <= y0:  # the ROI misses the image entirely
-        x0, y0, x1, y1 = 0, 0, w, h
-    part = image[y0:y1, x0:x1]
-    matrix = matrix - np.array([[0.0, 0.0, x0], [0.0, 0.0, y0]])
-    shrink = float(max(roi[2], roi[3])) / size
-    if shrink >= 2.0:
-        # Area-downsample by a whole factor first so the bilinear warp shrinks by less than 2 and
-        # does not alias (a whole frame into the detector, a face filling a 4K frame).
-        factor = float(int(shrink))
-        small_size = (max(int(round(part.shape[1] / factor)), 1), max(int(round(part.shape[0] / factor)), 1))
-        small = cv2.resize(part, small_size, interpolation=cv2.INTER_AREA)
-        sx, sy = part.shape[1] / small.shape[1], part.shape[0] / small.shape[0]
-        matrix = matrix.copy()
-        matrix[0] = (matrix[0] + np.array([0.0, 0.0, 0.5])) / sx - np.array([0.0, 0.0, 0.5])
-        matrix[1] = (matrix[1] + np.array([0.0, 0.0, 0.5])) / sy - np.array([0.0, 0.0, 0.5])
-        part = small
-    return cv2.warpAffine(part, matrix, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                          borderMode=border, borderValue=(0, 0, 0))
-
-
 def project_points(raw: np.ndarray, roi: np.ndarray, size: int = MESH_SIZE) -> np.ndarray:
     """Mesh output (468, 3) in crop pixels -> (468, 3) image pixels (continuous; z scaled like x)."""
     cx, cy, w, h, angle = (float(v) for v in roi)
     local = (raw[:, :2] / size - 0.5) * np.array([w, h])
-    xy = local @ _rotation(angle).T + np.array([cx, cy])
+    xy = local @ rotation_2d(angle).T + np.array([cx, cy])
     z = raw[:, 2:3] / size * w
     return np.hstack([xy, z])
 
@@ -543,5 +468,5 @@ def _owned_by_tile(boxes: np.ndarray, x0: float, y0: float, width: float, height
 def _roi_overlap(roi: np.ndarray, points: np.ndarray) -> bool:
     """True when a tracked face's nose tip (mesh point 1) lies inside the central half of ``roi``."""
     nose = points[1, :2]
-    local = (nose - roi[:2]) @ _rotation(float(roi[4]))
+    local = (nose - roi[:2]) @ rotation_2d(float(roi[4]))
     return bool(np.all(np.abs(local) < roi[2:4] / 4.0))
