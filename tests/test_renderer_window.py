@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from renderer_scene import place_marked, psnr, read_frames
 
-TOOLS = ("Xvfb", "xdotool")
+TOOLS = ("Xvfb", "xdotool", "xdpyinfo")
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def display():
     if not (shutil.which("xwd") or shutil.which("import")):
         missing.append("xwd")
     if missing:
-        pytest.skip(f"needs {', '.join(missing)} (apt-get install xvfb xdotool x11-apps)")
+        pytest.skip(f"needs {', '.join(missing)} (apt-get install xvfb xdotool x11-utils x11-apps)")
     # -displayfd: Xvfb picks a free display number itself and writes it to the pipe, so test
     # sessions running side by side never share (or race for) one.
     read_fd, write_fd = os.pipe()
@@ -38,6 +38,13 @@ def display():
         ready = select.select([pipe], [], [], 20.0)[0]
         number = pipe.readline().strip() if ready else ""  # written once the server is ready; "" if it died
     assert number.isdigit(), f"Xvfb did not start (exit status {proc.poll()})"
+    # Seen on CI: a client started right after -displayfd reported the number could not open the
+    # display; wait until one can (xdpyinfo connects and exits 0).
+    deadline = time.monotonic() + 20.0
+    while subprocess.run(["xdpyinfo"], env=dict(os.environ, DISPLAY=f":{number}"),
+                         capture_output=True).returncode != 0:
+        assert time.monotonic() < deadline and proc.poll() is None, f"display :{number} does not accept clients"
+        time.sleep(0.2)
     yield f":{number}"
     proc.terminate()
     proc.wait(5)

@@ -72,7 +72,7 @@ def decode_palms(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndar
 
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
                  iou_threshold: float = 0.3) -> list[Palm]:
-    """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Palm`\ s, best first."""
+    """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Palm` objects, best first."""
     return [Palm(box=b, keypoints=k, score=sc) for b, k, sc in nms(boxes, keypoints, scores, iou_threshold)]
 
 

@@ -126,7 +126,7 @@ def decode_detections(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np
 
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
                  iou_threshold: float = 0.3) -> list[Detection]:
-    """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Detection`\ s, best first."""
+    """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Detection` objects, best first."""
     return [Detection(box=b, keypoints=k, score=sc) for b, k, sc in nms(boxes, keypoints, scores, iou_threshold)]
 
 

@@ -66,7 +66,13 @@ class Window:
 
     def __init__(self, width: int, height: int, title: str = "facesculpt", visible: bool = True):
         self.width, self.height = int(width), int(height)
-        if not glfw.init():
+        # A display that has just started (a fresh Xvfb, a session coming up) can refuse the
+        # first connection: a few tries over a second before giving up.
+        for attempt in range(4):
+            if glfw.init():
+                break
+            time.sleep(0.3 * (attempt + 1))
+        else:
             desc = glfw.get_error()[1] if hasattr(glfw, "get_error") else None
             raise RuntimeError(f"cannot open a window: glfw could not initialise ({desc or 'no display?'}); "
                                f"use window=false for headless rendering")
