@@ -1,9 +1,50 @@
-"""Box overlap and mediapipe's weighted non-maximum suppression of SSD detections (the face
-detector and the palm detector share them)."""
+"""SSD detections as mediapipe's detectors give them: anchor centres, decoding of the raw
+outputs, box overlap and weighted non-maximum suppression (the face detector and the palm
+detector share them; each passes its own input size, strides and keypoint count)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+
+def ssd_anchors(size: int, strides) -> np.ndarray:
+    """Anchor centres (A, 2) float32, normalised [0, 1], of an SSD on a ``size`` x ``size`` input.
+
+    Layers with the same stride share one grid; each layer puts two anchors per cell (aspect
+    ratio 1 and the interpolated scale), row by row; with fixed anchor size every anchor is 1x1.
+    """
+    centres = []
+    i = 0
+    while i < len(strides):
+        stride = strides[i]
+        per_cell = 0
+        while i < len(strides) and strides[i] == stride:
+            per_cell += 2
+            i += 1
+        grid = int(math.ceil(size / stride))
+        ys, xs = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
+        cell = np.stack([(xs + 0.5) / grid, (ys + 0.5) / grid], axis=-1).reshape(-1, 1, 2)
+        centres.append(np.repeat(cell, per_cell, axis=1).reshape(-1, 2))
+    return np.concatenate(centres).astype(np.float32)
+
+
+def decode_ssd(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndarray, size: int,
+               num_keypoints: int, min_score: float = 0.5):
+    """Decode an SSD's raw outputs. raw_boxes (A, 4 + 2 K) float32: per anchor dx, dy, w, h, then
+    K (x, y) keypoints, in input pixels relative to the anchor centre; raw_scores (A,) logits.
+    Returns normalised ``boxes`` (N, 4) [xmin, ymin, xmax, ymax], ``keypoints`` (N, K, 2) and
+    ``scores`` (N,) float32 for the anchors whose sigmoid score is at least ``min_score``."""
+    scores = 1.0 / (1.0 + np.exp(-np.clip(raw_scores.astype(np.float64), -100.0, 100.0)))
+    keep = np.flatnonzero(scores >= min_score)
+    raw = raw_boxes[keep].astype(np.float64) / size
+    centre = anchors[keep].astype(np.float64)
+    cxcy = raw[:, 0:2] + centre
+    half = raw[:, 2:4] / 2.0
+    boxes = np.concatenate([cxcy - half, cxcy + half], axis=1)
+    keypoints = raw[:, 4:4 + 2 * num_keypoints].reshape(-1, num_keypoints, 2) + centre[:, None, :]
+    return boxes.astype(np.float32), keypoints.astype(np.float32), scores[keep].astype(np.float32)
 
 
 def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:

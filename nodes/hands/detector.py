@@ -33,9 +33,10 @@ import cv2
 import numpy as np
 
 from facesculpt.geometry.crops import crop_image, rotation_2d
+from facesculpt.geometry.detections import decode_ssd, ssd_anchors
 from facesculpt.paths import MissingModelsError, model_home
 
-from .palm import PALM_SIZE, decode_palms, palm_anchors, roi_from_palm, transform_roi, up_angle, weighted_nms
+from .palm import ANCHOR_STRIDES, NUM_PALM_KEYPOINTS, PALM_SIZE, roi_from_palm, transform_roi, up_angle, weighted_nms
 
 HAND_SIZE = 224
 NUM_HAND_POINTS = 21
@@ -201,7 +202,7 @@ class HandDetector:
         self.nms_iou = float(nms_iou)
         self.redetect_interval = max(int(redetect_interval), 1)
         self.mirrored = bool(mirrored)
-        self.anchors = palm_anchors()
+        self.anchors = ssd_anchors(PALM_SIZE, ANCHOR_STRIDES)
         self._tracks: list[_Track] = []
         self._next_track_id = 0
         self._frames_since_detect = 0
@@ -256,8 +257,8 @@ class HandDetector:
         patch = crop_image(bgr, roi, PALM_SIZE, cv2.BORDER_CONSTANT)
         x = (patch[:, :, ::-1].astype(np.float32) * (1.0 / 255.0))[None]
         raw_boxes, raw_scores = self.palm_net.run(x)
-        boxes, keypoints, scores = decode_palms(raw_boxes[0], raw_scores[0, :, 0], self.anchors,
-                                                self.min_detection_score)
+        boxes, keypoints, scores = decode_ssd(raw_boxes[0], raw_scores[0, :, 0], self.anchors, PALM_SIZE,
+                                             NUM_PALM_KEYPOINTS, self.min_detection_score)
         if not len(scores):
             return []
         x0, y0, side = roi[0] - roi[2] / 2.0, roi[1] - roi[3] / 2.0, roi[2]

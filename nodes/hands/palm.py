@@ -1,5 +1,6 @@
-"""The palm detector's outputs decoded: SSD anchors, boxes with seven keypoints, weighted NMS,
-and the hand crop (ROI) a palm gives. Arrays in, arrays out.
+"""The palm detector: its constants (input size, anchor strides, seven keypoints; anchors and
+decoding are :mod:`facesculpt.geometry.detections`'), palms after weighted NMS, and the hand
+crop (ROI) a palm gives. Arrays in, arrays out.
 
 mediapipe's palm detector (``palm_detection_full``, 192x192 RGB input in [0, 1], the frame
 letterboxed) regresses, per anchor, a box (centre offset, width, height) and seven keypoints
@@ -23,7 +24,7 @@ from facesculpt.geometry.detections import weighted_nms as nms
 PALM_SIZE = 192
 NUM_PALM_KEYPOINTS = 7
 PALM_WRIST, PALM_MIDDLE_MCP = 0, 2
-_ANCHOR_STRIDES = (8, 16, 16, 16)
+ANCHOR_STRIDES = (8, 16, 16, 16)
 PALM_ROI_SCALE = 2.6
 PALM_ROI_SHIFT_Y = -0.5
 
@@ -36,38 +37,6 @@ class Palm:
     box: np.ndarray
     keypoints: np.ndarray
     score: float
-
-
-def palm_anchors(size: int = PALM_SIZE, strides=_ANCHOR_STRIDES) -> np.ndarray:
-    """Anchor centres (2016, 2) float32, normalised [0, 1]: two per cell on the 24x24 grid (stride
-    8), six per cell on the 12x12 grid (the three stride-16 layers), row by row."""
-    centres = []
-    i = 0
-    while i < len(strides):
-        stride, per_cell = strides[i], 0
-        while i < len(strides) and strides[i] == stride:
-            per_cell += 2
-            i += 1
-        grid = int(math.ceil(size / stride))
-        ys, xs = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
-        cell = np.stack([(xs + 0.5) / grid, (ys + 0.5) / grid], axis=-1).reshape(-1, 1, 2)
-        centres.append(np.repeat(cell, per_cell, axis=1).reshape(-1, 2))
-    return np.concatenate(centres).astype(np.float32)
-
-
-def decode_palms(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndarray,
-                 min_score: float = 0.5, size: int = PALM_SIZE):
-    """The anchors scoring at least ``min_score``: normalised ``boxes`` (N, 4), ``keypoints``
-    (N, 7, 2) and ``scores`` (N,). raw_boxes (2016, 18) float32, raw_scores (2016,) logits."""
-    scores = 1.0 / (1.0 + np.exp(-np.clip(raw_scores.astype(np.float64), -100.0, 100.0)))
-    keep = np.flatnonzero(scores >= min_score)
-    raw = raw_boxes[keep].astype(np.float64) / size
-    centre = anchors[keep].astype(np.float64)
-    cxcy = raw[:, 0:2] + centre
-    half = raw[:, 2:4] / 2.0
-    boxes = np.concatenate([cxcy - half, cxcy + half], axis=1)
-    keypoints = raw[:, 4:4 + 2 * NUM_PALM_KEYPOINTS].reshape(-1, NUM_PALM_KEYPOINTS, 2) + centre[:, None, :]
-    return boxes.astype(np.float32), keypoints.astype(np.float32), scores[keep].astype(np.float32)
 
 
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,

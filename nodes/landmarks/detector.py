@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from facesculpt.geometry.crops import crop_image, rotation_2d
+from facesculpt.geometry.detections import decode_ssd, ssd_anchors
 from facesculpt.geometry.detections import weighted_nms as nms
 from facesculpt.paths import MissingModelsError, model_home
 
@@ -81,49 +82,8 @@ class Face:
 
 
 # ---------------------------------------------------------------------------------------------
-# Detector: anchors, decoding, weighted NMS
+# Detector: weighted NMS, tiles
 # ---------------------------------------------------------------------------------------------
-def ssd_anchors(size: int = DETECTOR_SIZE, strides=_ANCHOR_STRIDES) -> np.ndarray:
-    """Anchor centres of the short-range detector, (896, 2) float32, normalised [0, 1].
-
-    Layers with the same stride share one grid; each layer puts two anchors per cell (aspect
-    ratio 1 and the interpolated scale); with fixed anchor size every anchor is 1x1.
-    """
-    centres = []
-    i = 0
-    while i < len(strides):
-        stride = strides[i]
-        per_cell = 0
-        while i < len(strides) and strides[i] == stride:
-            per_cell += 2
-            i += 1
-        grid = int(math.ceil(size / stride))
-        ys, xs = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
-        cell = np.stack([(xs + 0.5) / grid, (ys + 0.5) / grid], axis=-1).reshape(-1, 1, 2)
-        centres.append(np.repeat(cell, per_cell, axis=1).reshape(-1, 2))
-    return np.concatenate(centres).astype(np.float32)
-
-
-def decode_detections(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndarray,
-                      min_score: float = 0.5, size: int = DETECTOR_SIZE):
-    """Decode the detector's raw outputs.
-
-    raw_boxes (896, 16) float32: per anchor dx, dy, w, h, then six (x, y) keypoints, in input
-    pixels relative to the anchor centre; raw_scores (896,) logits. Returns normalised
-    ``boxes`` (N, 4) [xmin, ymin, xmax, ymax], ``keypoints`` (N, 6, 2), ``scores`` (N,) for the
-    anchors whose sigmoid score is at least ``min_score``.
-    """
-    scores = 1.0 / (1.0 + np.exp(-np.clip(raw_scores.astype(np.float64), -100.0, 100.0)))
-    keep = np.flatnonzero(scores >= min_score)
-    raw = raw_boxes[keep].astype(np.float64) / size
-    centre = anchors[keep].astype(np.float64)
-    cxcy = raw[:, 0:2] + centre
-    half = raw[:, 2:4] / 2.0
-    boxes = np.concatenate([cxcy - half, cxcy + half], axis=1)
-    keypoints = raw[:, 4:4 + 2 * NUM_KEYPOINTS].reshape(-1, NUM_KEYPOINTS, 2) + centre[:, None, :]
-    return boxes.astype(np.float32), keypoints.astype(np.float32), scores[keep].astype(np.float32)
-
-
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
                  iou_threshold: float = 0.3) -> list[Detection]:
     """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Detection` objects, best first."""
@@ -329,7 +289,7 @@ class LandmarkDetector:
         self.min_face = max(float(min_face), 0.0)
         self.nms_iou = float(nms_iou)
         self.redetect_interval = max(int(redetect_interval), 1)
-        self.anchors = ssd_anchors()
+        self.anchors = ssd_anchors(DETECTOR_SIZE, _ANCHOR_STRIDES)
         self._tracks: list[_Track] = []
         self._next_track_id = 0
         self._frames_since_detect = 0
@@ -393,7 +353,8 @@ class LandmarkDetector:
                                DETECTOR_SIZE, cv2.BORDER_CONSTANT)
             x = (patch[:, :, ::-1].astype(np.float32) * (1.0 / 127.5) - 1.0)[None]  # RGB in [-1, 1]
             raw_boxes, raw_scores = self.detector_net.run(x)
-            b, k, s = decode_detections(raw_boxes[0], raw_scores[0, :, 0], self.anchors, self.min_detection_score)
+            b, k, s = decode_ssd(raw_boxes[0], raw_scores[0, :, 0], self.anchors, DETECTOR_SIZE, NUM_KEYPOINTS,
+                                 self.min_detection_score)
             if i > 0 and len(s):
                 keep = _owned_by_tile(b, x0 / side, y0 / side, w / side, h / side)
                 b, k, s = b[keep], k[keep], s[keep]
