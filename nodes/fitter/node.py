@@ -26,6 +26,7 @@ from .config import FitterConfig
 from .corrections import LandmarkCorrections, fit_id
 from .expression import NAMES, face_expression, head_pose
 from .faces import FaceFitters, parse_faces
+from .fit_camera import FitCamera
 from .fitter import Fitter, make_fitter
 from .model import MorphableModel, load_model
 from .result import FitError
@@ -210,7 +211,7 @@ class FitterNode(Node):
             self.count("camera_changed")
         K = None if self.params.projection == "orthographic" else K
         config = self.fitter_config()
-        make_fitter(self.model, config, size, K)  # raises FitError now for a camera it cannot fit
+        FitCamera.make(size, K, config.projection)  # raises FitError now for a camera it cannot fit
         self.faces = FaceFitters(lambda: make_fitter(self.model, config, size, K), self.selection)
         self.camera_key = key
 
