@@ -168,9 +168,7 @@ class Pipeline:
     @property
     def fitter(self) -> Fitter | None:
         """The first face's fitter (the only one for ``faces="largest"``), None before any face."""
-        if self.faces is None or not self.faces.fitters:
-            return None
-        return self.faces.fitters[min(self.faces.fitters)]
+        return None if self.faces is None else self.faces.first
 
     # -- the stages -------------------------------------------------------------------------------
     def fit_faces(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None) -> dict:

@@ -89,6 +89,11 @@ class FaceFitters:
             return list(range(len(ids)))
         return [i for i, t in enumerate(ids) if t == self.selection - 1]
 
+    @property
+    def first(self) -> Fitter | None:
+        """The fitter of the lowest face key (the only one for "largest"); None before any face."""
+        return self.fitters[min(self.fitters)] if self.fitters else None
+
     def fitter(self, key: int) -> Fitter:
         """The fitter of face ``key``, made when new (the oldest dropped past ``capacity``)."""
         if key not in self.fitters:

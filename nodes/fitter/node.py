@@ -92,9 +92,7 @@ class FitterNode(Node):
     @property
     def fitter(self) -> Fitter | None:
         """The first face's fitter (the only one with faces=largest); None before a face."""
-        if self.faces is None or not self.faces.fitters:
-            return None
-        return self.faces.fitters[min(self.faces.fitters)]
+        return None if self.faces is None else self.faces.first
 
     # -- model ---------------------------------------------------------------------------------
     def publish_model(self, neutral: np.ndarray, stamp: int) -> None:
