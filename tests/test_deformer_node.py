@@ -122,11 +122,14 @@ def test_after_a_drag_idle_rounds_settle_the_edit_on_the_converged_solution(node
     assert 0 < rounds < 100 and node.diagnostics()["counters"]["settle_rounds"] == rounds
     node.on_round()  # converged: idle rounds solve nothing more
     assert node.last is settled
+    # the solver's constraints: the published handles plus the skin each grips (EditStack.constraints)
+    static, constrained, roi, targets = node.editor.stack.constraints()
+    assert set(settled.handles) < set(constrained) and np.array_equal(settled.static, static)
     ref = ArapDeformer(sfm.mean, sfm.triangles, acceleration="none")
-    ref.set_anchors(static=settled.static, handles=settled.handles, roi=settled.roi)
+    ref.set_anchors(static=static, handles=constrained, roi=roi)
     rest = sfm.mean.astype(np.float64)
     ref.current = rest + settled.displacement
-    converged = ref.solve(rest[settled.handles] + settled.displacement[settled.handles], iterations=1000) - rest
+    converged = ref.solve(targets, iterations=1000) - rest
     diag = np.linalg.norm(np.ptp(rest, axis=0))
     assert np.abs(settled.displacement - converged).max() < 1e-3 * diag
     assert np.abs(dragged - converged).max() > np.abs(settled.displacement - converged).max()

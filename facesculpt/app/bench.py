@@ -171,7 +171,7 @@ def drag_updates(pipeline, fit, drags: int) -> tuple[list[float], float]:
     from facesculpt.nodes.deformer.node import DeformerNode
 
     params = DeformerNode.default_params()
-    stack = pipeline.edit_stack(roi_radius=params["roi_radius"], roi_metric=params["roi_metric"],
+    stack = pipeline.edit_stack(roi_radius=params["roi_radius"], roi_metric=params["roi_metric"], grip=params["grip"],
                                 iterations=params["iterations"], tolerance=params["tolerance"],
                                 acceleration=params["acceleration"], clamp_weights=params["clamp_weights"])
     nose = stack.landmark_vertex("nose_tip")

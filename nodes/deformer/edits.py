@@ -24,24 +24,33 @@ from pathlib import Path
 
 import numpy as np
 
-from .anchors import METRICS, edge_length_graph, roi_within_radius
+from .anchors import METRICS, distances_from, edge_length_graph, roi_within_radius
 from .arap import ArapDeformer
 from .errors import DeformerError
 from .landmark_warp import face_size, landmark_positions, nearest_vertices, warp_points
 from .preset_format import ORIGIN_KEYS, PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
 
-__all__ = ["PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
+__all__ = ["GRIP", "GRIP_RANGE", "PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
+
+# A handle grips the skin within this share of its edit's ROI radius (same metric), which moves
+# with it rigidly: ARAP pulling a single vertex of a dense mesh makes a cusp (the vertex moves,
+# its neighbours lag far behind), so a pulled nose or chin became a spike on a surface that
+# barely moved. 0 is the single-vertex handle.
+GRIP = 0.2
+GRIP_RANGE = (0.0, 0.5)
 
 
 @dataclass
 class Edit:
     """One gesture. ``offsets`` maps handle vertex -> (3,) float64 mm from its rest position;
-    ``roi_radius``/``roi_metric`` give the ROI around the handles unless ``roi`` lists it."""
+    ``roi_radius``/``roi_metric`` give the ROI around the handles unless ``roi`` lists it;
+    ``base`` is the displacement the edit started from (its grips move relative to it)."""
 
     offsets: dict[int, np.ndarray] = field(default_factory=dict)
     roi_radius: float = 40.0
     roi_metric: str = "geodesic"
     roi: np.ndarray | None = None
+    base: np.ndarray | None = None  # (V, 3) mm, the solved displacement when the edit began
 
 
 def topology_signature(n_vertices: int, triangles: np.ndarray) -> dict:
@@ -56,7 +65,9 @@ class EditStack:
     vertices: (V, 3) neutral mesh, model space, mm; triangles: (T, 3).
     landmark_names / landmark_vertices: the model's named vertices (FaceModel) for presets and
     for pressing at a landmark. roi_radius (mm) and roi_metric ("geodesic" | "euclidean"): the
-    default ROI of a new edit. ``deformer_options`` go to :class:`ArapDeformer`.
+    default ROI of a new edit. ``grip`` (share of an edit's ROI radius, in ``GRIP_RANGE``): the
+    skin around each handle that moves rigidly with it (0: the handle vertex alone).
+    ``deformer_options`` go to :class:`ArapDeformer`.
     Methods raise :class:`DeformerError` on bad input and leave the stack as it was.
     """
 
@@ -68,6 +79,7 @@ class EditStack:
         landmark_vertices=(),
         roi_radius: float = 40.0,
         roi_metric: str = "geodesic",
+        grip: float = GRIP,
         **deformer_options,
     ):
         self.deformer = ArapDeformer(vertices, triangles, **deformer_options)
@@ -91,6 +103,10 @@ class EditStack:
         self._check_roi(roi_radius, roi_metric)
         self.roi_radius = float(roi_radius)
         self.roi_metric = roi_metric
+        if not (np.isfinite(grip) and GRIP_RANGE[0] <= grip <= GRIP_RANGE[1]):
+            raise DeformerError(f"grip must be a share of the ROI radius in {list(GRIP_RANGE)}, got {grip!r}")
+        self.grip = float(grip)
+        self._grips: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # (vertex, radius, metric) -> (vertices, mm)
         self._graph = edge_length_graph(self.rest, self.triangles)
         self.edits: list[Edit] = []
         self.static: set[int] = set()
@@ -131,7 +147,7 @@ class EditStack:
         radius = self.roi_radius if roi_radius is None else float(roi_radius)
         metric = self.roi_metric if roi_metric is None else roi_metric
         self._check_roi(radius, metric)
-        edit = Edit({v: self.displacement[v].copy() for v in vs}, radius, metric, None)
+        edit = Edit({v: self.displacement[v].copy() for v in vs}, radius, metric, None, self.displacement.copy())
         if roi is not None:
             edit.roi = np.unique(np.asarray([self._vertex(int(r)) for r in np.asarray(roi).ravel()], dtype=np.int64))
         self.edits.append(edit)
@@ -231,6 +247,56 @@ class EditStack:
         offsets = np.array([targets[v] for v in handles]).reshape(-1, 3)
         return static, handles, np.flatnonzero(roi_mask), self.rest[handles] + offsets
 
+    def _grip_radius(self, edit: Edit, vertex: int) -> float:
+        """mm: ``grip`` of the edit's ROI radius, or of the explicit ROI's reach from ``vertex``."""
+        if edit.roi is None or edit.roi.size == 0:
+            return edit.roi_radius * self.grip
+        return float(np.linalg.norm(self.rest[edit.roi] - self.rest[vertex], axis=1).max()) * self.grip
+
+    def _grip_of(self, vertex: int, radius: float, metric: str) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices, distances mm) within ``radius`` of ``vertex`` or next to it by an edge, the
+        vertex itself excluded."""
+        key = (vertex, radius, metric)
+        if key not in self._grips:
+            ring = self._graph[vertex].indices  # a coarse mesh's grip is at least the handle's neighbours
+            d = distances_from(self.rest, [vertex], metric, graph=self._graph,
+                               limit=max(radius, float(self._graph[vertex].data.max(initial=0.0))))
+            inside = d <= radius
+            inside[ring] = True
+            near = np.flatnonzero(inside)
+            near = near[near != vertex]
+            self._grips[key] = (near, d[near])
+        return self._grips[key]
+
+    def constraints(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(static, constrained, roi, targets (C, 3) mm): :meth:`anchors` with every handle's
+        grip (the ROI's free vertices within ``grip`` times its edit's ROI radius, or the explicit
+        ROI's reach) moved rigidly
+        with it (by the handle's offset since its edit began), each grip vertex with its nearest
+        handle; pins and other handles keep theirs."""
+        static, handles, roi, targets = self.anchors()
+        if self.grip <= 0 or handles.size == 0:
+            return static, handles, roi, targets
+        offset = dict(zip(handles.tolist(), targets - self.rest[handles]))
+        reach, base = {}, {}
+        for e in self.edits:  # the latest edit that holds a handle sets its grip
+            reach.update({v: (self._grip_radius(e, v), e.roi_metric) for v in e.offsets})
+            base.update({v: e.base for v in e.offsets})
+        free = set(roi.tolist())  # neither pinned nor a handle, and inside some edit's ROI
+        best: dict[int, tuple[float, int]] = {}
+        for h in handles.tolist():
+            for v, d in zip(*self._grip_of(h, *reach[h])):
+                if int(v) in free and (v not in best or d < best[v][0]):
+                    best[int(v)] = (float(d), h)
+        if not best:
+            return static, handles, roi, targets
+        # a grip moves as its handle moved since the edit began, so pressing moves nothing
+        offset.update({v: offset[h] if base[h] is None else base[h][v] + offset[h] - base[h][h]
+                       for v, (_, h) in best.items()})
+        constrained = np.array(sorted(offset), dtype=np.int64)
+        roi = np.setdiff1d(roi, constrained)
+        return static, constrained, roi, self.rest[constrained] + np.array([offset[v] for v in constrained])
+
     def solve(self, iterations: int | None = None) -> np.ndarray:
         """Solve all edits; returns and keeps the displacement (V, 3) float64 mm.
 
@@ -242,7 +308,7 @@ class EditStack:
             self.deformer.reset()
             self.version += 1
             return self.displacement
-        static, handles, roi, targets = self.anchors()
+        static, handles, roi, targets = self.constraints()
         self.deformer.set_anchors(static=static, handles=handles, roi=roi)
         solved = self.deformer.solve(targets, iterations=iterations)
         self.displacement = solved - self.rest

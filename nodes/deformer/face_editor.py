@@ -31,7 +31,7 @@ MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
 
 class FaceEditor:
     """The edits of face ``face_id``. ``params``: the deformer node's params (roi_radius,
-    roi_metric, iterations, tolerance, acceleration, clamp_weights, joystick_speed,
+    roi_metric, grip, iterations, tolerance, acceleration, clamp_weights, joystick_speed,
     joystick_deadzone, preset_dir, strength); ``count(name, n=1)``, ``stage(name)`` and ``log``:
     the node's diagnostics; ``initial_preset``: a preset (dict, offsets scaled) put on the first
     neutral, named ``preset_name`` in the log."""
@@ -79,6 +79,7 @@ class FaceEditor:
                 msg.landmark_vertices,
                 roi_radius=self.params.roi_radius,
                 roi_metric=self.params.roi_metric,
+                grip=self.params.grip,
                 iterations=self.params.iterations,
                 tolerance=self.params.tolerance,
                 acceleration=self.params.acceleration,

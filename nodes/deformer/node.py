@@ -27,6 +27,7 @@ from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVENTS, LATCHED
 
+from .edits import GRIP, GRIP_RANGE
 from .errors import DeformerError
 from .face_editor import FaceEditor
 from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_preset
@@ -43,6 +44,8 @@ class DeformerNode(Node):
         "roi_radius": Param(40.0, "default ROI of a new handle, mm on the neutral mesh", range=(0.1, 1000.0)),
         "roi_metric": Param("geodesic", "distance the ROI radius is measured in",
                             choices=("geodesic", "euclidean")),
+        "grip": Param(GRIP, "share of a handle's ROI radius around it that moves rigidly with it (0: the "
+                            "handle vertex alone, which pulls a spike)", range=GRIP_RANGE),
         "iterations": Param(4, "ARAP local/global iterations per solve (Anderson-accelerated)", range=(1, 100)),
         "tolerance": Param(1e-5, "stop early below this per-iteration motion, x bounding-box diagonal (0: never)",
                            range=(0.0, 1.0)),
