@@ -123,6 +123,30 @@ def read_video(path: Path, max_frames: int = 0) -> list:
     return out
 
 
+# Folders of a checkout that install as subpackages of facesculpt (pyproject.toml's package-dir).
+MAPPED_PACKAGES = ("nodes", "msgs", "launch")
+
+
+def importable_checkout(checkout: Path, shim: Path) -> Path:
+    """A folder to put first on PYTHONPATH so that ``import facesculpt`` and its mapped
+    subpackages (``facesculpt.nodes``, ...) all come from ``checkout`` (a source tree, e.g. an
+    older revision): ``shim/facesculpt`` with links to the checkout's ``facesculpt/*`` and its
+    top-level ``nodes``, ``msgs`` and ``launch``. Without it only ``facesculpt`` itself would,
+    and the installed package's finder would supply the rest from this checkout."""
+    checkout = Path(checkout).resolve()
+    if all((checkout / "facesculpt" / name).exists() for name in MAPPED_PACKAGES if (checkout / name).is_dir()):
+        return checkout
+    package = Path(shim) / "facesculpt"
+    package.mkdir(parents=True, exist_ok=True)
+    for entry in (checkout / "facesculpt").iterdir():
+        if not (package / entry.name).exists():
+            (package / entry.name).symlink_to(entry)
+    for name in MAPPED_PACKAGES:
+        if (checkout / name).is_dir() and not (package / name).exists():
+            (package / name).symlink_to(checkout / name)
+    return Path(shim)
+
+
 def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames: int = 0,
                 neutral_frames: int = 30, pythonpath: str = "", data: Path | None = None) -> tuple[list, float]:
     """``facesculpt process VIDEO -o OUT/%05d.png --edits PRESET --model MODEL`` in a
@@ -141,7 +165,8 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
     if data is not None:
         env["FACESCULPT_DATA"] = str(data)
     if pythonpath:
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (pythonpath, env.get("PYTHONPATH", "")) if p)
+        first = str(importable_checkout(Path(pythonpath), out_dir / "pythonpath"))
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (first, env.get("PYTHONPATH", "")) if p)
     done = subprocess.run(cmd, capture_output=True, text=True, env=env)
     took = time.perf_counter() - t0
     if done.returncode != 0:
