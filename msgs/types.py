@@ -92,6 +92,9 @@ class FaceState(Message):
     face_id: which face (0 when one face is fitted, else the landmark tracker's track id);
     faces: how many states the fitter publishes for this frame (0: an empty state, V = 0, saying
     the frame has no fitted face, so a renderer pairing frames never waits for one).
+    landmarks: (68, 2) float32 pixels, optional: the fit's iBUG-68 points in iBUG order (NaN where
+    the fit has none); corrected: the iBUG numbers (1..68) of this face's landmarks a person has
+    corrected (command correct_landmark), for the window's correction mode.
     """
 
     TYPE = "FaceState"
@@ -109,6 +112,8 @@ class FaceState(Message):
     projection: str = "perspective"
     face_id: int = 0
     faces: int = 1
+    landmarks: np.ndarray = array("f4", "L", 2, optional=True)
+    corrected: list = field(default_factory=list)
 
 
 INPUT_KINDS = ("press", "drag", "release", "depth", "move", "axes", "buttons", "command")

@@ -151,6 +151,11 @@ def test_the_fitter_node_takes_a_correction_from_input_events(monkeypatch, tmp_p
         after = states[-1].projected[names["9"]]
         assert node.counters["landmark_corrected"] == 1 and node.counters["bad_correction"] == 1
         assert np.linalg.norm(after - target) < np.linalg.norm(before - target) / 2
+        # The state says which landmarks are corrected and where the fit put all 68 (the window's
+        # correction mode draws them); the SFM has no inner mouth corners (61, 65).
+        assert states[-1].corrected == [9] and states[3].corrected == []
+        assert np.isnan(states[-1].landmarks[[60, 64]]).all() and np.isfinite(states[-1].landmarks[:60]).all()
+        assert np.linalg.norm(states[-1].landmarks[8] - after) < 1.0
         node.on_event(InputEvent(kind="command", command="clear_corrections"))
         assert not node.corrections
     finally:

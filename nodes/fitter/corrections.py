@@ -30,6 +30,33 @@ def fit_id(ibug: int | str, dense: bool) -> str:
     return str(int(IBUG68_FROM_MESH[k - 1])) if dense else str(k)
 
 
+def ibug_number(landmark_id: str, dense: bool) -> int:
+    """The iBUG number (1..68) of fit id ``landmark_id`` (the inverse of :func:`fit_id`); 0 when it
+    is none of the 68."""
+    if dense:
+        hit = np.flatnonzero(IBUG68_FROM_MESH == int(landmark_id)) if str(landmark_id).isdigit() else []
+        return int(hit[0]) + 1 if len(hit) else 0
+    return int(landmark_id) if str(landmark_id).isdigit() and 1 <= int(landmark_id) <= 68 else 0
+
+
+def ibug68_points(fit, dense: bool) -> np.ndarray:
+    """(68, 2) float32 pixels: the fit's iBUG-68 points in iBUG order, as the fit placed them (the
+    dense model's mapped vertices; a sparse fit's landmark correspondences, outline ones included),
+    NaN where the fit had none (e.g. the SFM's inner mouth corners)."""
+    if dense:
+        return np.asarray(fit.projected, np.float32)[IBUG68_FROM_MESH]
+    out = np.full((68, 2), np.nan, np.float32)
+    if fit.correspondences is None:
+        return out
+    verts, weights = fit.correspondences
+    points = (np.asarray(fit.projected, np.float64)[np.asarray(verts, int)] * np.asarray(weights)[..., None]).sum(1)
+    for name, xy in zip(getattr(fit, "correspondence_ids", []) or [], points):
+        k = ibug_number(name, False)
+        if k:
+            out[k - 1] = xy
+    return out
+
+
 def _camera_point(fit, xy: np.ndarray, depth: float) -> np.ndarray:
     """The camera-space point under pixel ``xy`` at ``depth`` (perspective) or the fit's plane."""
     if fit.K is None or fit.projection != "perspective":
@@ -56,6 +83,10 @@ class LandmarkCorrections:
 
     def clear(self) -> None:
         self.anchors.clear()
+
+    def ibug(self, dense: bool) -> list[int]:
+        """The iBUG numbers (1..68) of the corrected landmarks, ascending."""
+        return sorted(k for k in (ibug_number(name, dense) for name in self.anchors) if k)
 
     def set(self, landmark_id: str, xy, fit, model) -> None:
         """Put landmark ``landmark_id`` (a fit id, :func:`fit_id`) under pixel ``xy`` (2,) on the

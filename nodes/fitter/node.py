@@ -23,7 +23,7 @@ from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVENTS, LATCHED
 
 from .config import FitterConfig
-from .corrections import LandmarkCorrections, fit_id
+from .corrections import LandmarkCorrections, fit_id, ibug68_points
 from .expression import NAMES, face_expression, head_pose
 from .faces import FaceFitters, parse_faces
 from .fit_camera import FitCamera
@@ -271,6 +271,8 @@ class FitterNode(Node):
         for f in fitted:
             result = f.outcome.fit
             self.last_fits[f.key] = result
+            dense = self.faces.fitters[f.key].model.dense
+            corrected = self.corrections.get(f.key)
             self.state_pub.publish(FaceState(
                 stamp=msg.stamp, frame_id=msg.frame_id, model_id=self.model.model_id,
                 R=np.asarray(result.R, np.float64), t=np.asarray(result.t, np.float64), scale=float(result.scale),
@@ -278,6 +280,7 @@ class FitterNode(Node):
                 alpha=result.alpha.astype(np.float32), beta=result.beta.astype(np.float32),
                 vertices=result.vertices, projected=result.projected, residual_px=float(result.residual_px),
                 image_size=[size[0], size[1]], projection=result.projection, face_id=f.key, faces=len(fitted),
+                landmarks=ibug68_points(result, dense), corrected=corrected.ibug(dense) if corrected else [],
             ))
             self.count("fitted")
             fitter = self.faces.fitters[f.key]

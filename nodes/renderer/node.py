@@ -4,7 +4,8 @@ Subscribes: camera/image (Image), face/state (FaceState), face/model (FaceModel,
 latched: the triangles), face/deformation (Deformation), hands/landmarks (HandLandmarks, when a
 hands node runs: the hands' region is composited back from the input, so nothing re-rendered
 covers a hand in front of the face). Publishes: render/image
-(Image, when ``publish``), input/events (InputEvent, from the window), diagnostics
+(Image, when ``publish``), input/events (InputEvent, from the window; in its landmark correction mode, L,
+left-drags become ``correct_landmark`` commands for the fitter: ``correction_mode.py``), diagnostics
 (stage times: pair, merge, camera, texture, draw, readback, inpaint, composite,
 output). Writes ``output`` (a video file) when set.
 
@@ -30,6 +31,7 @@ from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
 
 from .compositor import Compositor
+from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
 from .pairing import FramePairer
 
@@ -96,6 +98,7 @@ class RendererNode(Node):
         self.video = None
         self._shown_at: list[float] = []
         self._overlay_px: np.ndarray | None = None  # (V, 2) the edited face's deformed pixels this frame
+        self.correction = CorrectionMode()  # the window's landmark correction mode (L)
         if p.window:
             self.timer(1.0 / 120.0, self.on_tick)
 
@@ -225,6 +228,7 @@ class RendererNode(Node):
                 self._overlay_px = px
                 handles_px = px[d.handles[d.handles < len(px)]]
                 roi_px = px[d.roi[d.roi < len(px)]]
+        self.correction.observe(states)
         with self.stage("output"):
             if self.image_pub is not None:
                 self.image_pub.publish(Image(stamp=frame_msg.stamp, seq=frame_msg.seq, frame_id=frame_msg.frame_id,
@@ -252,6 +256,10 @@ class RendererNode(Node):
             t = self.compositor.timings
             lines = [f"{len(self._shown_at)} fps  render {t.get('total', 0.0):.1f} ms",
                      "  ".join(f"{k} {v:.1f}" for k, v in t.items() if k != "total")]
+        correcting = self.window.correcting
+        if correcting:  # the 68 landmarks to drag, the one under the cursor named
+            out = self.correction.draw(out, self.window.pointer)
+            lines.append("correction mode: drag a landmark where it belongs (L: back to editing)")
         if self._notice is not None:
             if now < self._notice[1]:
                 lines.append(self._notice[0])
@@ -259,7 +267,7 @@ class RendererNode(Node):
                 self._notice = None
         if self.params.overlay:
             out = draw_overlay(out, lines, handles_px, roi_px, self._pins_px(handles_px),
-                               help_lines=[keys_help(self.params.close)])
+                               help_lines=[keys_help(self.params.close, correcting)])
         elif lines:
             out = draw_overlay(out, lines)
         self.window.show(out)
@@ -312,6 +320,11 @@ class RendererNode(Node):
         if self.window is None:
             return
         for event in self.window.poll():
+            if event.pop("correct", False):  # correction mode: a landmark dragged, never an edit
+                for command in self.correction.handle(event, time.monotonic()):
+                    self.events_pub.publish(InputEvent(stamp=time.time_ns(), source="window", **command))
+                    self.count("landmark_corrections_sent")
+                continue
             self.events_pub.publish(InputEvent(stamp=time.time_ns(), source="window", **event))
             if event.get("command") == "save_preset":
                 self._on_save_sent(event["argument"])

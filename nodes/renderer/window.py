@@ -9,7 +9,11 @@ events come back from :meth:`Window.poll` as plain dicts holding the fields of a
 * right button: ``command`` ``toggle_static`` at the pointer;
 * wheel: ``depth``, +1 mm per notch toward the camera (handle 0);
 * keys: R ``reset``, U or Ctrl+Z ``undo``, S ``save_preset`` (a timestamped JSON);
-  Escape and Q close the window (the node decides what closing stops: its ``close`` param).
+  Escape and Q close the window (the node decides what closing stops: its ``close`` param);
+* L toggles the landmark correction mode (:attr:`Window.correcting`): the left button's
+  press / drag / release then carry ``"correct": True`` (the node turns them into
+  ``correct_landmark`` commands, ``correction_mode.py``, never into edits), and the wheel and
+  right button do nothing; C sends ``clear_corrections`` (in either mode).
 
 What is drawn over the frame (text, handles, ROI, pins) is ``overlay.py``'s
 :func:`draw_overlay`, applied to the frame before :meth:`Window.show`.
@@ -31,11 +35,14 @@ from .overlay import draw_overlay  # noqa: F401  (the window's overlay; kept imp
 WHEEL_MM_PER_NOTCH = 1.0
 
 
-def keys_help(close: str = "graph") -> str:
+def keys_help(close: str = "graph", correcting: bool = False) -> str:
     """The window's mouse and keys in one line (groups apart by two spaces, where the overlay
-    wraps it); ``close``: what Q does, "graph" (quit) or "node" (close this window)."""
-    return ("drag: move  right-click: pin  wheel: depth  R reset  U undo  S save  "
-            + ("Q quit" if close == "graph" else "Q close"))
+    wraps it); ``close``: what Q does, "graph" (quit) or "node" (close this window);
+    ``correcting``: the landmark correction mode's keys instead of the editing ones."""
+    quit_key = "Q quit" if close == "graph" else "Q close"
+    if correcting:
+        return f"CORRECTION MODE  drag a landmark: put it there  C clear corrections  L back to editing  {quit_key}"
+    return f"drag: move  right-click: pin  wheel: depth  R reset  U undo  S save  L correct landmarks  {quit_key}"
 
 _QUAD_VS = """
 #version 330
@@ -102,7 +109,9 @@ class Window:
         self._vao = self.ctx.vertex_array(self._prog, [(self._vbo, "2f", "in_pos")])
         self._events: list[dict] = []
         self._dragging = False
+        self._drag_correct = False  # the drag under way began in correction mode
         self._pointer: tuple[float, float] | None = None
+        self.correcting = False     # landmark correction mode (L)
         self.closed = False
         glfw.set_mouse_button_callback(self.handle, self._on_button)
         glfw.set_cursor_pos_callback(self.handle, self._on_cursor)
@@ -123,25 +132,37 @@ class Window:
             self._pointer = glfw.get_cursor_pos(self.handle)
         return self.to_frame(*self._pointer)
 
+    @property
+    def pointer(self) -> tuple[float, float] | None:
+        """The cursor's last position in frame pixels; None before it moved over the window."""
+        return None if self._pointer is None else self.to_frame(*self._pointer)
+
+    def _pointer_event(self, kind: str, x: float, y: float) -> None:
+        event = {"kind": kind, "x": x, "y": y, "handle": 0}
+        if self._drag_correct:
+            event["correct"] = True
+        self._events.append(event)
+
     def _on_button(self, _win, button, action, mods) -> None:
         x, y = self._cursor()
         if button == glfw.MOUSE_BUTTON_LEFT:
             if action == glfw.PRESS:
-                self._dragging = True
-                self._events.append({"kind": "press", "x": x, "y": y, "handle": 0})
+                self._dragging, self._drag_correct = True, self.correcting
+                self._pointer_event("press", x, y)
             elif action == glfw.RELEASE and self._dragging:
+                self._pointer_event("release", x, y)
                 self._dragging = False
-                self._events.append({"kind": "release", "x": x, "y": y, "handle": 0})
-        elif button == glfw.MOUSE_BUTTON_RIGHT and action == glfw.PRESS:
+        elif button == glfw.MOUSE_BUTTON_RIGHT and action == glfw.PRESS and not self.correcting:
             self._events.append({"kind": "command", "command": "toggle_static", "x": x, "y": y})
 
     def _on_cursor(self, _win, wx, wy) -> None:
         self._pointer = (wx, wy)
         if self._dragging:
-            x, y = self.to_frame(wx, wy)
-            self._events.append({"kind": "drag", "x": x, "y": y, "handle": 0})
+            self._pointer_event("drag", *self.to_frame(wx, wy))
 
     def _on_scroll(self, _win, _dx, dy) -> None:
+        if self.correcting:
+            return
         x, y = self._cursor()
         self._events.append({"kind": "depth", "depth": float(dy) * WHEEL_MM_PER_NOTCH, "x": x, "y": y, "handle": 0})
 
@@ -154,6 +175,13 @@ class Window:
             self._events.append({"kind": "command", "command": "reset"})
         elif key == glfw.KEY_U or (key == glfw.KEY_Z and mods & glfw.MOD_CONTROL):
             self._events.append({"kind": "command", "command": "undo"})
+        elif key == glfw.KEY_L:
+            if self._dragging:  # a drag under way ends where it is, in the mode it began in
+                self._pointer_event("release", *self._cursor())
+                self._dragging = False
+            self.correcting = not self.correcting
+        elif key == glfw.KEY_C:
+            self._events.append({"kind": "command", "command": "clear_corrections"})
         elif key == glfw.KEY_S:
             # The deformer writes the edits as a JSON preset (in its preset_dir), named by the time.
             self._events.append({"kind": "command", "command": "save_preset",
