@@ -8,8 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from facesculpt.msgs import FaceState, InputEvent, decode, encode
-from facesculpt.nodes.renderer.correction_mode import (CORRECTED_BGR, LANDMARK_BGR, CorrectionMode,
-                                                       landmark_name)
+from facesculpt.nodes.renderer.correction_mode import CORRECTED_BGR, LANDMARK_BGR, CorrectionMode, landmark_name
 
 
 def _state(face_id=0, corrected=()):
