@@ -13,7 +13,8 @@ Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames
 for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea"),
 feather_px, dilate_px, output (video path), fps (of the video file), publish, overlay
 (fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
-the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s.
+the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s,
+pinch_markers (a marker at each pinch of the pinch node's input/events, ``pinch_markers.py``).
 """
 
 from __future__ import annotations
@@ -28,12 +29,13 @@ from facesculpt.geometry.hand_regions import hand_region_mask
 from facesculpt.msgs import Deformation, FaceModel, FaceState, FrameDone, HandLandmarks, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
-from facesculpt.runtime.qos import EVERY_MESSAGE, SENSOR_DATA
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, SENSOR_DATA
 
 from .compositor import Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
 from .pairing import FramePairer
+from .pinch_markers import PinchMarkers, draw_pinch_markers
 
 
 class RendererNode(Node):
@@ -65,6 +67,8 @@ class RendererNode(Node):
                              "is composited back from the input"),
         "hands_max_age_s": Param(0.25, "the oldest hands message (relative to the frame) still used when the "
                                        "frame's own has not arrived, s", range=(0.0, 10.0)),
+        "pinch_markers": Param(False, "draw a small marker at each pinch (the pinch node's press..release on "
+                                      "input/events) on the output frame: window, video and render/image"),
     }
     NOTICE_S = 3.0                    # how long the window shows a notice (a saved preset), s
     _notice: tuple[str, float] | None = None   # (text, monotonic time it ends)
@@ -91,6 +95,9 @@ class RendererNode(Node):
         self._hands: list[HandLandmarks] = []  # the newest hands messages, oldest first
         if p.hands:
             self.subscribe("hands/landmarks", HandLandmarks, self.on_hands, qos=EVERY_MESSAGE)
+        self.pinches = PinchMarkers() if p.pinch_markers else None
+        if self.pinches is not None:
+            self.subscribe("input/events", InputEvent, self.pinches.push, qos=EVENTS)
         self.model: FaceModel | None = None
         self.deformation: Deformation | None = None
         self.compositor: Compositor | None = None
@@ -229,6 +236,8 @@ class RendererNode(Node):
                 handles_px = px[d.handles[d.handles < len(px)]]
                 roi_px = px[d.roi[d.roi < len(px)]]
         self.correction.observe(states)
+        if self.pinches is not None:
+            out = draw_pinch_markers(out, self.pinches.at(frame_msg.stamp))
         with self.stage("output"):
             if self.image_pub is not None:
                 self.image_pub.publish(Image(stamp=frame_msg.stamp, seq=frame_msg.seq, frame_id=frame_msg.frame_id,
