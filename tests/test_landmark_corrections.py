@@ -75,43 +75,61 @@ def test_correcting_three_landmarks_improves_the_other_points(annotated):
     assert all(a < b for a, b in zip(after, before))
 
 
+@pytest.mark.parametrize("video", ["d3", "d0"])
 @pytest.mark.parametrize("model_name", ["sfm", "facemesh"])
-def test_a_correction_follows_the_head(model_name, data_dir, models_dir):
+def test_a_correction_follows_the_head(model_name, video, data_dir, models_dir):
     """Landmark 34 (nose base, centre) is dragged onto the left nostril where the network sees
-    iBUG 33; while the head turns, the corrected point stays near that nostril (the fit's own
-    landmark 33 against the network's is printed beside it)."""
+    iBUG 33, and the fitter uses the correction in every later frame, as the fitter node does;
+    while the head turns (d3: fast and expressive; d0: a calmer talking head), the correction's
+    target stays near that nostril, within 2 % of the inter-ocular distance (median). Its head
+    frame comes from the detected nose and eyes, not from the fit the correction pulls (with the
+    fit's own pose the target ran away: the figures printed beside it)."""
     import cv2
 
-    from facesculpt.app.pipeline import Pipeline
+    from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
+    from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
+    from facesculpt.nodes.fitter.corrections import ibug68_points
+    from facesculpt.nodes.fitter.stage import fit_landmarks
+    from facesculpt.nodes.landmarks import LandmarkDetector
 
-    cap = cv2.VideoCapture(str(data_dir / "video" / "d3.mp4"))
-    corrections = LandmarkCorrections()
-    drift, fit_error, yaw = [], [], []
-    with Pipeline(model_name) as pipeline:
-        for i in range(120):
-            ok, frame = cap.read()
-            assert ok
-            fits = pipeline.fit_faces(frame, i / 30.0)
-            seen = to_ibug68(pipeline.detector._faces()[0].points)
-            model = pipeline.faces.fitters[0].model
-            names = {str(n): int(v) for n, v in zip(model.landmark_names, model.landmark_vertices)}
-            nose_base, nostril = fit_id(34, model.dense), fit_id(33, model.dense)
-            iod = np.linalg.norm(seen[36] - seen[45])
-            still = i == 30 or (i < 30 and np.linalg.norm(fits[0].projected[names[nostril]] - seen[32]) < 0.005 * iod)
-            if not len(corrections) and still:  # a person corrects on a frame where the fit sits still
-                corrections.set(nose_base, seen[32], fits[0], model)
-            elif len(corrections):
-                drift.append(np.linalg.norm(corrections.targets(fits[0])[nose_base] - seen[32]) / iod)
-                fit_error.append(np.linalg.norm(fits[0].projected[names[nostril]] - seen[32]) / iod)
-                yaw.append(fits[0].yaw_pitch_roll[0])
+    cap = cv2.VideoCapture(str(data_dir / "video" / f"{video}.mp4"))
+    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+    detector, model = LandmarkDetector(), load_model(model_name)
+    frames = []
+    while len(frames) < 120:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        faces = detector.track(frame)
+        frames.append(faces[0].points if faces else None)
+        h, w = frame.shape[:2]
     cap.release()
-    print(f"\n{model_name}: corrected point vs the nostril, % IOD: median {100 * np.median(drift):.2f}, "
-          f"max {100 * np.max(drift):.2f}; the fit's own landmark: median {100 * np.median(fit_error):.2f}")
-    assert np.ptp(yaw) > 5  # the head turned while the correction was kept
-    # The head's frame carries the correction; what the face does within it (d3 is expressive)
-    # and the fit's own lag add to the distance.
-    assert np.median(drift) < 0.04 and np.max(drift) < 0.08
-
+    nose_base = fit_id(34, model.dense)
+    figures = {}
+    for head_frame in ("detected", "fit"):  # the head's pose: from the detected points, or the fit's own
+        fitter = make_fitter(model, FitterConfig(), (w, h), intrinsics_from_fov(w, h, 60.0))
+        corrections, last, drift, yaw = LandmarkCorrections(), None, [], []
+        for i, points in enumerate(frames):
+            if points is None:
+                continue
+            seen = to_ibug68(points)
+            given = points if head_frame == "detected" else None
+            targets = corrections.targets(last, given) if len(corrections) else None
+            fit = fit_landmarks(fitter, points[None], [1.0], i / fps, 0.5, targets).fit
+            iod = np.linalg.norm(seen[36] - seen[45])
+            if len(corrections):
+                drift.append(np.linalg.norm(targets[nose_base] - seen[32]) / iod)
+                yaw.append(fit.yaw_pitch_roll[0])
+            elif i == 30 or (i < 30 and np.linalg.norm(ibug68_points(fit, model.dense)[32] - seen[32]) < 0.005 * iod):
+                corrections.set(nose_base, seen[32], fit, model, given)  # on a frame where the fit sits still
+            last = fit
+        figures[head_frame] = (np.median(drift), np.max(drift), np.ptp(yaw))
+    (median, worst, turned), before = figures["detected"], figures["fit"]
+    print(f"\n{video} {model_name}: corrected point vs the nostril, % IOD: median {100 * median:.2f}, max "
+          f"{100 * worst:.2f} (head frame of the corrected fit: median {100 * before[0]:.2f}, max {100 * before[1]:.2f})")
+    assert turned > 2  # the head turned while the correction was kept (degrees of yaw)
+    assert median < 0.02 and worst < 0.05
+    assert median < before[0]
 
 def test_the_fitter_node_takes_a_correction_from_input_events(monkeypatch, tmp_path, data_dir, models_dir):
     import cv2

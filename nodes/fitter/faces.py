@@ -107,7 +107,8 @@ class FaceFitters:
     def fit(self, points, scores, track_ids, stamp_s: float, min_score: float = 0.5,
             corrections: dict | None = None) -> list[FaceFit]:
         """Fit the selected faces of one frame. points (F, N, 2|3) px, scores (F,), track_ids (F,)
-        (None: 0, 1, ...); stamp_s: frame time (s); corrections: face key -> {fit id: (x, y) px}.
+        (None: 0, 1, ...); stamp_s: frame time (s); corrections: face key -> {fit id: (x, y) px}, or
+        a function of that face's points this frame ((N, 2|3) px) returning them.
         Returns one :class:`FaceFit` per selected face (fitted or not, with the reason), in the
         frame's order; [] when none is selected."""
         self._frame += 1
@@ -122,8 +123,10 @@ class FaceFitters:
         for i in self.selected(ids):
             key = self._key(ids[i])
             face_scores = scores[i:i + 1] if scores.size == points.shape[0] else scores[:0]
-            outcome = fit_landmarks(self.fitter(key), points[i:i + 1], face_scores, stamp_s, min_score,
-                                    (corrections or {}).get(key))
+            targets = (corrections or {}).get(key)
+            if callable(targets):
+                targets = targets(points[i])
+            outcome = fit_landmarks(self.fitter(key), points[i:i + 1], face_scores, stamp_s, min_score, targets)
             out.append(FaceFit(key, ids[i], outcome, i))
         return out
 

@@ -15,6 +15,8 @@ exception.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState, InputEvent
@@ -71,6 +73,7 @@ class FitterNode(Node):
         self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
         self.corrections: dict[int, LandmarkCorrections] = {}  # face key -> its landmark corrections
         self.last_fits: dict = {}  # face key -> its last FitResult
+        self.last_points: dict = {}  # face key -> its detected points (468, 3) px in that frame
         self.model: MorphableModel | None = None
         self.faces: FaceFitters | None = None
         self.camera_key = None
@@ -173,7 +176,8 @@ class FitterNode(Node):
             key = self._face_near(faces, msg.x, msg.y)
             fitter = self.faces.fitters[key]
             self.corrections.setdefault(key, LandmarkCorrections()).set(
-                fit_id(msg.argument, fitter.model.dense), (msg.x, msg.y), self.last_fits[key], fitter.model)
+                fit_id(msg.argument, fitter.model.dense), (msg.x, msg.y), self.last_fits[key], fitter.model,
+                self.last_points.get(key))
         except (ValueError, KeyError) as exc:
             self.count("bad_correction")
             self.last_error = f"correct_landmark: {exc}"
@@ -256,7 +260,9 @@ class FitterNode(Node):
             self.count("fit_refused")
             self.last_error = str(exc)
             return
-        targets = {k: c.targets(self.last_fits[k]) for k, c in self.corrections.items() if c and k in self.last_fits}
+        # Each face's targets from its points in this frame (the head's pose, not a fit they pulled).
+        targets = {k: partial(c.targets, self.last_fits[k]) for k, c in self.corrections.items()
+                   if c and k in self.last_fits}
         with self.stage("fit"):
             faces = self.faces.fit(msg.points, msg.scores, msg.track_ids, msg.stamp * 1e-9, self.params.min_score,
                                    targets)
@@ -270,7 +276,7 @@ class FitterNode(Node):
                     self.last_error = f.outcome.error
         for f in fitted:
             result = f.outcome.fit
-            self.last_fits[f.key] = result
+            self.last_fits[f.key], self.last_points[f.key] = result, np.asarray(msg.points[f.index])
             dense = self.faces.fitters[f.key].model.dense
             corrected = self.corrections.get(f.key)
             self.state_pub.publish(FaceState(
