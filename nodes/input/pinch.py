@@ -55,6 +55,7 @@ class PinchNode(Node):
 
     def on_hands(self, msg: HandLandmarks) -> None:
         for event in self.tracker.update(msg.points, msg.track_ids, msg.stamp * 1e-9):
+            event.stamp = msg.stamp  # exactly the frame's (seconds as a float lose the last digits of ns)
             self.events.publish(event)
             self.count(event.kind)
 
