@@ -178,3 +178,35 @@ def test_the_fitter_node_takes_a_correction_from_input_events(monkeypatch, tmp_p
         assert not node.corrections
     finally:
         node.close()
+
+
+@pytest.mark.parametrize("projection", ["perspective", "orthographic"])
+def test_the_head_frame_comes_from_the_detected_points(projection, data_dir, models_dir):
+    """A correction set with the frame's detected points is found again at its pixel on that frame,
+    moves with the detected points (shifted 12 px right and 5 px down, so does the target), and
+    does not move when only the fit is pulled elsewhere (the fit's pose is not its head frame)."""
+    import cv2
+
+    from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
+    from facesculpt.nodes.landmarks import LandmarkDetector
+
+    frame = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4")).read()[1]
+    h, w = frame.shape[:2]
+    points = LandmarkDetector().detect(frame)[0].points.astype(np.float64)
+    model = load_model("sfm")
+    fitter = make_fitter(model, FitterConfig(projection=projection), (w, h),
+                         np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1.0]]))
+    fit = fitter.fit(to_ibug68(points), IBUG)
+    corrections = LandmarkCorrections()
+    xy = to_ibug68(points)[8] + [4.0, 9.0]  # the chin, a little off
+    corrections.set("9", xy, fit, model, points)
+    assert corrections.ibug(dense=False) == [9]
+    assert np.linalg.norm(corrections.targets(fit, points)["9"] - xy) < 0.05
+    moved = points.copy()
+    moved[:, :2] += [12.0, 5.0]
+    # (under perspective a shift of the picture is nearly a sideways move of the head: within 1 px)
+    assert np.linalg.norm(corrections.targets(fit, moved)["9"] - (xy + [12.0, 5.0])) < 1.0
+    pulled = fitter.fit(to_ibug68(moved), IBUG, corrections={"9": xy + [12.0, 40.0]})  # a fit pulled far off
+    assert np.linalg.norm(corrections.targets(pulled, moved)["9"] - (xy + [12.0, 5.0])) < 1.0
+    corrections.clear()
+    assert not len(corrections) and corrections.reference is None
