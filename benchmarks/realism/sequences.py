@@ -156,6 +156,7 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
     import time
 
     out_dir.mkdir(parents=True, exist_ok=True)
+    video, out_dir, preset = Path(video).resolve(), Path(out_dir).resolve(), Path(preset).resolve()
     cmd = [sys.executable, "-m", "facesculpt.cli", "process", str(video), "-o", str(out_dir / "%05d.png"),
            "--edits", str(preset), "--model", model, "--neutral-frames", str(neutral_frames), "--quiet"]
     if max_frames:
@@ -167,7 +168,9 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
     if pythonpath:
         first = str(importable_checkout(Path(pythonpath), out_dir / "pythonpath"))
         env["PYTHONPATH"] = os.pathsep.join(p for p in (first, env.get("PYTHONPATH", "")) if p)
-    done = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    # run from out_dir: ``python -m`` puts the working directory first on sys.path, and from a
+    # checkout that would import its facesculpt before the one ``pythonpath`` names
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=out_dir)
     took = time.perf_counter() - t0
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
