@@ -32,8 +32,6 @@ PHOTO = "google_sample_woman_hands.jpg"
 BACKDROP_GREY = 70       # the photo's backdrop is darker than this, the hand brighter
 HULL_WIDTH = 0.30        # a finger's hull as wide as this share of the hand's size
 PIECE_START = 0.5        # the moved piece starts this far from the index knuckle to its next joint
-AIM = 0.0
-INDEX_ON_TOP = False
 OPEN_STRETCH = 1.25      # the open pose's index finger, this much longer beyond PIECE_START
 
 
@@ -97,23 +95,22 @@ def hand_sprites(photo: np.ndarray, points: np.ndarray) -> tuple[HandSprite, Han
     src = photo.astype(np.float32)
     backdrop = np.zeros_like(src)
 
-    def pose(A: np.ndarray, moving: np.ndarray, index_on_top: bool) -> HandSprite:
+    def pose(A: np.ndarray, moving: np.ndarray) -> HandSprite:
+        """The hand with the ``moving`` pixels moved by the linear map ``A`` about ``base``, under
+        the thumb."""
         M = np.hstack([A, (base - A @ base)[:, None]])
         img = cv2.warpAffine(src, M, (shape[1], shape[0]), flags=cv2.INTER_LINEAR)
         a = cv2.warpAffine(moving.astype(np.float32), M, (shape[1], shape[0]), flags=cv2.INTER_LINEAR)
-        if index_on_top:
-            image = _over(_over(backdrop, src, rest), img, a)
-        else:
-            image = _over(_over(_over(backdrop, src, rest), img, a), src, thumb.astype(np.float32))
+        image = _over(_over(_over(backdrop, src, rest), img, a), src, thumb.astype(np.float32))
         out_alpha = np.clip(np.maximum(np.maximum(rest, a), thumb), 0.0, 1.0)
         return HandSprite(image, out_alpha.astype(np.float32), P[THUMB_TIP].copy())
 
     stretch = np.eye(2) + (OPEN_STRETCH - 1.0) * np.outer(axis, axis)
-    v0, v1 = P[INDEX_TIP] - base, P[THUMB_TIP] + AIM * (P[THUMB_TIP] - P[INDEX_TIP]) - base
+    v0, v1 = P[INDEX_TIP] - base, P[THUMB_TIP] - base
     shorten = np.eye(2) + (np.linalg.norm(v1) / np.linalg.norm(v0) - 1.0) * np.outer(axis, axis)
     turn = np.arctan2(v1[1], v1[0]) - np.arctan2(v0[1], v0[0])
     rotate = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
-    return pose(stretch, piece, False), pose(rotate @ shorten, piece & (1 - thumb), INDEX_ON_TOP)
+    return pose(stretch, piece), pose(rotate @ shorten, piece & (1 - thumb))
 
 
 @dataclass
