@@ -271,7 +271,8 @@ def test_chin_preset_outline_is_a_smooth_curve_not_a_polygon(gl, data_dir, detec
     frame = read_frames(data_dir, "d0")[0]
     H, W = frame.shape[:2]
     pose = place_fitted(facemesh_model(), frame, detector)
-    stack = EditStack(pose.rest, pose.triangles, list(pose.landmarks), list(pose.landmarks.values()))
+    # a single-vertex handle (grip 0): the sharpest corner the mesh can make, which the subdivision must round
+    stack = EditStack(pose.rest, pose.triangles, list(pose.landmarks), list(pose.landmarks.values()), grip=0.0)
     stack.apply_preset(read_preset("chin"))
     deformed = merge_deformation(pose.fitted, pose.R, pose.scale, stack.solve())
     width = float(np.ptp(pose.projected[:, 0]))
