@@ -125,8 +125,9 @@ class LandmarkCorrections:
 
     def head_pose(self, fit, points=None) -> tuple[np.ndarray, np.ndarray, float]:
         """(R, t, s) of the head in the frame of ``points`` (one face's detected points, (468, 2|3)
-        or (68, 2|3) px): the reference posed on them, warm-started from the last frame; the fit's
-        own pose when there are no points or no reference (or too few of its points were seen)."""
+        or (68, 2|3) px): the reference posed on them, warm-started from the last frame. Without a
+        reference, the fit's own pose; without points (or with too few of the reference's seen),
+        the reference's last pose (the fit's before there is one)."""
         own = (np.asarray(fit.R, np.float64), np.asarray(fit.t, np.float64), float(fit.scale))
         if self.reference is None or points is None:
             return self.pose or own
@@ -139,7 +140,7 @@ class LandmarkCorrections:
                 R, t, s = pose.scaled_orthographic(X[ok], x[ok], None, (R0, s0))
             else:
                 (R, t), s = pose.perspective(X[ok], x[ok], fit.K, None, (R0, t0)), 1.0
-        except pose.PoseError:
+        except (pose.PoseError, np.linalg.LinAlgError):
             return self.pose or own
         self.pose = (R, np.asarray(t, np.float64), float(s))
         return self.pose
