@@ -254,16 +254,13 @@ class EditStack:
         return float(np.linalg.norm(self.rest[edit.roi] - self.rest[vertex], axis=1).max()) * self.grip
 
     def _grip_of(self, vertex: int, radius: float, metric: str) -> tuple[np.ndarray, np.ndarray]:
-        """(vertices, distances mm) within ``radius`` of ``vertex`` or next to it by an edge, the
-        vertex itself excluded."""
+        """(vertices, distances mm) within ``radius`` of ``vertex``, the vertex itself excluded."""
         key = (vertex, radius, metric)
         if key not in self._grips:
-            ring = self._graph[vertex].indices  # a coarse mesh's grip is at least the handle's neighbours
-            d = distances_from(self.rest, [vertex], metric, graph=self._graph,
-                               limit=max(radius, float(self._graph[vertex].data.max(initial=0.0))))
-            inside = d <= radius
-            inside[ring] = True
-            near = np.flatnonzero(inside)
+            # no "at least the neighbours" rule: on the face mesh's coarse outline a neighbour can
+            # lie half an ROI away, and moving it rigidly overshot the cheeks and jaw edits
+            d = distances_from(self.rest, [vertex], metric, graph=self._graph, limit=radius)
+            near = np.flatnonzero(d <= radius)
             near = near[near != vertex]
             self._grips[key] = (near, d[near])
         return self._grips[key]
