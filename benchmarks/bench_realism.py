@@ -24,6 +24,10 @@ seamless the re-rendered region is on real videos.
    the ground truth: the median of that reach and of its error |1 - reach| in %), per yaw bin.
    The "ground truth (measurement check)" row is the truth's measurement over the true
    projected displacement: the patch moves less than its centre where the edit falls off.
+   Issue 16: the edits of ``--atlas-edits`` (default: ``nose_far``, the nose pulled far out,
+   which shows surface the turned head hides or foreshortens) run a second time with
+   ``process --atlas on`` (the face's texture memory): the row "MODEL + atlas", and crops
+   ``crops_atlas_EDIT_MODEL.png`` (input | without the atlas | with it | ground truth).
 4. Real videos (../shared/data/video/d3.mp4, d12.mp4; no ground truth): sharpness of the
    re-rendered region (where the result differs from the input) against the input's, and the
    seam against the input's gradients on the same band.
@@ -56,7 +60,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from realism.edits import EDITS, write_preset  # noqa: E402
+from realism.edits import ATLAS_EDITS, EDITS, write_preset  # noqa: E402
 from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
 from realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
 from realism.scene import make_scene  # noqa: E402
@@ -77,6 +81,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--real-videos", default="d3,d12", help="shared videos to score without ground truth ('' for none)")
     p.add_argument("--real-frames", type=int, default=90, help="frames of each real video (default 90)")
     p.add_argument("--neutral-frames", type=int, default=30, help="process --neutral-frames; scoring starts after them")
+    p.add_argument("--atlas-edits", default=",".join(ATLAS_EDITS),
+                   help=f"edits also run with process --atlas on (default {','.join(ATLAS_EDITS)}; '' for none)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
     p.add_argument("--pythonpath", default="", help="run process with this folder first on PYTHONPATH (a copy of "
@@ -85,6 +91,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     a.models = [m for m in a.models.split(",") if m]
     a.edits = [e for e in a.edits.split(",") if e]
     a.real_videos = [v for v in a.real_videos.split(",") if v]
+    a.atlas_edits = [e for e in a.atlas_edits.split(",") if e]
     bad = [e for e in a.edits if e not in EDITS]
     if bad:
         p.error(f"unknown edit {bad[0]!r} (choose from {', '.join(EDITS)})")
@@ -153,6 +160,33 @@ def save_crops(seq: Sequences, edit: str, label: str, frames: list, liq: dict, r
     cv2.imwrite(str(path), side_by_side(panels, boxes))
 
 
+def save_atlas_crops(seq: Sequences, edit: str, without: list, with_atlas: list, rows: list[int], path: Path) -> None:
+    H, W = seq.inputs[0].shape[:2]
+    boxes = crop_boxes([seq.truth[edit][i] for i in rows], [seq.inputs[i] for i in rows], (W, H))
+    panels = [[(f"input yaw {seq.yaw[i]:+.0f}", seq.inputs[i]), ("without atlas", without[i]),
+               ("with atlas", with_atlas[i]), ("ground truth", seq.truth[edit][i])] for i in rows]
+    cv2.imwrite(str(path), side_by_side(panels, boxes))
+
+
+def run_with_atlas(args, data, seq, video, preset, e, m, frames, scored, truth_shifts, rows, out, timings) -> dict:
+    """Edit ``e`` with model ``m`` once more with ``process --atlas on``: its scores (and the crops
+    against ``frames``, the run without the atlas)."""
+    folder = out / "frames" / f"synthetic_{e}_{m}_atlas"
+    try:
+        got, took = run_process(video, folder, preset, m, neutral_frames=args.neutral_frames,
+                                pythonpath=args.pythonpath, data=data, extra_args=("--atlas", "on"))
+    except RuntimeError as exc:
+        print(exc, file=sys.stderr)
+        return {"error": str(exc)}
+    timings[f"process_{e}_{m}_atlas_s"] = took
+    if len(got) < args.frames:
+        return {"error": f"process wrote {len(got)} of {args.frames} frames"}
+    save_atlas_crops(seq, e, frames, got, rows, out / f"crops_atlas_{e}_{m}.png")
+    if not args.keep_frames:
+        shutil.rmtree(folder)
+    return score_sequence(seq, e, got, scored, truth_shifts)
+
+
 def synthetic(args, data: Path, out: Path) -> dict:
     """Parts 1–3: render, run process per model and edit, score, crop."""
     t0 = time.perf_counter()
@@ -190,6 +224,9 @@ def synthetic(args, data: Path, out: Path) -> dict:
                 continue
             results[e][m] = score_sequence(seq, e, frames, scored, truth_shifts)
             save_crops(seq, e, f"result ({m})", frames, liq, rows, out / f"crops_{e}_{m}.png")
+            if e in args.atlas_edits:
+                results[e][f"{m} + atlas"] = run_with_atlas(args, data, seq, video, presets[e], e, m, frames, scored,
+                                                            truth_shifts, rows, out, timings)
             if not args.keep_frames:
                 shutil.rmtree(folder)
         results[e]["ground truth (measurement check)"] = {

@@ -41,7 +41,13 @@ EDITS = {
                        "both cheeks pushed 6 mm toward the midline and 4 mm in", True),
     "jaw": EditSpec("jaw", {"vertex:1886": (-7.0, 0.0, 0.0), "vertex:1882": (7.0, 0.0, 0.0)}, 40.0,
                     "both sides of the jaw 7 mm toward the midline", True),
+    # issue 16: an edit that shows surface the turned head hides or foreshortens (scored with and
+    # without the texture atlas, process --atlas on|off)
+    "nose_far": EditSpec("nose_far", {"nose_tip": (0.0, -4.0, 18.0)}, 35.0, "nose tip pulled 18 mm out and 4 mm down"),
 }
+
+#: The edits the benchmark also runs with ``process --atlas on`` (surface revealed by the edit).
+ATLAS_EDITS = ("nose_far",)
 
 
 def handle_vertex(name: str, landmarks: dict[str, int]) -> int:

@@ -148,10 +148,12 @@ def importable_checkout(checkout: Path, shim: Path) -> Path:
 
 
 def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames: int = 0,
-                neutral_frames: int = 30, pythonpath: str = "", data: Path | None = None) -> tuple[list, float]:
+                neutral_frames: int = 30, pythonpath: str = "", data: Path | None = None,
+                extra_args: tuple = ()) -> tuple[list, float]:
     """``facesculpt process VIDEO -o OUT/%05d.png --edits PRESET --model MODEL`` in a
     subprocess (with ``pythonpath`` first on its PYTHONPATH when given: another build of
-    facesculpt) and FACESCULPT_DATA set to ``data`` when given (where ``sfm`` is read): (the
+    facesculpt) and FACESCULPT_DATA set to ``data`` when given (where ``sfm`` is read), with
+    ``extra_args`` (more process options, e.g. ``--atlas on``) at the end: (the
     frames written, seconds taken). RuntimeError with its stderr on failure."""
     import time
 
@@ -161,6 +163,7 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
            "--edits", str(preset), "--model", model, "--neutral-frames", str(neutral_frames), "--quiet"]
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]
+    cmd += list(extra_args)
     t0 = time.perf_counter()
     env = dict(os.environ)
     if data is not None:

@@ -117,7 +117,9 @@ class Pipeline:
     are not fitted (the other fitter options are :class:`FitterConfig`'s defaults, the fitter
     node's); faces: which faces are fitted and edited, "largest", "all" or a face number from 1
     (:func:`facesculpt.nodes.fitter.parse_faces`), each with its own fitter and neutral;
-    inpaint, feather_px, dilate_px: the compositor's; detector: a :class:`LandmarkDetector` to
+    inpaint, feather_px, dilate_px: the compositor's; atlas: the face's texture memory (issue 16),
+    "off", "on" (learned and blended where the frame sees the edited surface badly) or "learn"
+    (learned only, for :meth:`texture`), in the model's UV layout (:meth:`uv_layout`); detector: a :class:`LandmarkDetector` to
     reuse (reset here), else one is made. The GL context is made here; call :meth:`close` (or use
     ``with``) to free it.
     """
@@ -125,7 +127,7 @@ class Pipeline:
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
                  neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
-                 faces: str | int = "largest", detector: LandmarkDetector | None = None):
+                 faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off"):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -137,7 +139,11 @@ class Pipeline:
         self.neutral_frames = int(neutral_frames)
         self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames)
         self.min_score = float(min_score)
-        self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px}
+        if atlas not in ("off", "on", "learn"):
+            raise ValueError(f"atlas must be off, on or learn, got {atlas!r}")
+        self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px,
+                                   "atlas": atlas != "off", "atlas_blend": atlas == "on"}
+        self._uv = None
         self.faces: FaceFitters | None = None
         self.compositor = None
         self.size: tuple[int, int] | None = None
@@ -237,12 +243,32 @@ class Pipeline:
             t0 = time.perf_counter()
             compositor = self._compositor()
             out = compositor.render(out, fit.vertices, fit.projected, self.model.triangles, deformed,
-                                    keep_mask=keep_mask)
+                                    keep_mask=keep_mask, uv=self.uv_layout(), face_key=key)
             timings["render"] += (time.perf_counter() - t0) * 1e3
             for k, v in compositor.timings.items():
                 if k != "total":
                     render_ms[k] = render_ms.get(k, 0.0) + v
         return FrameResult(out, fits[min(fits)], timings, render_ms, fits)
+
+    def uv_layout(self) -> np.ndarray | None:
+        """(V, 2) float32 texture coordinates of the model (:func:`uv_layout`: its own, or a
+        frontal projection of its mean); None with the atlas off."""
+        if not self.compositor_options["atlas"]:
+            return None
+        if self._uv is None:
+            from facesculpt.nodes.renderer.texture_atlas import uv_layout
+
+            self._uv = uv_layout(self.model.mean.reshape(-1, 3), self.model.texcoords)
+        return self._uv
+
+    def texture(self, key: int | None = None) -> np.ndarray | None:
+        """The atlas of face ``key`` (default: the first face that has one) as (S, S, 3) uint8 BGR
+        in its own lighting, in the model's UV layout; None when there is none."""
+        atlases = {} if self.compositor is None else self.compositor.atlases
+        if not atlases:
+            return None
+        atlas = atlases.get(key) if key is not None else atlases[min(atlases)]
+        return None if atlas is None or atlas.updates == 0 else atlas.image()
 
     def process(self, frame_bgr: np.ndarray, stamp_s: float, keep_mask: np.ndarray | None = None) -> FrameResult:
         """One frame through every stage; each face's edit (if any) merged into it; ``keep_mask``

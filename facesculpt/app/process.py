@@ -78,6 +78,12 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads per network (default 1)")
     p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
                    help="horizontal field of view assumed for the camera (default 60)")
+    p.add_argument("--atlas", choices=("on", "off"), default="off",
+                   help="keep a texture memory (UV atlas) of the face over the frames and take colours from it "
+                        "where the frame sees the edited surface badly: stretched or hidden (default off)")
+    p.add_argument("--save-texture", default="", metavar="FILE.png",
+                   help="write the face's texture atlas (in the model's UV layout) as a PNG at the end "
+                        "(learned even with --atlas off)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_process)
 
@@ -268,6 +274,20 @@ def _render_frames(pipeline, source, args, fps: float, total, output, export, st
                 raise KeyboardInterrupt
 
 
+def _atlas_options(args) -> tuple[str, str]:
+    """(--save-texture's file or "", the Pipeline's atlas mode: "on", "learn" (only to save it) or
+    "off"); a texture file over the input or not a .png raises ValueError."""
+    from facesculpt.app.safe_output import refuse_output_over_input
+
+    save_texture = getattr(args, "save_texture", "")
+    if save_texture:
+        refuse_output_over_input(args.input, save_texture)
+        if Path(save_texture).suffix.lower() != ".png":
+            raise ValueError(f"--save-texture {save_texture}: the atlas is written as a .png")
+    atlas = getattr(args, "atlas", "off")
+    return save_texture, "on" if atlas == "on" else ("learn" if save_texture else "off")
+
+
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:
     """One video through the pipeline with the options of ``args`` (the command line's); returns
     (exit status, the one line that says what was written). ``detector``: a
@@ -296,8 +316,9 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     if total and args.max_frames:
         total = min(total, args.max_frames)
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input)
+    save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
-                        faces=selection, detector=detector)
+                        faces=selection, detector=detector, atlas=atlas)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 
@@ -322,6 +343,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
         raise
     finally:
         source.close()
+        texture = pipeline.texture() if save_texture else None
         pipeline.close()
     if output.frames == 0:
         if hasattr(output, "discard"):
@@ -330,6 +352,11 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     _finish(output, completed=True)
     if export is not None:
         export.write()
+    if save_texture:
+        if texture is None:
+            print(f"facesculpt: no face seen: no texture written to {save_texture}", file=sys.stderr)
+        elif not cv2.imwrite(str(save_texture), texture):
+            raise RuntimeError(f"cannot write {save_texture}")
     frames_with_face, faces_edited = seen["frames_with_face"], seen["faces_edited"]
     if presets and not faces_edited:
         how = "no face was found" if not frames_with_face else "no face the edits name was found"

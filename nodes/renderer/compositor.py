@@ -22,6 +22,12 @@ Per frame, on a box around the part of the face that moves only:
    the face's size if that is more; where the source map jumps (a fold of the moved surface)
    the changed pixels are anti-aliased. Only changed and inpainted pixels are written: every
    other pixel is the input's, bit for bit, by construction.
+6. with ``atlas`` on (issue 16), the face's texture memory (:mod:`.texture_atlas`) is updated
+   from the input frame (every ``atlas_every`` frames; :mod:`.atlas_raster`), and where the
+   input sees a changed pixel's surface badly (the source map stretches it more than
+   ``ATLAS_STRETCH`` to one, or the surface is hidden or grazing in the input:
+   ``ATLAS_GRAZING``), its sampled colour is blended toward the atlas's, in the frame's
+   lighting, as far as the atlas knows that texel.
 
 Steps 4-5 run on the CPU: on llvmpipe a GPU pass would add an upload and a readback of the same
 crop for work that numpy/OpenCV do cheaply on it (benchmarks/bench_renderer.py measures it).
@@ -36,12 +42,14 @@ import cv2
 import moderngl
 import numpy as np
 
+from .atlas_raster import AtlasRasterizer
 from .camera import estimate_projection, project
 from .gl_context import create_headless_context
 from .inpaint import INPAINT_METHODS, dilate, fill_by_parts, uncovered_mask
 from .mesh import close_holes
 from .source_map import SourceMapRenderer
 from .subdivision import levels_for, loop_subdivision
+from .texture_atlas import TextureAtlas
 from .warp import (
     IDENTITY_PX,
     INTERPOLATIONS,
@@ -55,7 +63,9 @@ from .warp import (
 )
 
 FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's size
-STAGES = ("camera", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
+STAGES = ("camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
+ATLAS_STRETCH = (1.5, 3.0)   # source-map stretch (linear) from which the atlas starts / fully takes over
+ATLAS_GRAZING = 0.35         # input-view frontality (cosine, 0 where hidden) under which the atlas takes over
 
 
 class Compositor:
@@ -68,7 +78,11 @@ class Compositor:
     the deformed outline (pixels; it grows to ``FEATHER_FRACTION`` of the face's size; 0: a hard
     edge); ``dilate_px`` growth of the region to inpaint (pixels); ``interpolation`` the kernel
     the frame is sampled with ("cubic", "lanczos", "linear"); ``subdivision`` Loop levels of
-    the render mesh (None: as many as keep it within 16384 triangles, at most 2).
+    the render mesh (None: as many as keep it within 16384 triangles, at most 2); ``atlas`` keep
+    and use the face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side,
+    ``atlas_every`` update it every N frames (the frames between only read it); ``atlas_blend``
+    False: learn the atlas, blend nothing from it (e.g. only to save it). ``atlases`` holds one
+    :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
     After each :meth:`render`, ``timings`` holds the stage times of that frame in ms
     (camera (with the subdivided vertices), draw, readback, masks, inpaint, texture (the
@@ -79,7 +93,8 @@ class Compositor:
 
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
                  inpaint: str = "pushpull", feather_px: float = 3.0, dilate_px: int = 2,
-                 telea_radius: float = 3.0, interpolation: str = "cubic", subdivision: int | None = None):
+                 telea_radius: float = 3.0, interpolation: str = "cubic", subdivision: int | None = None,
+                 atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True):
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -100,7 +115,16 @@ class Compositor:
         self.subdivision = subdivision
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_headless_context()
-        self.maps = SourceMapRenderer(self.ctx, width, height)
+        self.maps = SourceMapRenderer(self.ctx, width, height, extras=bool(atlas))
+        if atlas_every < 1:
+            raise ValueError(f"atlas_every must be >= 1, got {atlas_every}")
+        self.atlas_on, self.atlas_size, self.atlas_blend = bool(atlas), int(atlas_size), bool(atlas_blend)
+        self.atlases: dict = {}
+        self.atlas: TextureAtlas | None = TextureAtlas(atlas_size) if atlas else None
+        self._atlas_raster = AtlasRasterizer(self.ctx, atlas_size, width, height) if atlas else None
+        self.atlas_every = int(atlas_every)
+        self._atlas_frames = 0
+        self.atlas_region: np.ndarray | None = None   # (h, w) float32 atlas weight of the last box
         self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles)
         self._mesh_key: tuple | None = None
         self._closed = self._S = self._fine = None
@@ -152,11 +176,13 @@ class Compositor:
         children = self._fine[:, active].reshape(-1, 3)
         return np.concatenate([children, self._closed[~active]]), len(children)
 
-    def _check(self, frame, fitted, projected, deformed):
+    def _check(self, frame, fitted, projected, deformed, keep_mask=None):
         if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8
                 and frame.shape == (self.height, self.width, 3)):
             got = f"{frame.shape} {frame.dtype}" if isinstance(frame, np.ndarray) else type(frame).__name__
             raise ValueError(f"frame must be ({self.height}, {self.width}, 3) uint8 BGR, got {got}")
+        if keep_mask is not None and np.shape(keep_mask) != (self.height, self.width):
+            raise ValueError(f"keep_mask must be ({self.height}, {self.width}), got {np.shape(keep_mask)}")
         fitted = np.asarray(fitted, np.float64)
         projected = np.asarray(projected, np.float64)
         deformed = np.asarray(deformed, np.float64)
@@ -184,7 +210,7 @@ class Compositor:
     # -- the frame ---------------------------------------------------------------------------
     def render(self, frame_bgr: np.ndarray, fitted_vertices: np.ndarray, projected_px: np.ndarray,
                triangles: np.ndarray, deformed_vertices: np.ndarray,
-               keep_mask: np.ndarray | None = None) -> np.ndarray:
+               keep_mask: np.ndarray | None = None, uv: np.ndarray | None = None, face_key=0) -> np.ndarray:
         """The frame with the face replaced by its deformed version.
 
         frame_bgr: (H, W, 3) uint8, the frame the face was fitted on (not modified).
@@ -196,24 +222,25 @@ class Compositor:
             (Eq. 5: fitted + the edit rotated and scaled into the head pose).
         keep_mask: optional (H, W) bool, pixels composited back from the input afterwards (what
             is in front of the face, e.g. a hand: nothing re-rendered covers it); None: none.
+        uv, face_key: the face's (V, 2) texture coordinates in [0, 1] and key, for its atlas (step 6).
         V = 0 (no face) returns a copy of the frame. Returns a new (H, W, 3) uint8 frame; it
         equals ``frame_bgr`` exactly wherever the source position is unchanged (offset under
         ``IDENTITY_PX``) and outside the union of the original and deformed face regions
         (grown by ``dilate_px``). Raises ValueError on inputs of the wrong shape, type or size.
         """
         t_start = time.perf_counter()
-        fitted, projected, deformed = self._check(frame_bgr, fitted_vertices, projected_px, deformed_vertices)
-        if keep_mask is not None and np.shape(keep_mask) != (self.height, self.width):
-            raise ValueError(f"keep_mask must be ({self.height}, {self.width}), got {np.shape(keep_mask)}")
+        fitted, projected, deformed = self._check(frame_bgr, fitted_vertices, projected_px, deformed_vertices, keep_mask)
         self.box = None
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None
-        self.deformed_px = None
+        self.deformed_px = self.atlas_region = None
         V = fitted.shape[0]
         if V == 0:  # no face
             self.timings = {"total": (time.perf_counter() - t_start) * 1e3}
             return frame_bgr.copy()
         self._set_triangles(triangles, V)
         t0 = time.perf_counter()
+        uvq = self._update_atlas(frame_bgr, fitted, projected, triangles, uv, face_key, keep_mask)
+        t_atlas, t0 = (time.perf_counter() - t0) * 1e3, time.perf_counter()
         dst_px, depth = self.deformed_pixels(fitted, projected, deformed)
         self.deformed_px = dst_px
         offset = projected - dst_px
@@ -221,14 +248,13 @@ class Compositor:
         box = self._work_box(projected, dst_px, moved) if moved.any() else None
         out = frame_bgr.copy()
         if box is None:  # nothing moves, or not inside the frame: every later stage takes no time
-            self.timings = dict.fromkeys(STAGES, 0.0)
-            self.timings["camera"] = (time.perf_counter() - t0) * 1e3
-            self.timings["total"] = (time.perf_counter() - t_start) * 1e3
+            self.timings = {**dict.fromkeys(STAGES, 0.0), "camera": (time.perf_counter() - t0) * 1e3,
+                            "atlas": t_atlas, "total": (time.perf_counter() - t_start) * 1e3}
             return out
-        fine = self._S @ np.column_stack([dst_px, depth, offset]).astype(np.float32)
+        fine = self._S @ np.column_stack([dst_px, depth, offset] + ([uvq] if uvq is not None else [])).astype(np.float32)
         draw_tris, n_moving = self._draw_triangles(fine[:, 3:5])
         t1 = time.perf_counter()
-        self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box)
+        self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
         t2 = time.perf_counter()
         offsets, orig_mask = self.maps.read(box)
         t3 = time.perf_counter()
@@ -245,6 +271,7 @@ class Compositor:
         if block is not None:
             rows, cols = block
             warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation)
+            self._blend_atlas(warped, block, offsets, changed, box, uvq is not None)
         t6 = time.perf_counter()
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write,
@@ -252,16 +279,80 @@ class Compositor:
         if keep_mask is not None:  # what is in front of the face is the input's, bit for bit
             np.copyto(crop, frame_bgr[y0:y1, x0:x1], where=np.asarray(keep_mask[y0:y1, x0:x1], bool)[..., None])
         t7 = time.perf_counter()
-
         self.box = box
         self.original_region, self.deformed_region = orig_mask, covered.view(np.uint8)
         self.changed_region, self.inpainted_region = changed.view(np.uint8), fill
         self.timings = {
-            "camera": (t1 - t0) * 1e3, "draw": (t2 - t1) * 1e3, "readback": (t3 - t2) * 1e3,
+            "camera": (t1 - t0) * 1e3, "atlas": t_atlas, "draw": (t2 - t1) * 1e3, "readback": (t3 - t2) * 1e3,
             "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4) * 1e3, "texture": (t6 - t5) * 1e3,
-            "composite": (t7 - t6) * 1e3, "total": (time.perf_counter() - t_start) * 1e3,
-        }
+            "composite": (t7 - t6) * 1e3, "total": (time.perf_counter() - t_start) * 1e3}
         return out
+
+    def _update_atlas(self, frame, fitted, projected, triangles, uv, face_key, keep_mask) -> np.ndarray | None:
+        """With the atlas on and ``uv`` given: reset it on a new face, take this frame into it
+        (every ``atlas_every`` frames; otherwise only see how well the frame shows each vertex)
+        and return the per-vertex (V, 3) float32 (u, v, frontality in the input (0 where hidden))
+        to rasterise; None when the atlas is off, has no ``uv`` or cannot be updated."""
+        if not self.atlas_on or uv is None:
+            return None
+        uv = np.asarray(uv, np.float32)
+        if uv.shape != (len(fitted), 2):
+            raise ValueError(f"uv must be ({len(fitted)}, 2), got {uv.shape}")
+        if face_key not in self.atlases and len(self.atlases) >= 8:
+            self.atlases.clear()
+        if face_key not in self.atlases:
+            self.atlases[face_key] = self.atlas if not self.atlases and self.atlas.key is None else TextureAtlas(self.atlas_size)
+        self.atlas = self.atlases[face_key]
+        self.atlas.ensure(face_key, uv)
+        P = estimate_projection(fitted, projected)
+        tri = np.asarray(triangles, np.int64)
+        if self._atlas_frames % self.atlas_every == 0:
+            texel_px, quality = self._atlas_raster.observe(fitted, projected, tri, uv, P)
+            self.atlas.update(frame, texel_px, quality, keep_mask)
+        else:
+            self._atlas_raster.see(fitted, projected, tri, P)
+        self._atlas_frames += 1
+        return np.column_stack([uv, self._atlas_raster.vertex_quality]).astype(np.float32)
+
+    def _extras(self, fine: np.ndarray) -> np.ndarray | None:
+        """The source map's per-vertex extras: (Vf, 4) float32 (u, v, input frontality, 0) from the
+        fine vertices' columns 5:8 (zeros without them); None with the atlas off."""
+        if not self.atlas_on:
+            return None
+        extra = np.zeros((len(fine), 4), np.float32)
+        if fine.shape[1] >= 8:
+            extra[:, :3] = fine[:, 5:8]
+        return extra
+
+    def _blend_atlas(self, warped: np.ndarray, block: tuple[slice, slice], offsets: np.ndarray,
+                     changed: np.ndarray, box: tuple[int, int, int, int], has_uv: bool) -> None:
+        """Blend the atlas into ``warped`` (the sampled ``block`` of the box, (h', w', 3) uint8,
+        in place) where the input sees the changed pixels' surface badly: the source map's
+        stretch (linear, from its Jacobian) over ATLAS_STRETCH, or the input-view frontality
+        (the extras' third channel, interpolated per vertex) under ATLAS_GRAZING; weighted by the atlas's
+        confidence at the pixel's texture coordinates (``extra[..., :2]``: the source map's extras of
+        ``box``). Nothing without ``has_uv`` or with ``atlas_blend`` off."""
+        if not (has_uv and self.atlas_blend):
+            return
+        off = offsets[block].astype(np.float64)
+        ext = self.maps.read_extra(box)[block]
+        dx_dx = 1.0 + np.gradient(off[..., 0], axis=1)
+        dy_dy = 1.0 + np.gradient(off[..., 1], axis=0)
+        det = dx_dx * dy_dy - np.gradient(off[..., 0], axis=0) * np.gradient(off[..., 1], axis=1)
+        stretch = 1.0 / np.sqrt(np.maximum(np.abs(det), 1e-6))
+        lo, hi = ATLAS_STRETCH
+        w = np.maximum(np.clip((stretch - lo) / (hi - lo), 0.0, 1.0),
+                       np.clip(1.0 - ext[..., 2] / ATLAS_GRAZING, 0.0, 1.0))
+        w *= changed[block]
+        if not (w > 0).any():
+            self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
+            return
+        colours, confidence = self.atlas.sample(np.clip(ext[..., :2], 0.0, 1.0))
+        w = (w * confidence).astype(np.float32)
+        mixed = warped.astype(np.float32) * (1.0 - w[..., None]) + colours * w[..., None]
+        np.copyto(warped, np.clip(np.rint(mixed), 0, 255).astype(np.uint8), where=(w > 0)[..., None])
+        self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
+        self.atlas_region[block] = w
 
     def _work_box(self, projected: np.ndarray, dst_px: np.ndarray,
                   moved: np.ndarray) -> tuple[int, int, int, int] | None:
@@ -350,6 +441,9 @@ class Compositor:
         if self.maps is not None:
             self.maps.release()
             self.maps = None
+        if self._atlas_raster is not None:
+            self._atlas_raster.release()
+            self._atlas_raster = None
         if self._own_ctx and self.ctx is not None:
             self.ctx.release()
             self.ctx = None

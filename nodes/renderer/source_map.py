@@ -45,6 +45,21 @@ void main() {
 }
 """
 
+# The same with per-vertex extras (e.g. texture coordinates) written to a second target.
+_MAP_EXTRA_VS = _MAP_VS.replace("in vec2 in_offset;", "in vec2 in_offset;\nin vec4 in_extra;\nnoperspective out vec4 v_extra;") \
+    .replace("v_offset = in_offset;", "v_offset = in_offset;\n    v_extra = in_extra;")
+_MAP_EXTRA_FS = """
+#version 330
+noperspective in vec2 v_offset;
+noperspective in vec4 v_extra;
+layout(location = 0) out vec2 f_offset;
+layout(location = 1) out vec4 f_extra;
+void main() {
+    f_offset = v_offset;
+    f_extra = v_extra;
+}
+"""
+
 _MASK_VS = """
 #version 330
 uniform vec4 u_box;
@@ -67,26 +82,34 @@ void main() {
 class SourceMapRenderer:
     """Draws the offset map and the original region of a mesh into targets of one frame size.
 
-    SourceMapRenderer(ctx, width, height): ``ctx`` a moderngl context; targets ``width`` x
-    ``height`` pixels (the work box of a frame fits in them). :meth:`set_mesh` once per mesh
-    size, :meth:`draw` per frame, :meth:`release` at the end.
+    SourceMapRenderer(ctx, width, height, extras=False): ``ctx`` a moderngl context; targets
+    ``width`` x ``height`` pixels (the work box of a frame fits in them); ``extras``: also
+    interpolate four floats per vertex (:meth:`draw`'s ``extra``) into a second target
+    (:meth:`read_extra`). :meth:`set_mesh` once per mesh size, :meth:`draw` per frame,
+    :meth:`release` at the end.
     """
 
-    def __init__(self, ctx: moderngl.Context, width: int, height: int):
+    def __init__(self, ctx: moderngl.Context, width: int, height: int, extras: bool = False):
         self.ctx = ctx
+        self.extras = bool(extras)
         self._map_color = ctx.renderbuffer((width, height), 2, dtype="f4")
         self._map_depth = ctx.depth_renderbuffer((width, height))
-        self.fbo_map = ctx.framebuffer([self._map_color], self._map_depth)
+        self._extra_color = ctx.renderbuffer((width, height), 4, dtype="f4") if self.extras else None
+        attachments = [self._map_color] + ([self._extra_color] if self.extras else [])
+        self.fbo_map = ctx.framebuffer(attachments, self._map_depth)
         self._orig_color = ctx.renderbuffer((width, height), 1)
         self.fbo_orig = ctx.framebuffer([self._orig_color])
-        self.map_prog = ctx.program(vertex_shader=_MAP_VS, fragment_shader=_MAP_FS)
+        if self.extras:
+            self.map_prog = ctx.program(vertex_shader=_MAP_EXTRA_VS, fragment_shader=_MAP_EXTRA_FS)
+        else:
+            self.map_prog = ctx.program(vertex_shader=_MAP_VS, fragment_shader=_MAP_FS)
         self.mask_prog = ctx.program(vertex_shader=_MASK_VS, fragment_shader=_MASK_FS)
-        self._vbo = self._ibo = self._vao_map = self._vao_mask = None
+        self._vbo = self._ibo = self._vao_map = self._vao_mask = self._vbo_extra = None
         self._n_vertices = self._max_triangles = 0
 
     def set_mesh(self, n_vertices: int, max_triangles: int) -> None:
         """Make room for meshes of ``n_vertices`` vertices and up to ``max_triangles`` triangles."""
-        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo"):
+        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo", "_vbo_extra"):
             old = getattr(self, name)
             if old is not None:
                 old.release()
@@ -94,19 +117,24 @@ class SourceMapRenderer:
         self._vbo = self.ctx.buffer(reserve=max(int(n_vertices), 1) * 5 * 4)
         self._n_vertices = int(n_vertices)
         self._max_triangles = int(max_triangles)
-        self._vao_map = self.ctx.vertex_array(
-            self.map_prog, [(self._vbo, "2f 1f 2f", "in_dst", "in_depth", "in_offset")], index_buffer=self._ibo)
+        buffers = [(self._vbo, "2f 1f 2f", "in_dst", "in_depth", "in_offset")]
+        if self.extras:
+            self._vbo_extra = self.ctx.buffer(reserve=max(int(n_vertices), 1) * 4 * 4)
+            buffers.append((self._vbo_extra, "4f", "in_extra"))
+        self._vao_map = self.ctx.vertex_array(self.map_prog, buffers, index_buffer=self._ibo)
         self._vao_mask = self.ctx.vertex_array(
             self.mask_prog, [(self._vbo, "2f 4x 2f", "in_dst", "in_offset")], index_buffer=self._ibo)
 
     def draw(self, dst_px: np.ndarray, depth: np.ndarray, offset: np.ndarray, triangles: np.ndarray,
-             n_original: int, box: tuple[int, int, int, int]) -> None:
+             n_original: int, box: tuple[int, int, int, int], extra: np.ndarray | None = None) -> None:
         """Rasterise a mesh in ``box`` (x0, y0, x1, y1 frame pixels), at the origin of the
         targets; :meth:`read` reads it back.
 
         dst_px: (V, 2) deformed vertex pixels; depth: (V,) growing away from the camera;
         offset: (V, 2) undeformed minus deformed pixels; triangles: (T, 3) int into them, all
-        drawn into the offset map, the first ``n_original`` of them into the original region.
+        drawn into the offset map, the first ``n_original`` of them into the original region;
+        extra: (V, 4) float per vertex for the extras target (renderers made with ``extras``;
+        None: zeros).
         """
         tri = np.ascontiguousarray(triangles, np.uint32)
         if len(tri) > self._max_triangles:
@@ -121,6 +149,9 @@ class SourceMapRenderer:
         data[:, 2] = depth
         data[:, 3:5] = offset
         self._vbo.write(data.tobytes())
+        if self.extras:
+            ext = np.zeros((self._n_vertices, 4), np.float32) if extra is None else extra
+            self._vbo_extra.write(np.ascontiguousarray(ext, np.float32).tobytes())
         box_uniform = (float(x0), float(y0), float(bw), float(bh))
         self.map_prog["u_box"].value = box_uniform
         self.map_prog["u_depth"].value = (dmin - 0.01 * drange, 1.0 / (1.02 * drange))
@@ -131,7 +162,7 @@ class SourceMapRenderer:
         self.fbo_map.use()
         ctx.viewport = viewport
         ctx.enable(moderngl.DEPTH_TEST)
-        self.fbo_map.clear(UNCOVERED, UNCOVERED, 0.0, 0.0, depth=1.0, viewport=viewport)
+        self.fbo_map.clear(UNCOVERED, UNCOVERED, 0.0, 0.0, depth=1.0, viewport=viewport)  # every attachment
         self._vao_map.render(moderngl.TRIANGLES, vertices=3 * len(tri))
         ctx.disable(moderngl.DEPTH_TEST)
         self.fbo_orig.use()
@@ -152,9 +183,18 @@ class SourceMapRenderer:
                              np.uint8).reshape(bh, bw)
         return offsets, orig >> 7  # the mask target holds exactly 0 or 255
 
+    def read_extra(self, box: tuple[int, int, int, int]) -> np.ndarray:
+        """The extras of the last :meth:`draw`, ``box`` in size: (h, w, 4) float32 (UNCOVERED in
+        the first two where no triangle is)."""
+        x0, y0, x1, y1 = box
+        bw, bh = x1 - x0, y1 - y0
+        return np.frombuffer(self.fbo_map.read(viewport=(0, 0, bw, bh), components=4, dtype="f4", alignment=1,
+                                               attachment=1), np.float32).reshape(bh, bw, 4)
+
     def release(self) -> None:
         """Free the GL objects."""
-        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo", "fbo_map", "fbo_orig", "_map_color",
+        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo", "_vbo_extra", "fbo_map", "fbo_orig", "_map_color",
+                     "_extra_color",
                      "_map_depth", "_orig_color", "map_prog", "mask_prog"):
             obj = getattr(self, name, None)
             if obj is not None:

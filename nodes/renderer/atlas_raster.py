@@ -1,0 +1,228 @@
+"""What one frame shows of a face's UV atlas, rasterised with OpenGL (moderngl): the inputs of
+:class:`.texture_atlas.TextureAtlas` (issue 16; docs/architecture.md "Stages", 4).
+
+Two passes per frame, over the fitted (undeformed) mesh:
+
+1. **view depth**: the mesh drawn in the frame (the face's box only), z-buffered, writing its
+   depth: what the camera sees;
+2. **UV space**: the mesh drawn at its texture coordinates into an (S, S) target, each texel
+   getting the frame pixel its surface point projects to, that point's depth and the
+   frontality of the surface there (cosine of the vertex normals with the view ray,
+   interpolated).
+
+On the CPU: a texel is visible where its depth is within a tolerance of the view depth at its
+pixel; its size is the square root of the frame-pixel area one texel covers (from the pixel
+map's differences); its quality is frontality x min(size, 1), 0 where hidden or back-facing.
+Per vertex the same visibility and frontality (:attr:`AtlasRasterizer.vertex_quality`) say how
+well the frame sees each vertex: the compositor takes the atlas where that is poor.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from .camera import project
+
+_VIEW_VS = """
+#version 330
+uniform vec4 u_box;     // x0, y0, w, h of the target in frame pixels
+uniform vec2 u_depth;   // depth offset, 1 / depth range
+in vec2 in_px;
+in float in_depth;
+out float v_depth;
+void main() {
+    float z = clamp((in_depth - u_depth.x) * u_depth.y, 0.0, 1.0) * 1.98 - 0.99;
+    gl_Position = vec4((in_px + 0.5 - u_box.xy) / u_box.zw * 2.0 - 1.0, z, 1.0);
+    v_depth = in_depth;
+}
+"""
+
+_VIEW_FS = """
+#version 330
+in float v_depth;
+out float f_depth;
+void main() { f_depth = v_depth; }
+"""
+
+_UV_VS = """
+#version 330
+in vec2 in_uv;
+in vec2 in_px;
+in float in_depth;
+in float in_cos;
+noperspective out vec4 v_obs;
+void main() {
+    gl_Position = vec4(in_uv * 2.0 - 1.0, 0.0, 1.0);
+    v_obs = vec4(in_px, in_depth, in_cos);
+}
+"""
+
+_UV_FS = """
+#version 330
+noperspective in vec4 v_obs;
+out vec4 f_obs;
+void main() { f_obs = v_obs; }
+"""
+
+FAR = 1.0e30          # clear value of the view depth: nothing drawn there
+DEPTH_TOLERANCE = 0.02  # share of the mesh's extent a texel may lie behind the visible surface
+
+
+def camera_centre(P: np.ndarray) -> np.ndarray | None:
+    """The (3,) centre of the (3, 4) projection ``P`` (its null vector), None for a camera at
+    infinity (affine)."""
+    _, _, vt = np.linalg.svd(np.asarray(P, np.float64))
+    c = vt[-1]
+    return None if abs(c[3]) < 1e-12 else c[:3] / c[3]
+
+
+def vertex_frontality(vertices: np.ndarray, triangles: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(V,) float32: the cosine between each vertex's normal (area-weighted over its triangles)
+    and the direction to the camera of ``P`` (3, 4); the normals are oriented so that most of the
+    surface faces the camera (a face is seen from its front). ``vertices`` (V, 3), ``triangles``
+    (T, 3) int."""
+    X = np.asarray(vertices, np.float64)
+    tri = np.asarray(triangles, np.int64)
+    fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
+    n = np.zeros_like(X)
+    for k in range(3):
+        np.add.at(n, tri[:, k], fn)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    c = camera_centre(P)
+    if c is None:
+        to_cam = np.broadcast_to(-np.asarray(P, np.float64)[2, :3], X.shape)
+    else:
+        to_cam = c - X
+    to_cam = to_cam / np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
+    cos = np.einsum("ij,ij->i", n, to_cam)
+    area = np.linalg.norm(fn, axis=1)
+    tri_cos = cos[tri].mean(axis=1)
+    if float((tri_cos * area).sum()) < 0:
+        cos = -cos
+    return cos.astype(np.float32)
+
+
+class AtlasRasterizer:
+    """AtlasRasterizer(ctx, size, width, height): ``ctx`` a moderngl context, atlas ``size``
+    texels a side, frames ``width`` x ``height`` pixels. :meth:`observe` per frame,
+    :meth:`release` at the end."""
+
+    def __init__(self, ctx: moderngl.Context, size: int, width: int, height: int):
+        self.ctx, self.size, self.width, self.height = ctx, int(size), int(width), int(height)
+        self._view_color = ctx.renderbuffer((self.width, self.height), 1, dtype="f4")
+        self._view_depth = ctx.depth_renderbuffer((self.width, self.height))
+        self.fbo_view = ctx.framebuffer([self._view_color], self._view_depth)
+        self._uv_color = ctx.renderbuffer((self.size, self.size), 4, dtype="f4")
+        self.fbo_uv = ctx.framebuffer([self._uv_color])
+        self.view_prog = ctx.program(vertex_shader=_VIEW_VS, fragment_shader=_VIEW_FS)
+        self.uv_prog = ctx.program(vertex_shader=_UV_VS, fragment_shader=_UV_FS)
+        self.vertex_quality: np.ndarray | None = None   # (V,) float32 of the last observe/see
+
+    def _view_depth_map(self, px, depth, tri) -> tuple[np.ndarray, tuple[int, int, int, int]] | None:
+        """The mesh's depth as the frame sees it, over its box: ((h, w) float32, FAR where empty;
+        box (x0, y0, x1, y1)); None when the mesh is not in the frame."""
+        lo = np.floor(px.min(axis=0)).astype(int) - 1
+        hi = np.ceil(px.max(axis=0)).astype(int) + 2
+        x0, y0 = max(0, lo[0]), max(0, lo[1])
+        x1, y1 = min(self.width, hi[0]), min(self.height, hi[1])
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            return None
+        ctx, bw, bh = self.ctx, x1 - x0, y1 - y0
+        data = np.column_stack([px, depth]).astype(np.float32)
+        vbo = ctx.buffer(data.tobytes())
+        ibo = ctx.buffer(np.ascontiguousarray(tri, np.uint32).tobytes())
+        vao = ctx.vertex_array(self.view_prog, [(vbo, "2f 1f", "in_px", "in_depth")], index_buffer=ibo)
+        dmin, drange = float(depth.min()), max(float(np.ptp(depth)), 1e-9)
+        self.view_prog["u_box"].value = (float(x0), float(y0), float(bw), float(bh))
+        self.view_prog["u_depth"].value = (dmin - 0.01 * drange, 1.0 / (1.02 * drange))
+        self.fbo_view.use()
+        ctx.viewport = (0, 0, bw, bh)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        ctx.enable(moderngl.DEPTH_TEST)
+        self.fbo_view.clear(FAR, depth=1.0, viewport=(0, 0, bw, bh))
+        vao.render(moderngl.TRIANGLES)
+        ctx.disable(moderngl.DEPTH_TEST)
+        view = np.frombuffer(self.fbo_view.read(viewport=(0, 0, bw, bh), components=1, dtype="f4", alignment=1),
+                             np.float32).reshape(bh, bw)
+        for obj in (vao, vbo, ibo):
+            obj.release()
+        return view, (x0, y0, x1, y1)
+
+    @staticmethod
+    def _visible(view, box, px, depth, tol) -> np.ndarray:
+        """(N,) bool: points at ``px`` (N, 2) with ``depth`` (N,) no more than ``tol`` behind the
+        view depth there (the smallest of the 2 x 2 pixels around each point)."""
+        x0, y0 = box[0], box[1]
+        h, w = view.shape
+        ix = np.clip(np.floor(px[:, 0]).astype(np.int64) - x0, 0, w - 2)
+        iy = np.clip(np.floor(px[:, 1]).astype(np.int64) - y0, 0, h - 2)
+        near = np.minimum(np.minimum(view[iy, ix], view[iy, ix + 1]), np.minimum(view[iy + 1, ix], view[iy + 1, ix + 1]))
+        return depth <= near + tol
+
+    def see(self, vertices: np.ndarray, px: np.ndarray, triangles: np.ndarray, P: np.ndarray):
+        """Per vertex, how well the frame sees it: sets and returns :attr:`vertex_quality` (V,)
+        float32 (frontality, 0 where hidden or back-facing) and returns the view depth map, its
+        box, the vertices' depth and the depth tolerance for :meth:`observe`. ``vertices`` (V, 3)
+        camera space, ``px`` (V, 2) their pixels, ``triangles`` (T, 3), ``P`` (3, 4) the camera."""
+        px = np.asarray(px, np.float64)
+        _, depth = project(P, np.asarray(vertices, np.float64))
+        cos = vertex_frontality(vertices, triangles, P)
+        got = self._view_depth_map(px, depth, triangles)
+        if got is None:
+            self.vertex_quality = np.zeros(len(px), np.float32)
+            return self.vertex_quality, None, None, depth, cos, 0.0
+        view, box = got
+        tol = DEPTH_TOLERANCE * float(np.linalg.norm(np.ptp(np.asarray(vertices, np.float64), axis=0)))
+        tol = max(tol, 1e-3 * float(np.ptp(depth)))
+        vis = self._visible(view, box, px, depth, tol)
+        self.vertex_quality = np.where(vis, np.clip(cos, 0.0, 1.0), 0.0).astype(np.float32)
+        return self.vertex_quality, view, box, depth, cos, tol
+
+    def observe(self, vertices: np.ndarray, px: np.ndarray, triangles: np.ndarray, uv: np.ndarray,
+                P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the frame shows of the atlas: (texel pixels (S, S, 2) float32, NaN where no
+        triangle covers the texel; quality (S, S) float32 in [0, 1]). Arguments as :meth:`see`,
+        plus ``uv`` (V, 2) texture coordinates in [0, 1]."""
+        S = self.size
+        _, view, box, depth, cos, tol = self.see(vertices, px, triangles, P)
+        data = np.column_stack([np.asarray(uv, np.float32), px, depth, cos]).astype(np.float32)
+        ctx = self.ctx
+        vbo = ctx.buffer(data.tobytes())
+        ibo = ctx.buffer(np.ascontiguousarray(triangles, np.uint32).tobytes())
+        vao = ctx.vertex_array(self.uv_prog, [(vbo, "2f 2f 1f 1f", "in_uv", "in_px", "in_depth", "in_cos")],
+                               index_buffer=ibo)
+        self.fbo_uv.use()
+        ctx.viewport = (0, 0, S, S)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND | moderngl.DEPTH_TEST)
+        self.fbo_uv.clear(np.nan, np.nan, 0.0, -2.0, viewport=(0, 0, S, S))
+        vao.render(moderngl.TRIANGLES)
+        obs = np.frombuffer(self.fbo_uv.read(viewport=(0, 0, S, S), components=4, dtype="f4", alignment=1),
+                            np.float32).reshape(S, S, 4).copy()
+        for obj in (vao, vbo, ibo):
+            obj.release()
+        texel_px = obs[..., 0:2]
+        covered = obs[..., 3] > -1.5
+        texel_px[~covered] = np.nan
+        quality = np.zeros((S, S), np.float32)
+        if view is None or not covered.any():
+            return texel_px, quality
+        # frame pixels per texel (linear): the area of the texel's image, from differences
+        gx = np.gradient(texel_px, axis=1)
+        gy = np.gradient(texel_px, axis=0)
+        area = np.abs(gx[..., 0] * gy[..., 1] - gx[..., 1] * gy[..., 0])
+        size = np.sqrt(np.nan_to_num(area, nan=0.0))
+        idx = np.flatnonzero(covered)
+        flat_px = texel_px.reshape(-1, 2)[idx].astype(np.float64)
+        vis = self._visible(view, box, flat_px, obs[..., 2].reshape(-1)[idx], tol)
+        q = np.clip(obs[..., 3].reshape(-1)[idx], 0.0, 1.0) * np.minimum(size.reshape(-1)[idx], 1.0)
+        quality.reshape(-1)[idx] = np.where(vis, q, 0.0)
+        return texel_px, quality
+
+    def release(self) -> None:
+        """Free the GL objects."""
+        for name in ("fbo_view", "fbo_uv", "_view_color", "_view_depth", "_uv_color", "view_prog", "uv_prog"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.release()
+                setattr(self, name, None)
