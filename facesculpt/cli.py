@@ -19,6 +19,7 @@ COMMAND_MODULES = [
     "facesculpt.app.setup_models",  # setup
     "facesculpt.app.keys_command",  # keys generate
     "facesculpt.app.process",  # process
+    "facesculpt.app.reenact",  # reenact
     "facesculpt.app.bench",  # bench
 ]
 
