@@ -44,10 +44,13 @@ EDITS = {
     # issue 16: an edit that shows surface the turned head hides or foreshortens (scored with and
     # without the texture atlas, process --atlas on|off)
     "nose_far": EditSpec("nose_far", {"nose_tip": (0.0, -4.0, 18.0)}, 35.0, "nose tip pulled 18 mm out and 4 mm down"),
+    # ... and one that turns a side of the nose toward the camera which the turned head hides
+    "nose_side": EditSpec("nose_side", {"nose_tip": (12.0, -2.0, 8.0)}, 35.0,
+                          "nose tip pulled 12 mm toward the subject's left, 8 mm out and 2 mm down"),
 }
 
 #: The edits the benchmark also runs with ``process --atlas on`` (surface revealed by the edit).
-ATLAS_EDITS = ("nose_far",)
+ATLAS_EDITS = ("nose_far", "nose_side")
 
 
 def handle_vertex(name: str, landmarks: dict[str, int]) -> int:

@@ -12,13 +12,18 @@ Two passes per frame, over the fitted (undeformed) mesh:
 
 On the CPU: a texel is visible where its depth is within a tolerance of the view depth at its
 pixel; its size is the square root of the frame-pixel area one texel covers (from the pixel
-map's differences); its quality is frontality x min(size, 1), 0 where hidden or back-facing.
+map's differences); its quality is frontality x min(size, 1), 0 where hidden or back-facing, and
+0 within ``EDGE_PX`` of an occluding edge of the view (the projected mesh edges between a
+triangle that faces the camera and one that does not, and the mesh's open borders: the face's
+outline, the nose's side): there a fitted mesh that is off by a pixel or two samples the other side of
+the edge (background, the ridge's highlight), which the atlas would keep as a ghost.
 Per vertex the same visibility and frontality (:attr:`AtlasRasterizer.vertex_quality`) say how
 well the frame sees each vertex: the compositor takes the atlas where that is poor.
 """
 
 from __future__ import annotations
 
+import cv2
 import moderngl
 import numpy as np
 
@@ -67,6 +72,7 @@ void main() { f_obs = v_obs; }
 
 FAR = 1.0e30          # clear value of the view depth: nothing drawn there
 DEPTH_TOLERANCE = 0.02  # share of the mesh's extent a texel may lie behind the visible surface
+EDGE_PX = 3             # texels seen this close to an occluding edge (frame pixels) are not taken
 
 
 def camera_centre(P: np.ndarray) -> np.ndarray | None:
@@ -160,6 +166,43 @@ class AtlasRasterizer:
         near = np.minimum(np.minimum(view[iy, ix], view[iy, ix + 1]), np.minimum(view[iy + 1, ix], view[iy + 1, ix + 1]))
         return depth <= near + tol
 
+    def _edges(self, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The mesh's edges (E, 2) and their two triangles (E, 2) (-1: an open border), kept per
+        triangle set."""
+        tri = np.asarray(triangles, np.int64)
+        key = (tri.shape, hash(tri.tobytes()))
+        if getattr(self, "_edge_key", None) != key:
+            e = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+            owner = np.tile(np.arange(len(tri)), 3)
+            uniq, first, inv = np.unique(e, axis=0, return_index=True, return_inverse=True)
+            sides = np.full((len(uniq), 2), -1, np.int64)
+            sides[:, 0] = owner[first]
+            other = np.ones(len(e), bool)
+            other[first] = False
+            sides[inv.ravel()[other], 1] = owner[other]
+            self._edge_key, self._edge_data = key, (uniq, sides)
+        return self._edge_data
+
+    def _near_edge(self, box, px, triangles, points) -> np.ndarray:
+        """(N,) bool: ``points`` (N, 2) frame pixels within EDGE_PX of an occluding edge of the
+        mesh at ``px`` (V, 2) (its projected triangles' orientation changes across the edge, or
+        the edge is an open border), drawn over ``box``."""
+        edges, sides = self._edges(triangles)
+        tri = np.asarray(triangles, np.int64)
+        a, b, c = px[tri[:, 0]], px[tri[:, 1]], px[tri[:, 2]]
+        facing = ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])) > 0
+        f0 = facing[sides[:, 0]]
+        f1 = np.where(sides[:, 1] >= 0, facing[np.maximum(sides[:, 1], 0)], ~f0)
+        occluding = edges[f0 != f1]
+        x0, y0, x1, y1 = box
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        lines = np.rint((px[occluding] - [x0, y0]) * 4).astype(np.int32)   # 2 fractional bits
+        cv2.polylines(mask, list(lines), False, 1, thickness=2 * EDGE_PX + 1, shift=2)
+        h, w = mask.shape
+        ix = np.clip(np.rint(points[:, 0]).astype(np.int64) - x0, 0, w - 1)
+        iy = np.clip(np.rint(points[:, 1]).astype(np.int64) - y0, 0, h - 1)
+        return mask[iy, ix] != 0
+
     def see(self, vertices: np.ndarray, px: np.ndarray, triangles: np.ndarray, P: np.ndarray):
         """Per vertex, how well the frame sees it: sets and returns :attr:`vertex_quality` (V,)
         float32 (frontality, 0 where hidden or back-facing) and returns the view depth map, its
@@ -185,6 +228,7 @@ class AtlasRasterizer:
         triangle covers the texel; quality (S, S) float32 in [0, 1]). Arguments as :meth:`see`,
         plus ``uv`` (V, 2) texture coordinates in [0, 1]."""
         S = self.size
+        px = np.asarray(px, np.float64)
         _, view, box, depth, cos, tol = self.see(vertices, px, triangles, P)
         data = np.column_stack([np.asarray(uv, np.float32), px, depth, cos]).astype(np.float32)
         ctx = self.ctx
@@ -215,6 +259,7 @@ class AtlasRasterizer:
         idx = np.flatnonzero(covered)
         flat_px = texel_px.reshape(-1, 2)[idx].astype(np.float64)
         vis = self._visible(view, box, flat_px, obs[..., 2].reshape(-1)[idx], tol)
+        vis &= ~self._near_edge(box, px, triangles, flat_px)
         q = np.clip(obs[..., 3].reshape(-1)[idx], 0.0, 1.0) * np.minimum(size.reshape(-1)[idx], 1.0)
         quality.reshape(-1)[idx] = np.where(vis, q, 0.0)
         return texel_px, quality
