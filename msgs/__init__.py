@@ -10,6 +10,7 @@ from .types import (
     FaceLandmarks,
     FaceModel,
     FaceState,
+    FaceTexture,
     FrameDone,
     HandLandmarks,
     Image,
@@ -19,6 +20,6 @@ from .types import (
 __all__ = [
     "REGISTRY", "DecodeError", "Message", "decode", "encode", "summarize",
     "Image", "FaceExpression", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
-    "HandLandmarks",
+    "HandLandmarks", "FaceTexture",
     "INPUT_KINDS", "INPUT_COMMANDS",
 ]

@@ -258,3 +258,24 @@ class HandLandmarks(Message):
     track_ids: np.ndarray = array("i4", "N")
     image_size: list = field(default_factory=lambda: [0, 0])
     K: np.ndarray = array("f8", 3, 3)
+
+
+@register
+@dataclass
+class FaceTexture(Message):
+    """The texture memory of one face (latched on `face/texture`): its UV atlas, downscaled.
+
+    image: (S, S, 3) uint8 BGR, the atlas in its own lighting (the first frames'), black where
+    never seen; confidence: (S, S) uint8, how well each texel is known (0 never seen .. 255);
+    texcoords: (V, 2) float32 the UV layout of the model's vertices in [0, 1] (texel
+    (row, col) = (v, u) * S); model_id, face_id: whose atlas; updates: the frames it has taken
+    since it was last reset (a new face).
+    """
+
+    TYPE = "FaceTexture"
+    model_id: str = ""
+    face_id: int = 0
+    image: np.ndarray = array("u1", "S", "S", 3)
+    confidence: np.ndarray = array("u1", "S", "S")
+    texcoords: np.ndarray = array("f4", "V", 2)
+    updates: int = 0

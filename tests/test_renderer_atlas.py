@@ -206,3 +206,62 @@ def test_process_save_texture_writes_the_atlas_in_the_uv_layout(data_dir, models
                           "-o", str(tmp_path / "x.mp4"), "--save-texture", str(tmp_path / "t.jpg")], cwd=REPO,
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and ".png" in bad.stderr
+
+
+def test_face_texture_message_round_trips_and_checks_its_shapes():
+    from facesculpt.msgs import DecodeError, FaceTexture, decode, encode
+
+    msg = FaceTexture(stamp=5, model_id="sfm", face_id=1, image=np.zeros((32, 32, 3), np.uint8),
+                      confidence=np.full((32, 32), 7, np.uint8), texcoords=UV, updates=3)
+    _, back = decode([bytes(f) for f in encode(msg, "face/texture")])
+    assert back.image.shape == (32, 32, 3) and back.confidence[0, 0] == 7 and back.updates == 3
+    np.testing.assert_array_equal(back.texcoords, UV)
+    bad = FaceTexture(image=np.zeros((32, 16, 3), np.uint8), confidence=np.zeros((32, 32), np.uint8),
+                      texcoords=UV)
+    with pytest.raises(DecodeError):
+        decode([bytes(f) for f in encode(bad, "face/texture")])
+
+
+def test_the_renderer_node_publishes_the_latched_face_texture(graph, data_dir):
+    from renderer_scene import place_marked, read_frames
+
+    from facesculpt.msgs import FaceModel, FaceState, FaceTexture, Image
+    from facesculpt.nodes.fitter import load_model
+    from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import LATCHED
+
+    class Feeder(Node):
+        NAME = "atlas_feeder"
+
+        def setup(self):
+            self.image_pub = self.advertise("camera/image", Image)
+            self.state_pub = self.advertise("face/state", FaceState)
+            self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
+            self.textures = []
+            self.subscribe("face/texture", FaceTexture, self.textures.append, qos=LATCHED)
+
+    model = load_model("sfm")
+    pose = place_marked(model, "s18")
+    frames = read_frames(data_dir, "s18", count=2)
+    H, W = frames[0].shape[:2]
+    graph.spawn("run", "renderer", "pairing=sync", "publish=false", "atlas=on", "texture_size=64",
+                "texture_period_s=0")
+    feeder = graph.node(Feeder())
+    for pub in (feeder.image_pub, feeder.state_pub):
+        assert pub.wait_for_subscribers(1, 30.0)
+    feeder.model_pub.publish(FaceModel(stamp=1, model_id=model.model_id, vertices=model.mean.astype(np.float32),
+                                       triangles=model.triangles.astype(np.int32)))
+    graph.spin_until(feeder, lambda: False, 1.0)
+    for i, frame in enumerate(frames):
+        stamp = (i + 1) * 40_000_000
+        feeder.image_pub.publish(Image(stamp=stamp, seq=i, image=frame, K=pose.K))
+        feeder.state_pub.publish(FaceState(stamp=stamp, model_id=model.model_id, R=pose.R, t=np.zeros(3), scale=1.0,
+                                           K=pose.K, vertices=pose.fitted.astype(np.float32),
+                                           projected=pose.projected.astype(np.float32), image_size=[W, H],
+                                           projection="perspective"))
+        assert graph.spin_until(feeder, lambda: len(feeder.textures) > i, 20.0), f"no face/texture after frame {i}"
+    tex = feeder.textures[-1]
+    assert tex.image.shape == (64, 64, 3) and tex.confidence.shape == (64, 64)
+    assert tex.texcoords.shape == (len(model.mean.reshape(-1, 3)), 2) and tex.updates == 2
+    seen = tex.image.max(axis=2) > 0
+    assert 0.2 < seen.mean() < 0.98 and (tex.confidence[seen] > 0).mean() > 0.9

@@ -14,7 +14,10 @@ for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea"),
 feather_px, dilate_px, output (video path), fps (of the video file), publish, overlay
 (fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
 the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s,
-pinch_markers (a marker at each pinch of the pinch node's input/events, ``pinch_markers.py``).
+pinch_markers (a marker at each pinch of the pinch node's input/events, ``pinch_markers.py``),
+atlas ("on" | "off": the face's texture memory, ``texture_atlas.py``), atlas_size, atlas_every,
+texture_size and texture_period_s (face/texture: FaceTexture, latched, the atlas downscaled, with
+atlas on; the UV layout is a frontal projection of the first face/model's neutral per face).
 """
 
 from __future__ import annotations
@@ -26,16 +29,17 @@ import numpy as np
 
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.hand_regions import hand_region_mask
-from facesculpt.msgs import Deformation, FaceModel, FaceState, FrameDone, HandLandmarks, Image, InputEvent
+from facesculpt.msgs import Deformation, FaceModel, FaceState, FaceTexture, FrameDone, HandLandmarks, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
-from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, SENSOR_DATA
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
 
 from .compositor import Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
 from .pairing import FramePairer
 from .pinch_markers import PinchMarkers, draw_pinch_markers
+from .texture_atlas import uv_layout
 
 
 class RendererNode(Node):
@@ -69,6 +73,13 @@ class RendererNode(Node):
                                        "frame's own has not arrived, s", range=(0.0, 10.0)),
         "pinch_markers": Param(False, "draw a small marker at each pinch (the pinch node's press..release on "
                                       "input/events) on the output frame: window, video and render/image"),
+        "atlas": Param("off", "texture memory of the face (UV atlas): learned over the frames; where the frame sees "
+                              "the edited surface badly (stretched, hidden) its colours come from it; published on "
+                              "face/texture", choices=("on", "off")),
+        "atlas_size": Param(256, "atlas texels a side", range=(32, 2048)),
+        "atlas_every": Param(1, "update the atlas every N frames (the frames between only read it)", range=(1, 100)),
+        "texture_size": Param(128, "face/texture: the atlas downscaled to this many texels a side", range=(16, 2048)),
+        "texture_period_s": Param(1.0, "face/texture: published at most this often, s", range=(0.0, 3600.0)),
     }
     NOTICE_S = 3.0                    # how long the window shows a notice (a saved preset), s
     _notice: tuple[str, float] | None = None   # (text, monotonic time it ends)
@@ -88,6 +99,9 @@ class RendererNode(Node):
         self.events_pub = self.advertise("input/events", InputEvent) if p.window else None
         # One FrameDone per handled frame: an offline camera (camera.wait_for) sends the next one on it.
         self.done_pub = self.advertise("render/done", FrameDone, qos=EVERY_MESSAGE)
+        self.texture_pub = self.advertise("face/texture", FaceTexture, qos=LATCHED) if p.atlas == "on" else None
+        self._uv: dict = {}               # face id -> (model id, (V, 2) UV layout) for the atlas
+        self._texture_sent = -1e18
         self.subscribe("camera/image", Image, self.on_image, qos=qos)
         self.subscribe("face/state", FaceState, self.on_state, qos=qos)
         self.subscribe("face/model", FaceModel, self.on_model)
@@ -192,8 +206,10 @@ class RendererNode(Node):
                 self.shutdown()
                 return False
             ctx = self.window.ctx
-        self.compositor = Compositor(width, height, ctx=ctx, inpaint=self.params.inpaint,
-                                     feather_px=self.params.feather_px, dilate_px=self.params.dilate_px)
+        p = self.params
+        self.compositor = Compositor(width, height, ctx=ctx, inpaint=p.inpaint, feather_px=p.feather_px,
+                                     dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
+                                     atlas_every=p.atlas_every)
         return True
 
     def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:
@@ -220,7 +236,7 @@ class RendererNode(Node):
             try:
                 deformed = self._deformed_vertices(state)
                 out = self.compositor.render(out, state.vertices, state.projected, self.model.triangles, deformed,
-                                             keep_mask=keep)
+                                             keep_mask=keep, uv=self._uv_of(state), face_key=state.face_id)
             except ValueError as exc:
                 self.count("bad_input")
                 self.log.warning("frame %d, face %d not rendered: %s", frame_msg.stamp, state.face_id, exc)
@@ -236,6 +252,7 @@ class RendererNode(Node):
                 handles_px = px[d.handles[d.handles < len(px)]]
                 roi_px = px[d.roi[d.roi < len(px)]]
         self.correction.observe(states)
+        self._publish_texture(frame_msg, states)
         if self.pinches is not None:
             out = draw_pinch_markers(out, self.pinches.at(frame_msg.stamp))
         with self.stage("output"):
@@ -253,6 +270,39 @@ class RendererNode(Node):
         self.count("rendered")
         self.done_pub.publish(FrameDone(stamp=frame_msg.stamp, seq=frame_msg.seq, frame_id=frame_msg.frame_id,
                                         rendered=drawn))
+
+    def _uv_of(self, state: FaceState) -> np.ndarray | None:
+        """The UV layout of ``state``'s face for the atlas (None with the atlas off): a frontal
+        projection of its neutral in the first face/model seen for it (fixed until the model
+        changes, so the atlas keeps its layout while the neutral is learned)."""
+        if self.texture_pub is None:
+            return None
+        got = self._uv.get(state.face_id)
+        if got is None or got[0] != self.model.model_id or len(got[1]) != len(state.vertices):
+            got = (self.model.model_id, uv_layout(self.model.neutral_of(state.face_id)))
+            self._uv[state.face_id] = got
+        return got[1]
+
+    def _publish_texture(self, frame_msg: Image, states) -> None:
+        """face/texture (latched): the first rendered face's atlas, downscaled, at most every
+        ``texture_period_s``."""
+        if self.texture_pub is None or not states or self.compositor is None:
+            return
+        now = time.monotonic()
+        atlas = self.compositor.atlases.get(states[0].face_id)
+        uv = self._uv.get(states[0].face_id)
+        if atlas is None or uv is None or atlas.updates == 0 or now - self._texture_sent < self.params.texture_period_s:
+            return
+        import cv2
+
+        n = self.params.texture_size
+        image = cv2.resize(atlas.image(), (n, n), interpolation=cv2.INTER_AREA)
+        conf = cv2.resize(np.rint(atlas.confidence() * 255).astype(np.uint8), (n, n), interpolation=cv2.INTER_AREA)
+        self.texture_pub.publish(FaceTexture(stamp=frame_msg.stamp, seq=frame_msg.seq, frame_id=frame_msg.frame_id,
+                                             model_id=self.model.model_id, face_id=int(states[0].face_id), image=image,
+                                             confidence=conf, texcoords=uv[1],
+                                             updates=atlas.updates))
+        self._texture_sent = now
 
     def _show(self, out: np.ndarray, handles_px, roi_px) -> None:
         from .overlay import draw_overlay
