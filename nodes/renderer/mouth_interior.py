@@ -17,10 +17,12 @@ import numpy as np
 INNER_LIP_FACEMESH: tuple[int, ...] = (78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308,
                                        324, 318, 402, 317, 14, 87, 178, 88, 95)
 #: How dark the interior is: a share of the lips' mean colour.
-INTERIOR_SHADE = 0.18
-#: The teeth band: its colour (BGR) and height as a share of the opening's height.
-TEETH_BGR = (200, 208, 214)
+INTERIOR_SHADE = 0.25
+#: The teeth band: its colour (BGR), height as a share of the opening's mean height, width as a
+#: share of the opening's width (centred, fading out toward the corners).
+TEETH_BGR = (168, 178, 186)
 TEETH_SHARE = 0.3
+TEETH_WIDTH = 0.7
 
 
 def opening_px(polygon_px: np.ndarray) -> float:
@@ -72,9 +74,11 @@ def paint_mouth_interior(image: np.ndarray, polygon_px: np.ndarray, source_openi
     top = np.interp(cols, upper[order, 0], upper[order, 1])
     height = max(opening_px(poly) * TEETH_SHARE, 1.0)
     rows = np.arange(crop.shape[0], dtype=np.float64)[:, None]
-    teeth = np.clip((top[None, :] + height - rows) / max(height * 0.5, 1.0), 0.0, 1.0)
-    fill = fill * (1 - teeth[..., None] * 0.85) + np.asarray(TEETH_BGR, np.float32) * teeth[..., None] * 0.85
-    fill = cv2.GaussianBlur(fill, (0, 0), 1.0)
+    teeth = np.clip((top[None, :] + height - rows) / max(height * 0.6, 1.0), 0.0, 1.0)
+    centre, half = (upper[:, 0].max() + upper[:, 0].min()) / 2, max(np.ptp(upper[:, 0]) * TEETH_WIDTH / 2, 1.0)
+    teeth = teeth * np.clip((half - np.abs(cols - centre)) / (0.4 * half), 0.0, 1.0)[None, :] * 0.8
+    fill = fill * (1 - teeth[..., None]) + np.asarray(TEETH_BGR, np.float32) * teeth[..., None]
+    fill = cv2.GaussianBlur(fill, (0, 0), 1.5)
     alpha = cv2.GaussianBlur(mask.astype(np.float32) / 255.0, (0, 0), 1.0)[..., None] * opacity
     out[y0:y1, x0:x1] = np.clip(crop * (1 - alpha) + fill * alpha + 0.5, 0, 255).astype(np.uint8)
     return out
