@@ -91,9 +91,8 @@ def vertex_frontality(vertices: np.ndarray, triangles: np.ndarray, P: np.ndarray
     X = np.asarray(vertices, np.float64)
     tri = np.asarray(triangles, np.int64)
     fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
-    n = np.zeros_like(X)
-    for k in range(3):
-        np.add.at(n, tri[:, k], fn)
+    corners = tri.T.ravel()
+    n = np.column_stack([np.bincount(corners, np.tile(fn[:, j], 3), minlength=len(X)) for j in range(3)])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     c = camera_centre(P)
     if c is None:
@@ -251,11 +250,14 @@ class AtlasRasterizer:
         quality = np.zeros((S, S), np.float32)
         if view is None or not covered.any():
             return texel_px, quality
-        # frame pixels per texel (linear): the area of the texel's image, from differences
-        gx = np.gradient(texel_px, axis=1)
-        gy = np.gradient(texel_px, axis=0)
-        area = np.abs(gx[..., 0] * gy[..., 1] - gx[..., 1] * gy[..., 0])
-        size = np.sqrt(np.nan_to_num(area, nan=0.0))
+        # frame pixels per texel (linear): the area of the texel's image, from differences (over
+        # the covered texels' bounding box only)
+        ys, xs = np.nonzero(covered.any(axis=1))[0], np.nonzero(covered.any(axis=0))[0]
+        win = (slice(max(ys[0] - 1, 0), ys[-1] + 2), slice(max(xs[0] - 1, 0), xs[-1] + 2))
+        gx = np.gradient(texel_px[win], axis=1)
+        gy = np.gradient(texel_px[win], axis=0)
+        size = np.zeros((S, S), np.float32)
+        size[win] = np.sqrt(np.nan_to_num(np.abs(gx[..., 0] * gy[..., 1] - gx[..., 1] * gy[..., 0]), nan=0.0))
         idx = np.flatnonzero(covered)
         flat_px = texel_px.reshape(-1, 2)[idx].astype(np.float64)
         vis = self._visible(view, box, flat_px, obs[..., 2].reshape(-1)[idx], tol)

@@ -114,15 +114,16 @@ class TextureAtlas:
         colours = cv2.remap(frame, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
         return colours, q
 
-    def estimate_gain(self, colours: np.ndarray, quality: np.ndarray) -> np.ndarray:
-        """The per-channel gain (3,) float32 that brings ``colours`` (S, S, 3) to the atlas's
+    def estimate_gain(self, colours: np.ndarray, quality: np.ndarray, win=(slice(None), slice(None))) -> np.ndarray:
+        """The per-channel gain (3,) float32 that brings ``colours`` (the atlas's ``win`` (rows, cols)
+        slices: (h, w, 3)) to the atlas's
         lighting, from the texels both see well (this frame's quality and the atlas's best at
         least 0.3); the current gain when fewer than ``min_overlap`` are."""
-        both = (quality >= 0.3) & (self.best >= 0.3) & (self.weight > 0)
+        both = (quality >= 0.3) & (self.best[win] >= 0.3) & (self.weight[win] > 0)
         if int(both.sum()) < self.min_overlap:
             return self.gain
         seen = colours[both].astype(np.float64).sum(axis=0)
-        known = self.colour[both].astype(np.float64).sum(axis=0)
+        known = self.colour[win][both].astype(np.float64).sum(axis=0)
         gain = np.where(seen > 1.0, known / np.maximum(seen, 1.0), 1.0)
         return np.clip(gain, *self.gain_limits).astype(np.float32)
 
@@ -134,21 +135,26 @@ class TextureAtlas:
         S = self.size
         if texel_px.shape != (S, S, 2) or quality.shape != (S, S):
             raise ValueError(f"texel maps must be ({S}, {S}, 2) and ({S}, {S}), got {texel_px.shape}, {quality.shape}")
-        colours, q = self.observe(frame, texel_px, quality, keep_mask)
-        self.gain = self.estimate_gain(colours, q)
-        colours *= self.gain
         self.best *= self.decay
         self.weight *= self.decay
-        valid = q >= self.min_quality
-        better = valid & (q > self.best * self.replace_ratio)
-        self.weight[better] = 0.0
-        take = valid & (q >= self.best * self.keep_ratio)
-        w = self.weight[take]
-        beta = (q[take] / (w + q[take]))[:, None]
-        self.colour[take] += beta * (colours[take] - self.colour[take])
-        self.weight[take] = np.minimum(w + q[take], self.max_weight)
-        np.maximum(self.best, np.where(take, q, 0.0), out=self.best)
         self.updates += 1
+        seen = np.isfinite(texel_px[..., 0])
+        if not seen.any():
+            return 0
+        # the work on the bounding box of the texels the frame covers
+        ys, xs = np.nonzero(seen.any(axis=1))[0], np.nonzero(seen.any(axis=0))[0]
+        win = (slice(ys[0], ys[-1] + 1), slice(xs[0], xs[-1] + 1))
+        colours, q = self.observe(frame, texel_px[win], quality[win], keep_mask)
+        colour, weight, best = self.colour[win], self.weight[win], self.best[win]
+        self.gain = self.estimate_gain(colours, q, win)
+        colours *= self.gain
+        valid = q >= self.min_quality
+        weight[valid & (q > best * self.replace_ratio)] = 0.0   # much better than the best: replaces
+        take = valid & (q >= best * self.keep_ratio)
+        beta = np.where(take, q / np.maximum(weight + q, 1e-6), 0.0).astype(np.float32)
+        colour += beta[..., None] * (colours - colour)
+        np.copyto(weight, np.minimum(weight + q, self.max_weight), where=take)
+        np.maximum(best, np.where(take, q, 0.0), out=best)
         return int(take.sum())
 
     def confidence(self) -> np.ndarray:
@@ -169,9 +175,13 @@ class TextureAtlas:
         (..., 3) float32 BGR, confidence (...) float32)."""
         uv = np.asarray(uv, np.float32)
         shape = uv.shape[:-1]
-        flat = uv.reshape(-1, 1, 2) * self.size - 0.5
+        n = int(np.prod(shape))
+        rows = -(-n // 1024)   # cv2.remap takes fewer than 32767 rows: lay the points out 1024 a row
+        grid = np.zeros((rows * 1024, 2), np.float32)
+        grid[:n] = uv.reshape(-1, 2) * self.size - 0.5
+        grid = grid.reshape(rows, 1024, 2)
         img = self.colour if lighting == "atlas" else self.colour / self.gain
-        col = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        conf = cv2.remap(self.confidence(), flat[..., 0], flat[..., 1], cv2.INTER_LINEAR,
+        col = cv2.remap(img, grid[..., 0], grid[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        conf = cv2.remap(self.confidence(), grid[..., 0], grid[..., 1], cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        return col.reshape(*shape, 3), conf.reshape(shape)
+        return col.reshape(-1, 3)[:n].reshape(*shape, 3), conf.reshape(-1)[:n].reshape(shape)
