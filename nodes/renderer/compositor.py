@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import moderngl
@@ -81,7 +82,9 @@ class Compositor:
     the render mesh (None: as many as keep it within 16384 triangles, at most 2); ``atlas`` keep
     and use the face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side,
     ``atlas_every`` update it every N frames (the frames between only read it); ``atlas_blend``
-    False: learn the atlas, blend nothing from it (e.g. only to save it). ``atlases`` holds one
+    False: learn the atlas, blend nothing from it (e.g. only to save it); ``atlas_thread``: the CPU
+    work of its updates on a thread of its own (an update is skipped while the last one runs: not
+    deterministic, for live use). ``atlases`` holds one
     :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
     After each :meth:`render`, ``timings`` holds the stage times of that frame in ms
@@ -94,7 +97,8 @@ class Compositor:
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
                  inpaint: str = "pushpull", feather_px: float = 3.0, dilate_px: int = 2,
                  telea_radius: float = 3.0, interpolation: str = "cubic", subdivision: int | None = None,
-                 atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True):
+                 atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
+                 atlas_thread: bool = False):
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -123,6 +127,8 @@ class Compositor:
         self.atlas: TextureAtlas | None = TextureAtlas(atlas_size) if atlas else None
         self._atlas_raster = AtlasRasterizer(self.ctx, atlas_size, width, height) if atlas else None
         self.atlas_every = int(atlas_every)
+        self._atlas_pool = ThreadPoolExecutor(1, thread_name_prefix="atlas") if atlas and atlas_thread else None
+        self._atlas_job = None
         self._atlas_frames = 0
         self.atlas_region: np.ndarray | None = None   # (h, w) float32 atlas weight of the last box
         self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles)
@@ -298,6 +304,9 @@ class Compositor:
         uv = np.asarray(uv, np.float32)
         if uv.shape != (len(fitted), 2):
             raise ValueError(f"uv must be ({len(fitted)}, 2), got {uv.shape}")
+        if self._atlas_job is not None and (self.atlas is None or self.atlas.key is None
+                                            or self.atlas.key[0] != face_key):
+            self._atlas_job.result()   # no reset under a running update
         if face_key not in self.atlases and len(self.atlases) >= 8:
             self.atlases.clear()
         if face_key not in self.atlases:
@@ -306,9 +315,16 @@ class Compositor:
         self.atlas.ensure(face_key, uv)
         P = estimate_projection(fitted, projected)
         tri = np.asarray(triangles, np.int64)
-        if self._atlas_frames % self.atlas_every == 0:
-            texel_px, quality = self._atlas_raster.observe(fitted, projected, tri, uv, P)
-            self.atlas.update(frame, texel_px, quality, keep_mask)
+        busy = self._atlas_job is not None and not self._atlas_job.done()
+        if self._atlas_frames % self.atlas_every == 0 and not busy:
+            raw = self._atlas_raster.draw_uv(fitted, projected, tri, uv, P)
+            atlas, raster = self.atlas, self._atlas_raster
+
+            def job():
+                return atlas.update(frame, *raster.finish(*raw), keep_mask)
+            self._atlas_job = self._atlas_pool.submit(job) if self._atlas_pool is not None else None
+            if self._atlas_pool is None:
+                job()
         else:
             self._atlas_raster.see(fitted, projected, tri, P)
         self._atlas_frames += 1
@@ -441,6 +457,9 @@ class Compositor:
         if self.maps is not None:
             self.maps.release()
             self.maps = None
+        if self._atlas_pool is not None:
+            self._atlas_pool.shutdown(wait=True)
+            self._atlas_pool = None
         if self._atlas_raster is not None:
             self._atlas_raster.release()
             self._atlas_raster = None

@@ -77,7 +77,8 @@ class RendererNode(Node):
                               "the edited surface badly (stretched, hidden) its colours come from it; published on "
                               "face/texture", choices=("on", "off")),
         "atlas_size": Param(256, "atlas texels a side", range=(32, 2048)),
-        "atlas_every": Param(1, "update the atlas every N frames (the frames between only read it)", range=(1, 100)),
+        "atlas_every": Param(2, "update the atlas every N frames (the frames between only read it; an update's CPU "
+                                "work runs on a thread of its own, skipped while the last one runs)", range=(1, 100)),
         "texture_size": Param(128, "face/texture: the atlas downscaled to this many texels a side", range=(16, 2048)),
         "texture_period_s": Param(1.0, "face/texture: published at most this often, s", range=(0.0, 3600.0)),
     }
@@ -209,7 +210,7 @@ class RendererNode(Node):
         p = self.params
         self.compositor = Compositor(width, height, ctx=ctx, inpaint=p.inpaint, feather_px=p.feather_px,
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
-                                     atlas_every=p.atlas_every)
+                                     atlas_every=p.atlas_every, atlas_thread=True)
         return True
 
     def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:
