@@ -225,7 +225,12 @@ class AtlasRasterizer:
                 P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What the frame shows of the atlas: (texel pixels (S, S, 2) float32, NaN where no
         triangle covers the texel; quality (S, S) float32 in [0, 1]). Arguments as :meth:`see`,
-        plus ``uv`` (V, 2) texture coordinates in [0, 1]."""
+        plus ``uv`` (V, 2) texture coordinates in [0, 1]. :meth:`draw_uv` (GL, the context's
+        thread) then :meth:`finish` (CPU only: another thread may run it)."""
+        return self.finish(*self.draw_uv(vertices, px, triangles, uv, P))
+
+    def draw_uv(self, vertices, px, triangles, uv, P) -> tuple:
+        """The GL part of :meth:`observe` (sets :attr:`vertex_quality` too): what :meth:`finish` takes."""
         S = self.size
         px = np.asarray(px, np.float64)
         _, view, box, depth, cos, tol = self.see(vertices, px, triangles, P)
@@ -244,6 +249,11 @@ class AtlasRasterizer:
                             np.float32).reshape(S, S, 4).copy()
         for obj in (vao, vbo, ibo):
             obj.release()
+        return obs, view, box, px, np.asarray(triangles, np.int64), tol
+
+    def finish(self, obs, view, box, px, triangles, tol) -> tuple[np.ndarray, np.ndarray]:
+        """The CPU part of :meth:`observe`: texel pixels and quality from :meth:`draw_uv`'s output."""
+        S = self.size
         texel_px = obs[..., 0:2]
         covered = obs[..., 3] > -1.5
         texel_px[~covered] = np.nan
