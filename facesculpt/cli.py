@@ -20,6 +20,7 @@ COMMAND_MODULES = [
     "facesculpt.app.keys_command",  # keys generate
     "facesculpt.app.process",  # process
     "facesculpt.app.reenact",  # reenact
+    "facesculpt.app.coding_commands",  # encode, decode
     "facesculpt.app.bench",  # bench
 ]
 

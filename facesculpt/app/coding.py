@@ -1,0 +1,190 @@
+"""Model-based coding (a talking head at a few kbit/s): a video described by a keyframe once and a
+head pose plus a few expression numbers per frame, re-rendered by the compositor.
+
+Encoding. The fitter learns the person's neutral from the first frames (:meth:`Pipeline.calibrate`);
+every frame is then fitted, and described by its pose (a similarity from the fitted model-space
+shape onto the fitted camera-space mesh: rotation, translation, scale) and its expression
+displacement from the neutral (V, 3) mm. The displacements of the whole video are reduced to
+``components`` principal components (their mean and basis go in the header, once); each frame
+sends its coefficients. The header also holds the keyframe (the first frame with a face, whole,
+as a JPEG: the face's texture and the background as a still; the background is never updated),
+its fit and the neutral. Stream layout: :mod:`facesculpt.app.coding_format`.
+
+Decoding. Frame t's shape is neutral + mean + basis · c_t, posed by its similarity; the keyframe's
+fitted mesh is moved by the difference between that and the first coded frame's posed shape (so
+the keyframe renders as itself), and the keyframe is composited onto it (:class:`Compositor`:
+uncovered background inpainted). A mouth that opens wider than the keyframe's closed one gets
+the painted interior of :mod:`facesculpt.nodes.renderer.mouth_interior` (as reenactment does).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from facesculpt.app.coding_format import CodedStream, coefficient_steps, read_stream, write_stream
+from facesculpt.app.reenactment import SOURCE_OPEN_PX, inner_lip_ids
+from facesculpt.geometry.projection import project
+from facesculpt.nodes.renderer.mouth_interior import opening_px, paint_mouth_interior
+
+
+def fit_pose(model_vertices: np.ndarray, camera_vertices: np.ndarray) -> np.ndarray:
+    """(7,) the similarity mapping a fitted shape (V, 3) model mm onto its camera-space mesh
+    (V, 3): rotation vector (rad), translation (camera units), log scale."""
+    from facesculpt.nodes.fitter.pose import similarity_procrustes
+
+    s, R, t = similarity_procrustes(model_vertices, camera_vertices)
+    rvec, _ = cv2.Rodrigues(np.asarray(R, np.float64))
+    return np.concatenate([rvec.ravel(), np.asarray(t, np.float64), [np.log(s)]])
+
+
+def apply_pose(pose: np.ndarray, shape: np.ndarray) -> np.ndarray:
+    """(V, 3) ``shape`` (model mm) under the similarity of :func:`fit_pose`'s vector."""
+    R, _ = cv2.Rodrigues(np.asarray(pose[:3], np.float64))
+    return np.exp(pose[6]) * np.asarray(shape, np.float64) @ R.T + pose[3:6]
+
+
+@dataclass
+class Analysis:
+    """What the encoder measured of a video: fps, size (w, h), present (F,) bool, pose (F, 7),
+    expression (F, V, 3) mm from the neutral (zeros without a face), neutral (V, 3), projected
+    (F, V, 2) px of each frame's fit (NaN without a face), key: the keyframe's index, key_fit,
+    key_image."""
+
+    fps: float
+    size: tuple
+    present: np.ndarray
+    pose: np.ndarray
+    expression: np.ndarray
+    neutral: np.ndarray
+    projected: np.ndarray
+    key: int
+    key_fit: object
+    key_image: np.ndarray
+
+
+def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0, progress=None) -> Analysis:
+    """Fit every frame of a video; ValueError without a face. ``frames``: a list of (H, W, 3)
+    uint8 BGR, or a callable returning a fresh iterator over them (called twice: the neutral's
+    pass over the first frames, then every frame), so a long video is never held in memory;
+    progress(n): called per frame of the second pass."""
+    from itertools import islice
+
+    from facesculpt.app.pipeline import Pipeline
+
+    def fresh():
+        return iter(frames()) if callable(frames) else iter(frames)
+
+    with Pipeline("facemesh", fov_deg=fov_deg, neutral_frames=neutral_frames) as pipe:
+        pipe.calibrate(islice(fresh(), neutral_frames), fps)
+        neutral = np.array(pipe.neutral, np.float64)
+        present, pose, expression, projected = [], [], [], []
+        key, key_fit, key_image, size = -1, None, None, None
+        for i, frame in enumerate(fresh()):
+            size = (frame.shape[1], frame.shape[0])
+            fit = pipe.fit_frame(frame, i / fps)
+            if progress is not None:
+                progress(1)
+            present.append(fit is not None)
+            pose.append(np.zeros(7) if fit is None else fit_pose(fit.model_vertices, fit.vertices))
+            expression.append(np.zeros_like(neutral, np.float32) if fit is None
+                              else (fit.model_vertices - neutral).astype(np.float32))
+            projected.append(np.full((len(neutral), 2), np.nan, np.float32) if fit is None else fit.projected)
+            if fit is not None and key < 0:
+                key, key_fit, key_image = i, fit, frame
+    if key < 0:
+        raise ValueError("no face was found in the video: nothing to code")
+    return Analysis(fps, size, np.array(present), np.array(pose), np.array(expression),
+                    neutral.astype(np.float32), np.array(projected), key, key_fit, key_image)
+
+
+def encode(analysis: Analysis, path, components: int = 12, jpeg_quality: int = 80) -> dict:
+    """Write ``analysis`` as a `.fsc` stream at ``path``; returns its part sizes (bytes)."""
+    a = analysis
+    E = a.expression[a.present].reshape(int(a.present.sum()), -1).astype(np.float64)
+    mean = E.mean(0)
+    _, _, Vt = np.linalg.svd(E - mean, full_matrices=False)
+    basis = Vt[:components]
+    coeffs = np.zeros((len(a.present), len(basis)))
+    coeffs[a.present] = (E - mean) @ basis.T
+    ok, jpeg = cv2.imencode(".jpg", a.key_image, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+    if not ok:
+        raise RuntimeError("cannot encode the keyframe as JPEG")
+    f = a.key_fit
+    header = {"version": 1, "model": "facemesh", "fps": a.fps, "frames": len(a.present), "width": a.size[0],
+              "height": a.size[1], "key": a.key, "vertices": int(a.neutral.shape[0]), "components": len(basis),
+              "K": None if f.K is None else np.asarray(f.K).tolist(), "coeff_steps": coefficient_steps(coeffs).tolist()}
+    arrays = {"key_vertices": f.vertices, "key_projected": f.projected, "neutral": a.neutral, "mean": mean,
+              "basis": basis}
+    return write_stream(path, header, jpeg.tobytes(), arrays, a.present, a.pose, coeffs)
+
+
+class Decoder:
+    """Renders the frames of a :class:`CodedStream` (:meth:`frame`); :meth:`close` frees GL."""
+
+    def __init__(self, stream: CodedStream):
+        from facesculpt.app.pipeline import load_face_model
+        from facesculpt.nodes.renderer import Compositor
+
+        self.stream = stream
+        h = stream.header
+        self.image = cv2.imdecode(np.frombuffer(stream.keyframe_jpeg, np.uint8), cv2.IMREAD_COLOR)
+        self.model = load_face_model(h["model"])
+        self.K = None if h["K"] is None else np.asarray(h["K"], np.float64)
+        self.compositor = Compositor(int(h["width"]), int(h["height"]))
+        self.lips = inner_lip_ids(self.model)
+        self.key_opening = opening_px(stream.arrays["key_projected"][self.lips])
+        self.anchor = self.posed(int(h["key"]))
+        self.last = int(h["key"])
+
+    def shape(self, i: int) -> np.ndarray:
+        """(V, 3) model mm: frame ``i``'s decoded shape (neutral + mean + basis · c)."""
+        a = self.stream.arrays
+        return a["neutral"] + (a["mean"] + self.stream.coeffs[i] @ a["basis"]).reshape(-1, 3)
+
+    def posed(self, i: int) -> np.ndarray:
+        return apply_pose(self.stream.pose[i], self.shape(i))
+
+    def frame(self, i: int) -> np.ndarray:
+        """(H, W, 3) uint8 BGR: frame ``i`` rendered (a frame without a face holds the last one's
+        parameters; frames before the keyframe render it with its own)."""
+        if self.stream.present[i]:
+            self.last = i
+        a = self.stream.arrays
+        deformed = (a["key_vertices"] + self.posed(self.last) - self.anchor).astype(np.float32)
+        out = self.compositor.render(self.image, a["key_vertices"], a["key_projected"], self.model.triangles,
+                                     deformed)
+        if self.key_opening < SOURCE_OPEN_PX:
+            lips = deformed[self.lips].astype(np.float64)
+            out = paint_mouth_interior(out, project(lips, self.K) if self.K is not None else lips[:, :2],
+                                       self.key_opening)
+        return out
+
+    def close(self) -> None:
+        self.compositor.release()
+
+
+def decode_file(path) -> tuple[CodedStream, Decoder]:
+    """The stream at ``path`` and a :class:`Decoder` for it."""
+    stream = read_stream(path)
+    return stream, Decoder(stream)
+
+
+def face_region_quality(decoded: np.ndarray, original: np.ndarray, projected: np.ndarray) -> tuple[float, float]:
+    """(PSNR dB, SSIM) of ``decoded`` against ``original`` (H, W, 3) uint8 in the face region: the
+    convex hull of the original frame's fitted face ``projected`` (V, 2) px. SSIM on grey levels
+    over the region's bounding box."""
+    from skimage.metrics import structural_similarity
+
+    mask = np.zeros(original.shape[:2], np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull(np.round(projected).astype(np.int32)), 1)
+    m = mask.astype(bool)
+    err = ((decoded.astype(np.float64) - original.astype(np.float64)) ** 2)[m].mean()
+    psnr = 10 * np.log10(255.0 ** 2 / max(err, 1e-12))
+    ys, xs = np.nonzero(m)
+    box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+    g1 = cv2.cvtColor(decoded, cv2.COLOR_BGR2GRAY)[box]
+    g2 = cv2.cvtColor(original, cv2.COLOR_BGR2GRAY)[box]
+    return float(psnr), float(structural_similarity(g1, g2, data_range=255))
