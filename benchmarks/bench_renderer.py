@@ -13,7 +13,8 @@ merged per frame with the deformer's Eq. 5. Geometry is computed before timing.
 Measured per frame (medians, ms): the compositor's stages (camera recovery with the subdivided
 vertices, draw (the source map), readback, masks (regions, uncovered mask, sources), inpaint (the
 fill), texture (the frame sampled through the source map), composite) and its total, with the
-push-pull fill, with Telea on the bounding box, with Lanczos-4 sampling instead of bicubic, and
+push-pull fill, with Telea on the bounding box, with Navier-Stokes, with the patch fill, with the
+background plate on (issue 16: push-pull or patch under it), with Lanczos-4 sampling instead of bicubic, and
 the whole render of the baseline compositor (``--baseline``, default the commit before the
 source-map warp: texture round trip, no subdivision), loaded from git; the peer cv2.inpaint(TELEA, radius 3) of the same uncovered mask on the full
 frame; and a GPU variant of the composite step (upload background + alpha, blend in a shader,
@@ -46,6 +47,8 @@ from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
 from facesculpt.runtime.process_limits import limit_threads  # noqa: E402
 
 BASELINE_REV = "7c619da"  # the compositor before the source-map warp (issue 15)
+FILL_VARIANTS = (("ns", "ns", False), ("patch", "patch", False), ("pushpull+plate", "pushpull", True),
+                 ("patch+plate", "patch", True))
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
 SIZE = (856, 480)
@@ -169,6 +172,9 @@ def main(argv=None) -> int:
     W, H = SIZE
     comps = {m: Compositor(W, H, inpaint=m) for m in ("pushpull", "telea")}
     comps["lanczos"] = Compositor(W, H, ctx=comps["pushpull"].ctx, interpolation="lanczos")
+    # issue 16: the other fills and the background plate (learned every frame, registered)
+    for name, fill, plate in FILL_VARIANTS:
+        comps[name] = Compositor(W, H, ctx=comps["pushpull"].ctx, inpaint=fill, plate=plate)
     Baseline = baseline_compositor(args.baseline) if args.baseline else None
     if Baseline is not None:
         comps["baseline"] = Baseline(W, H, ctx=comps["pushpull"].ctx)
@@ -255,6 +261,9 @@ def main(argv=None) -> int:
         print(f"  baseline compositor ({args.baseline}): total {med['baseline.total']:.2f} ms, this one "
               f"{med[f'{pp}.total']:.2f} ms (same frames, same run)")
         fig["baseline"] = args.baseline
+    for name, _, _ in FILL_VARIANTS:
+        print(f"  {name:14s}: total {med[f'{name}.total']:.2f} ms (inpaint {med[f'{name}.inpaint']:.2f}, "
+              f"plate learning {med.get(f'{name}.plate', 0.0):.2f}); push-pull alone {med[f'{pp}.total']:.2f} ms")
     print(f"  whole renderer stage (push-pull): {med[f'{pp}.total']:.2f} ms (target <= 10 ms)")
     if args.json:
         Path(args.json).write_text(json.dumps(fig, indent=2))

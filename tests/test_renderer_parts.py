@@ -67,7 +67,7 @@ def test_fills_need_a_source():
     with pytest.raises(ValueError, match="no source"):
         fill_telea(img, hole, np.zeros_like(hole))
     with pytest.raises(ValueError, match="unknown inpaint"):
-        fill_by_parts(img, hole, ~hole, method="ns")
+        fill_by_parts(img, hole, ~hole, method="navier")
 
 
 @pytest.mark.parametrize("method", ["pushpull", "telea"])

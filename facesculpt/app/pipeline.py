@@ -117,7 +117,9 @@ class Pipeline:
     are not fitted (the other fitter options are :class:`FitterConfig`'s defaults, the fitter
     node's); faces: which faces are fitted and edited, "largest", "all" or a face number from 1
     (:func:`facesculpt.nodes.fitter.parse_faces`), each with its own fitter and neutral;
-    inpaint, feather_px, dilate_px: the compositor's; atlas: the face's texture memory (issue 16),
+    inpaint, feather_px, dilate_px: the compositor's (inpaint "pushpull", "telea", "ns" or "patch");
+    plate: "on" keeps a background plate and takes what an edit uncovers from it where it was seen
+    (issue 16, :mod:`facesculpt.nodes.renderer.background_plate`), "off" not; atlas: the face's texture memory (issue 16),
     "off", "on" (learned and blended where the frame sees the edited surface badly) or "learn"
     (learned only, for :meth:`texture`), in the model's UV layout (:meth:`uv_layout`); detector: a :class:`LandmarkDetector` to
     reuse (reset here), else one is made. The GL context is made here; call :meth:`close` (or use
@@ -127,7 +129,8 @@ class Pipeline:
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
                  neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
-                 faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off"):
+                 faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
+                 plate: str = "off"):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -139,10 +142,12 @@ class Pipeline:
         self.neutral_frames = int(neutral_frames)
         self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames)
         self.min_score = float(min_score)
+        if plate not in ("off", "on"):
+            raise ValueError(f"plate must be off or on, got {plate!r}")
         if atlas not in ("off", "on", "learn"):
             raise ValueError(f"atlas must be off, on or learn, got {atlas!r}")
         self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px,
-                                   "atlas": atlas != "off", "atlas_blend": atlas == "on"}
+                                   "atlas": atlas != "off", "atlas_blend": atlas == "on", "plate": plate == "on"}
         self._uv = None
         self.faces: FaceFitters | None = None
         self.compositor = None

@@ -84,6 +84,12 @@ def register(sub) -> None:
     p.add_argument("--save-texture", default="", metavar="FILE.png",
                    help="write the face's texture atlas (in the model's UV layout) as a PNG at the end "
                         "(learned even with --atlas off)")
+    p.add_argument("--fill", choices=("pushpull", "telea", "ns", "patch"), default="pushpull",
+                   help="fill of the background an edit uncovers where it was never seen: pushpull (smooth, the "
+                        "default), telea / ns (OpenCV inpainting), patch (background copied in from nearby)")
+    p.add_argument("--plate", choices=("on", "off"), default="off",
+                   help="keep a background plate (the background seen behind the face in other frames, registered "
+                        "when the camera moves) and take what an edit uncovers from it where known (default off)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_process)
 
@@ -318,7 +324,8 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input)
     save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
-                        faces=selection, detector=detector, atlas=atlas)
+                        faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "pushpull"),
+                        plate=getattr(args, "plate", "off"))
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

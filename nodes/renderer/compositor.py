@@ -15,7 +15,10 @@ Per frame, on a box around the part of the face that moves only:
 4. masks: the covered pixels whose offset is not negligible are the changed region (only
    those are re-rendered); the background the face no longer covers (original minus deformed
    region, slightly dilated) is inpainted from the surrounding background (:mod:`.inpaint`),
-   each connected part on its own small box;
+   each connected part on its own small box; with ``plate`` on, the background plate
+   (:mod:`.background_plate`: the background seen behind the face in earlier frames, learned
+   from every input frame outside the face grown by ``PLATE_MARGIN``, registered when the
+   camera moves) replaces the fill where it is known, fading into it at its border;
 5. the input frame is sampled once at the source positions of the changed pixels (bicubic or
    Lanczos-4, ``cv2.remap``, full resolution; :mod:`.warp`) and blended over the background with
    a soft edge inside the deformed outline, as wide as ``feather_px`` or ``FEATHER_FRACTION`` of
@@ -44,6 +47,7 @@ import moderngl
 import numpy as np
 
 from .atlas_raster import AtlasRasterizer
+from .background_plate import BackgroundPlate, face_region
 from .camera import estimate_projection, project
 from .gl_context import create_headless_context
 from .inpaint import INPAINT_METHODS, dilate, fill_by_parts, uncovered_mask
@@ -64,7 +68,8 @@ from .warp import (
 )
 
 FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's size
-STAGES = ("camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
+PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
+STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
 ATLAS_STRETCH = (1.5, 3.0)   # source-map stretch (linear) from which the atlas starts / fully takes over
 ATLAS_GRAZING = 0.35         # input-view frontality (cosine, 0 where hidden) under which the atlas takes over
 
@@ -84,13 +89,16 @@ class Compositor:
     ``atlas_every`` update it every N frames (the frames between only read it); ``atlas_blend``
     False: learn the atlas, blend nothing from it (e.g. only to save it); ``atlas_thread``: the CPU
     work of its updates on a thread of its own (an update is skipped while the last one runs: not
-    deterministic, for live use). ``atlases`` holds one
+    deterministic, for live use); ``plate`` keep a background plate
+    (:class:`.background_plate.BackgroundPlate`; ``plate_max_age`` frames an estimate is used,
+    ``plate_register`` follow camera motion) and take uncovered pixels from it; ``inpaint``
+    "pushpull", "telea", "ns" or "patch" (:mod:`.inpaint`). ``atlases`` holds one
     :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
     After each :meth:`render`, ``timings`` holds the stage times of that frame in ms
-    (camera (with the subdivided vertices), draw, readback, masks, inpaint, texture (the
-    sampling of the frame), composite, total), ``box`` the frame-pixel rectangle (x0, y0, x1,
-    y1) it worked on (None when nothing changed) and ``deformed_px`` the (V, 2) pixels of the
+    (plate (its learning; its use counts in inpaint), camera (with the subdivided vertices),
+    draw, readback, masks, inpaint, texture (the sampling of the frame), composite, total),
+    ``box`` the frame-pixel rectangle (x0, y0, x1, y1) it worked on (None when nothing changed) and ``deformed_px`` the (V, 2) pixels of the
     deformed vertices.
     """
 
@@ -98,7 +106,8 @@ class Compositor:
                  inpaint: str = "pushpull", feather_px: float = 3.0, dilate_px: int = 2,
                  telea_radius: float = 3.0, interpolation: str = "cubic", subdivision: int | None = None,
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
-                 atlas_thread: bool = False):
+                 atlas_thread: bool = False,
+                 plate: bool = False, plate_max_age: int = 150, plate_register: bool = True):
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -131,6 +140,8 @@ class Compositor:
         self._atlas_job = None
         self._atlas_frames = 0
         self.atlas_region: np.ndarray | None = None   # (h, w) float32 atlas weight of the last box
+        self.plate = BackgroundPlate(width, height, max_age=plate_max_age, register=plate_register) if plate else None
+        self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
         self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles)
         self._mesh_key: tuple | None = None
         self._closed = self._S = self._fine = None
@@ -240,8 +251,9 @@ class Compositor:
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None
         self.deformed_px = self.atlas_region = None
         V = fitted.shape[0]
+        t_plate = self._learn_plate(frame_bgr, projected, keep_mask)
         if V == 0:  # no face
-            self.timings = {"total": (time.perf_counter() - t_start) * 1e3}
+            self.timings = {"plate": t_plate, "total": (time.perf_counter() - t_start) * 1e3}
             return frame_bgr.copy()
         self._set_triangles(triangles, V)
         t0 = time.perf_counter()
@@ -255,7 +267,7 @@ class Compositor:
         out = frame_bgr.copy()
         if box is None:  # nothing moves, or not inside the frame: every later stage takes no time
             self.timings = {**dict.fromkeys(STAGES, 0.0), "camera": (time.perf_counter() - t0) * 1e3,
-                            "atlas": t_atlas, "total": (time.perf_counter() - t_start) * 1e3}
+                            "atlas": t_atlas, "plate": t_plate, "total": (time.perf_counter() - t_start) * 1e3}
             return out
         fine = self._S @ np.column_stack([dst_px, depth, offset] + ([uvq] if uvq is not None else [])).astype(np.float32)
         draw_tris, n_moving = self._draw_triangles(fine[:, 3:5])
@@ -269,7 +281,7 @@ class Compositor:
         x0, y0, x1, y1 = box
         crop = out[y0:y1, x0:x1]
         if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
-            fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius, in_place=True)
+            self._fill(crop, fill, source, box, projected)
         t5 = time.perf_counter()
         write = changed | (covered & (fill != 0))
         block = bounding_slices(write)
@@ -290,9 +302,37 @@ class Compositor:
         self.changed_region, self.inpainted_region = changed.view(np.uint8), fill
         self.timings = {
             "camera": (t1 - t0) * 1e3, "atlas": t_atlas, "draw": (t2 - t1) * 1e3, "readback": (t3 - t2) * 1e3,
-            "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4) * 1e3, "texture": (t6 - t5) * 1e3,
+            "plate": t_plate, "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4) * 1e3, "texture": (t6 - t5) * 1e3,
             "composite": (t7 - t6) * 1e3, "total": (time.perf_counter() - t_start) * 1e3}
         return out
+
+    def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
+              projected: np.ndarray) -> None:
+        """Fill the ``fill`` pixels of ``crop`` (the frame's ``box``, in place) from the ``source``
+        pixels (step 4), then lay the background plate over them where it knows the background."""
+        fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius, in_place=True)
+        if self.plate is not None:
+            self.plate_region = self.plate.take(crop, fill, source, box, self.feather_width(projected))
+
+    def _learn_plate(self, frame: np.ndarray, projected: np.ndarray, keep_mask: np.ndarray | None) -> float:
+        """With the plate on: take ``frame`` into it outside the face (``projected`` (V, 2) px, its
+        hull grown by PLATE_MARGIN of its size and ``dilate_px`` + 2) and ``keep_mask``; when the camera
+        moves, the plate keeps the face's box grown by half its size; ms taken."""
+        if self.plate is None:
+            return 0.0
+        t0 = time.perf_counter()
+        self.plate_region = None
+        occluded = keep_box = None
+        if len(projected):
+            lo, hi = projected.min(axis=0), projected.max(axis=0)
+            size = float(np.sqrt(max((hi - lo)[0] * (hi - lo)[1], 0.0)))
+            margin = max(self.dilate_px + 2.0, PLATE_MARGIN * size)
+            occluded = face_region((self.height, self.width), projected, margin)
+            x0, y0 = np.floor(lo - 0.5 * size).astype(int)  # what the plate keeps when the camera moves
+            x1, y1 = np.ceil(hi + 0.5 * size).astype(int)
+            keep_box = (int(x0), int(y0), int(x1), int(y1))
+        self.plate.update(frame, occluded, keep_box)
+        return (time.perf_counter() - t0) * 1e3
 
     def _update_atlas(self, frame, fitted, projected, triangles, uv, face_key, keep_mask) -> np.ndarray | None:
         """With the atlas on and ``uv`` given: reset it on a new face, take this frame into it

@@ -15,7 +15,11 @@ on its own bounding box plus a margin):
   O(pixels), a few tenths of a millisecond for a face-sized crop.
 * :func:`fill_telea`: OpenCV's Telea fast-marching inpainting on the same crop,
   with every non-source pixel (the whole old face inside the crop) marked
-  unknown so that it, too, draws from the background only.
+  unknown so that it, too, draws from the background only; "ns": the same with
+  OpenCV's Navier-Stokes inpainting.
+* "patch" (:mod:`.patch_fill`): the push-pull fill, then tiles of background copied
+  in from nearby shifts that match their surroundings, with a pull-push seam
+  correction: texture and edges continue into the region.
 
 Images are (h, w, 3) uint8 BGR; masks are (h, w) bool or uint8 (non-zero = set).
 """
@@ -25,7 +29,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-INPAINT_METHODS = ("pushpull", "telea")
+INPAINT_METHODS = ("pushpull", "telea", "ns", "patch")
 _SLIVER_KERNEL = np.ones((2, 2), np.uint8)
 
 
@@ -135,6 +139,10 @@ def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, metho
         raise ValueError(f"unknown inpaint method {method!r} (known: {', '.join(INPAINT_METHODS)})")
     fill_u8 = fill.astype(np.uint8, copy=False)
     source = source.astype(bool, copy=False)
+    if method == "patch":
+        from .patch_fill import MARGIN_PX, fill_patch
+
+        margin = max(margin, MARGIN_PX)
     contours, _ = cv2.findContours(fill_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     out = image if in_place else image.copy()
     h, w = fill.shape
@@ -153,14 +161,22 @@ def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, metho
         if method == "pushpull":
             # Reads only known pixels, which no part writes: ``image`` may be ``out``.
             _pushpull_into(out[crop], image[crop], part_fill, known)
+        elif method == "patch":
+            smooth = np.ascontiguousarray(image[crop])
+            _pushpull_into(smooth, smooth.copy(), part_fill, known)
+            done = fill_patch(np.ascontiguousarray(image[crop]), part_fill, known, smooth)
+            np.copyto(out[crop], done, where=part_fill[..., None])
         else:
-            done = fill_telea(np.ascontiguousarray(image[crop]), part_fill, known, radius)
+            done = fill_telea(np.ascontiguousarray(image[crop]), part_fill, known, radius,
+                              cv2.INPAINT_NS if method == "ns" else cv2.INPAINT_TELEA)
             np.copyto(out[crop], done, where=part_fill[..., None])
     return out
 
 
-def fill_telea(image: np.ndarray, fill: np.ndarray, source: np.ndarray, radius: float = 3.0) -> np.ndarray:
-    """Fill the ``fill`` pixels of ``image`` with OpenCV's Telea inpainting, reading only ``source``.
+def fill_telea(image: np.ndarray, fill: np.ndarray, source: np.ndarray, radius: float = 3.0,
+               flags: int = cv2.INPAINT_TELEA) -> np.ndarray:
+    """Fill the ``fill`` pixels of ``image`` with OpenCV's Telea inpainting (``flags``
+    cv2.INPAINT_NS: Navier-Stokes), reading only ``source``.
 
     Every pixel outside ``source`` is handed to :func:`cv2.inpaint` as unknown (so the old
     face is not a source), but only ``fill`` pixels are written back. Same shapes and
@@ -170,7 +186,7 @@ def fill_telea(image: np.ndarray, fill: np.ndarray, source: np.ndarray, radius: 
     if not ((source != 0) & ~fill).any():
         raise ValueError("Telea fill: no source pixel to fill from")
     unknown = ((source == 0) | fill).astype(np.uint8)
-    painted = cv2.inpaint(image, unknown, float(radius), cv2.INPAINT_TELEA)
+    painted = cv2.inpaint(image, unknown, float(radius), flags)
     out = image.copy()
     out[fill] = painted[fill]
     return out

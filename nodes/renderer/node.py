@@ -10,7 +10,8 @@ left-drags become ``correct_landmark`` commands for the fitter: ``correction_mod
 output). Writes ``output`` (a video file) when set.
 
 Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames kept
-for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea"),
+for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea" | "ns" | "patch"), plate
+("on" | "off": the background plate, ``background_plate.py``), plate_max_age,
 feather_px, dilate_px, output (video path), fps (of the video file), publish, overlay
 (fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
 the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s,
@@ -37,6 +38,7 @@ from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
 from .compositor import Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
+from .inpaint import INPAINT_METHODS
 from .pairing import FramePairer
 from .pinch_markers import PinchMarkers, draw_pinch_markers
 from .texture_atlas import uv_layout
@@ -55,8 +57,13 @@ class RendererNode(Node):
                                 range=(0.0, 60.0)),
         "max_state_age_s": Param(0.5, "latest: the oldest state (relative to the frame) still drawn, s",
                                  range=(0.0, 60.0)),
-        "inpaint": Param("pushpull", "fill of the background the deformed face uncovers",
-                         choices=("pushpull", "telea")),
+        "inpaint": Param("pushpull", "fill of the background the deformed face uncovers where it was never seen: "
+                                     "pushpull (smooth), telea / ns (OpenCV inpainting), patch (background copied in "
+                                     "from nearby, seams corrected)", choices=INPAINT_METHODS),
+        "plate": Param("off", "background plate: the background seen behind the face in earlier frames (registered "
+                              "when the camera moves) replaces the fill where known", choices=("on", "off")),
+        "plate_max_age": Param(150, "background plate: frames after which a pixel's estimate is no longer used",
+                               range=(1, 100000)),
         "feather_px": Param(3.0, "soft edge inside the deformed outline, px", range=(0.0, 100.0)),
         "dilate_px": Param(2, "growth of the region to inpaint, px", range=(0, 100)),
         "output": Param("", "video file to write (\"\": none)"),
@@ -210,7 +217,8 @@ class RendererNode(Node):
         p = self.params
         self.compositor = Compositor(width, height, ctx=ctx, inpaint=p.inpaint, feather_px=p.feather_px,
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
-                                     atlas_every=p.atlas_every, atlas_thread=True)
+                                     atlas_every=p.atlas_every, atlas_thread=True,
+                                     plate=p.plate == "on", plate_max_age=p.plate_max_age)
         return True
 
     def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:
