@@ -70,6 +70,10 @@ def register(sub) -> None:
                         "others: libx265, mpeg4, ffv1, ...)")
     p.add_argument("--crf", type=int, default=18, metavar="Q",
                    help="H.264/H.265 quality, 0 (lossless) to 51; lower is better and larger (default 18)")
+    p.add_argument("--preset", default="auto", metavar="NAME",
+                   help="H.264/H.265 speed preset: ultrafast, superfast, veryfast, faster, fast, medium, slow, ... "
+                        "(faster: larger files at about the same --crf quality); default auto: the encoder's own "
+                        "(medium) up to 1920x1080, ultrafast above, where medium alone limits 4K to a few fps")
     p.add_argument("--no-audio", action="store_true", help="do not copy the input's sound into the output video")
     p.add_argument("--width", type=int, default=0, metavar="W", help="resize frames to this width first (aspect kept)")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N frames (0: all)")
@@ -122,17 +126,18 @@ class ImageSequenceOutput:
         pass
 
 
-def open_output(spec: str, fps: float, codec: str | None = None, crf: int = 18, audio_from: str | None = None):
+def open_output(spec: str, fps: float, codec: str | None = None, crf: int = 18, audio_from: str | None = None,
+                preset: str | None = None):
     """An image-sequence writer when ``spec`` holds a ``%`` field, else a video writer (by suffix;
-    ``codec``, ``crf``, the sound of ``audio_from`` copied in) staged under a temporary name until
-    it is complete (:class:`.safe_output.StagedVideo`)."""
+    ``codec``, ``crf``, ``preset``, the sound of ``audio_from`` copied in) staged under a temporary
+    name until it is complete (:class:`.safe_output.StagedVideo`)."""
     if "%" in spec:
         return ImageSequenceOutput(spec)
     from facesculpt.app.safe_output import StagedVideo
     from facesculpt.nodes.renderer.video_out import VideoOutput
 
     def writer(path):
-        return VideoOutput(path, fps, codec=codec, crf=crf, audio_from=audio_from)
+        return VideoOutput(path, fps, codec=codec, crf=crf, preset=preset, audio_from=audio_from)
 
     writer(spec)  # checks suffix, codec, quality and rate now, before anything is written
     return StagedVideo(spec, writer)
@@ -256,25 +261,30 @@ def cmd_process(args) -> int:
 
 
 def _render_frames(pipeline, source, args, fps: float, total, output, export, stop, seen: dict) -> None:
-    """The rendering pass: every frame analysed (a frame ahead, on a second core: decoding,
-    landmarks and fitting release the GIL) and composited, encoded and exported here, where the GL
-    context is; not ahead in a batch worker, which is one core's worth of work already. ``seen``
-    counts frames with a face and the faces edited. Raises KeyboardInterrupt on a stop signal."""
+    """The rendering pass in three stages on two cores: every frame decoded and analysed a frame
+    ahead (:mod:`.read_ahead`), composited and exported here, where the GL context is, and encoded
+    a frame behind (:mod:`.write_behind`); decoding, landmarks, fitting and encoding release the
+    GIL. In a batch worker (``args.read_ahead`` False), which is one core's worth of work already,
+    all on this thread. ``seen`` counts frames with a face and the faces edited. Raises
+    KeyboardInterrupt on a stop signal."""
     from facesculpt.app.read_ahead import ReadAhead
+    from facesculpt.app.write_behind import WriteBehind
 
     def analysed():
         for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
             yield frame, pipeline.analyse(frame, i / fps)
 
-    ahead = ReadAhead(analysed(), depth=2) if getattr(args, "read_ahead", True) else nullcontext(analysed())
-    with _progress(total, "process", args.quiet) as bar, ahead as frames:
-        for frame, (fits, timings) in frames:
+    pipelined = getattr(args, "read_ahead", True)
+    ahead = ReadAhead(analysed(), depth=2) if pipelined else nullcontext(analysed())
+    behind = WriteBehind(output, depth=2) if pipelined else nullcontext(output)
+    with _progress(total, "process", args.quiet) as bar, ahead as frames, behind as writer:
+        for index, (frame, (fits, timings)) in enumerate(frames):
             if export is not None:
-                export.add(output.frames, output.frames / fps, fits)
+                export.add(index, index / fps, fits)
             result = pipeline.compose(frame, fits, timings)
             seen["frames_with_face"] += bool(result.fits)
             seen["faces_edited"].update(k for k in result.fits if pipeline.displacement_of(k) is not None)
-            output.write(np.hstack([frame, result.image]) if args.side_by_side else result.image)
+            writer.write(np.hstack([frame, result.image]) if args.side_by_side else result.image)
             bar.update(1)
             if stop.signal:
                 raise KeyboardInterrupt
@@ -321,7 +331,8 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     total = source.frame_count or None
     if total and args.max_frames:
         total = min(total, args.max_frames)
-    output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input)
+    output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input,
+                         getattr(args, "preset", None))
     save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "pushpull"),

@@ -15,6 +15,13 @@ CODEC_BY_SUFFIX = {".mp4": "libx264", ".m4v": "libx264", ".mov": "libx264", ".mk
 # Encoders that take a constant-rate-factor quality (lower: better, larger; 18 is visually lossless).
 CRF_CODECS = ("libx264", "libx265")
 DEFAULT_CRF = 18
+# Their speed presets, slowest to fastest (x264's and x265's names); the encoder's own default is medium.
+PRESETS = ("placebo", "veryslow", "slower", "slow", "medium", "fast", "faster", "veryfast", "superfast",
+           "ultrafast")
+# ``preset="auto"``: the encoder's default up to this many pixels a frame (1920x1080), above it
+# AUTO_LARGE_PRESET: at 4K the default preset alone takes more than two cores' time for 15 fps.
+AUTO_MAX_DEFAULT_PIXELS = 1920 * 1080
+AUTO_LARGE_PRESET = "ultrafast"
 
 
 def available_codecs() -> list[str]:
@@ -37,7 +44,10 @@ class VideoOutput:
 
     The file is opened at the first frame (its size fixes the video's; an odd side is padded by
     one replicated row or column, as 4:2:0 needs even sides). ``codec``: an FFmpeg encoder name
-    (default by suffix, :data:`CODEC_BY_SUFFIX`), ``crf``: its quality where it has one.
+    (default by suffix, :data:`CODEC_BY_SUFFIX`), ``crf``: its quality where it has one,
+    ``preset``: its speed preset where it has one (:data:`PRESETS`; None: the encoder's default;
+    "auto": the default up to :data:`AUTO_MAX_DEFAULT_PIXELS` a frame, :data:`AUTO_LARGE_PRESET`
+    above).
     ``audio_from``: a media file whose first audio track is copied into the output, in sync with
     the frames and cut to their duration. Raises ValueError for an unknown suffix, codec or a
     frame of another size, RuntimeError when the file cannot be opened for writing.
@@ -48,7 +58,8 @@ class VideoOutput:
     """
 
     def __init__(self, path: str | Path, fps: float = 30.0, reserve_bytes: int | None = None, *,
-                 codec: str | None = None, crf: int = DEFAULT_CRF, audio_from: str | Path | None = None):
+                 codec: str | None = None, crf: int = DEFAULT_CRF, preset: str | None = None,
+                 audio_from: str | Path | None = None):
         self.path = Path(path).expanduser()
         suffix = self.path.suffix.lower()
         if suffix not in CODEC_BY_SUFFIX:
@@ -62,8 +73,11 @@ class VideoOutput:
                              f"(choose one of {', '.join(available_codecs())})")
         if not 0 <= crf <= 51:
             raise ValueError(f"crf must be in [0, 51], got {crf}")
+        if preset is not None and preset not in (*PRESETS, "auto"):
+            raise ValueError(f"unknown encoder preset {preset!r} (auto or one of {', '.join(PRESETS)})")
         self.fps = float(fps)
         self.crf = int(crf)
+        self.preset = preset
         self.audio_from = Path(audio_from) if audio_from else None
         self.size: tuple[int, int] | None = None
         self.frames = 0
@@ -88,6 +102,11 @@ class VideoOutput:
         stream.pix_fmt = "yuvj420p" if self.codec == "mjpeg" else "yuv420p"
         if self.codec in CRF_CODECS:
             stream.options = {"crf": str(self.crf)}
+            preset = self.preset
+            if preset == "auto":
+                preset = AUTO_LARGE_PRESET if w * h > AUTO_MAX_DEFAULT_PIXELS else None
+            if preset is not None:
+                stream.options["preset"] = preset
         self._stream = stream
         self._audio = _AudioCopy.open(self.audio_from, self._container) if self.audio_from else None
         self.size = (w, h)
