@@ -244,7 +244,7 @@ def test_the_renderer_node_publishes_the_latched_face_texture(graph, data_dir):
     pose = place_marked(model, "s18")
     frames = read_frames(data_dir, "s18", count=2)
     H, W = frames[0].shape[:2]
-    graph.spawn("run", "renderer", "pairing=sync", "publish=false", "atlas=on", "texture_size=64",
+    graph.spawn("run", "renderer", "pairing=sync", "publish=false", "atlas=on", "atlas_every=1", "texture_size=64",
                 "texture_period_s=0")
     feeder = graph.node(Feeder())
     for pub in (feeder.image_pub, feeder.state_pub):
@@ -252,16 +252,17 @@ def test_the_renderer_node_publishes_the_latched_face_texture(graph, data_dir):
     feeder.model_pub.publish(FaceModel(stamp=1, model_id=model.model_id, vertices=model.mean.astype(np.float32),
                                        triangles=model.triangles.astype(np.int32)))
     graph.spin_until(feeder, lambda: False, 1.0)
-    for i, frame in enumerate(frames):
+    for i, frame in enumerate(frames * 2):   # the atlas updates on a thread: a texture comes a frame or so later
         stamp = (i + 1) * 40_000_000
         feeder.image_pub.publish(Image(stamp=stamp, seq=i, image=frame, K=pose.K))
         feeder.state_pub.publish(FaceState(stamp=stamp, model_id=model.model_id, R=pose.R, t=np.zeros(3), scale=1.0,
                                            K=pose.K, vertices=pose.fitted.astype(np.float32),
                                            projected=pose.projected.astype(np.float32), image_size=[W, H],
                                            projection="perspective"))
-        assert graph.spin_until(feeder, lambda: len(feeder.textures) > i, 20.0), f"no face/texture after frame {i}"
+        graph.spin_until(feeder, lambda: False, 0.3)
+    assert graph.spin_until(feeder, lambda: len(feeder.textures) > 0, 20.0), "no face/texture"
     tex = feeder.textures[-1]
     assert tex.image.shape == (64, 64, 3) and tex.confidence.shape == (64, 64)
-    assert tex.texcoords.shape == (len(model.mean.reshape(-1, 3)), 2) and tex.updates == 2
+    assert tex.texcoords.shape == (len(model.mean.reshape(-1, 3)), 2) and 1 <= tex.updates <= 4
     seen = tex.image.max(axis=2) > 0
     assert 0.2 < seen.mean() < 0.98 and (tex.confidence[seen] > 0).mean() > 0.9
