@@ -1,0 +1,185 @@
+"""Talking heads at a few kbit/s (issue 19): reenactment and model-based coding on the shared videos.
+
+    python benchmarks/bench_talking_heads.py reenact [--drivers d0,d3,d12] [--sources astronaut,d12]
+    python benchmarks/bench_talking_heads.py coding [--videos d0,d3,d12] [--components 12]
+
+reenact: each source (``astronaut``: the embedded photo, mouth open showing teeth; a video name:
+its first frame) is driven by each video; the output is fitted again (its own neutral learned
+from its first 30 frames, as the driver's) and each expression component of the output is
+correlated with the driver's over the frames, for the components the driver moves (standard
+deviation over 1 %IOD, or 0.05 for eye closure). A frame strip (source | driver at its widest
+mouth | result) is written per pair with ``--strips DIR``.
+
+coding: each video encoded (``.fsc``) and decoded; the per-frame stream's bitrate and the whole
+file's; face-region PSNR/SSIM (the convex hull of the original frame's fit) of the decode against
+the input, next to H.264 (libx264 through PyAV, medium preset, one pass at a target bitrate; the
+bitrate it really spent is reported) on the same frames at a ladder of bitrates, and the bitrate
+H.264 needs for the model stream's PSNR (interpolated on the ladder, log bitrate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+
+def _video(name: str) -> Path:
+    from facesculpt.paths import shared_data_dir
+
+    data = shared_data_dir()
+    if data is None:
+        raise SystemExit("shared data not found: set FACESCULPT_DATA")
+    return data / "video" / f"{name}.mp4"
+
+
+def _frames(path, limit: int = 10**6):
+    cap, out = cv2.VideoCapture(str(path)), []
+    while len(out) < limit:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        out.append(frame)
+    fps = cap.get(cv2.CAP_PROP_FPS)
+    cap.release()
+    return out, fps
+
+
+def _expressions(frames, fps, neutral_frames=30):
+    from facesculpt.app.pipeline import Pipeline
+    from facesculpt.nodes.fitter.expression import NAMES
+
+    pipe = Pipeline("facemesh", neutral_frames=neutral_frames)
+    pipe.calibrate(frames[:neutral_frames], fps)
+    fits, E = [], []
+    for i, frame in enumerate(frames):
+        fit = pipe.fit_frame(frame, i / fps)
+        fits.append(fit)
+        E.append(fit.expression if fit is not None else np.full(len(NAMES), np.nan))
+    return pipe, np.array(E), fits
+
+
+def bench_reenact(args) -> None:
+    from facesculpt.app.reenactment import Reenactor, fit_source, inner_lip_ids
+    from facesculpt.nodes.fitter.expression import NAMES
+    from facesculpt.nodes.renderer.mouth_interior import opening_px
+    from facesculpt.paths import embedded_face_image
+
+    for name in args.sources.split(","):
+        image = cv2.imread(str(embedded_face_image())) if name == "astronaut" else _frames(_video(name), 1)[0][0]
+        source = fit_source(image)
+        for drv in args.drivers.split(","):
+            frames, fps = _frames(_video(drv))
+            pipe, driver, fits = _expressions(frames, fps)
+            opening = opening_px(source.fit.projected[inner_lip_ids(pipe.model)])
+            re = Reenactor(source, pipe.model, pipe.neutral)
+            outs = [re.render(f) for f in fits]
+            re.close()
+            output = _expressions(outs, fps)[1]
+            ok = np.isfinite(driver).all(1) & np.isfinite(output).all(1)
+            rows = []
+            for k, comp in enumerate(NAMES):
+                if np.std(driver[ok, k]) > (0.05 if comp.startswith("eye_close") else 1.0):
+                    rows.append((comp, np.corrcoef(driver[ok, k], output[ok, k])[0, 1]))
+            r = np.array([c for _, c in rows])
+            print(f"{name} (mouth {opening:.1f} px) <- {drv} ({ok.sum()}/{len(frames)} frames): jaw_open r = "
+                  f"{np.corrcoef(driver[ok, 0], output[ok, 0])[0, 1]:.3f}; {len(rows)} moving components: "
+                  f"mean r {r.mean():.3f}, median {np.median(r):.3f}, {int((r >= 0.8).sum())} >= 0.8")
+            print("    " + " ".join(f"{c}:{v:.2f}" for c, v in rows))
+            if args.strips:
+                i = int(np.nanargmax(driver[:, 0]))
+                h = image.shape[0]
+                d = cv2.resize(frames[i], (round(frames[i].shape[1] * h / frames[i].shape[0]), h))
+                Path(args.strips).mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(Path(args.strips) / f"reenact_{name}_{drv}.png"), np.hstack([image, d, outs[i]]))
+
+
+def h264(frames, fps, kbps):
+    """The frames through libx264 at ``kbps`` (one pass): (decoded frames, kbit/s really spent)."""
+    import av
+
+    buf = io.BytesIO()
+    with av.open(buf, "w", format="mp4") as container:
+        stream = container.add_stream("libx264", rate=int(round(fps)))
+        stream.width, stream.height, stream.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv420p"
+        stream.bit_rate = int(kbps * 1000)
+        stream.options = {"preset": "medium"}
+        for f in frames:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(f, format="bgr24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    size = buf.getbuffer().nbytes
+    buf.seek(0)
+    with av.open(buf) as container:
+        out = [fr.to_ndarray(format="bgr24") for fr in container.decode(video=0)]
+    return out, size * 8 / (len(frames) / fps) / 1000
+
+
+def _quality(decoded, frames, analysis):
+    from facesculpt.app.coding import face_region_quality
+
+    q = [face_region_quality(o, f, p) for o, f, p, ok in zip(decoded, frames, analysis.projected, analysis.present)
+         if ok]
+    return float(np.mean([x[0] for x in q])), float(np.mean([x[1] for x in q]))
+
+
+def bench_coding(args) -> None:
+    from facesculpt.app.coding import analyse, decode_file, encode
+
+    for name in args.videos.split(","):
+        frames, fps = _frames(_video(name))
+        analysis = analyse(frames, fps)
+        with tempfile.TemporaryDirectory() as tmp:
+            sizes = encode(analysis, Path(tmp) / "v.fsc", components=args.components)
+            stream, decoder = decode_file(Path(tmp) / "v.fsc")
+            decoded = [decoder.frame(i) for i in range(len(frames))]
+            decoder.close()
+        seconds = len(frames) / fps
+        stream_kbps = sizes["records"] * 8 / seconds / 1000
+        psnr, ssim = _quality(decoded, frames, analysis)
+        print(f"{name} ({len(frames)} frames, {fps:g} fps): .fsc per-frame stream {stream_kbps:.2f} kbit/s, "
+              f"whole file {sizes['total'] * 8 / seconds / 1000:.1f} kbit/s (header {sizes['total'] - sizes['records']} "
+              f"bytes); face region PSNR {psnr:.2f} dB, SSIM {ssim:.3f}")
+        ladder = []
+        for target in (stream_kbps, 16, 32, 64, 128, 256):
+            out, real = h264(frames, fps, target)
+            hp, hs = _quality(out, frames, analysis)
+            ladder.append((real, hp))
+            print(f"    H.264 target {target:6.1f} -> {real:6.1f} kbit/s: PSNR {hp:.2f} dB, SSIM {hs:.3f}")
+        ladder.sort()
+        rates, psnrs = np.log([r for r, _ in ladder]), np.array([p for _, p in ladder])
+        if psnrs.min() <= psnr <= psnrs.max():
+            need = float(np.exp(np.interp(psnr, np.maximum.accumulate(psnrs), rates)))
+            print(f"    H.264 needs about {need:.0f} kbit/s for the model stream's {psnr:.2f} dB")
+        else:
+            print(f"    the model stream's {psnr:.2f} dB lies outside H.264's ladder ({psnrs.min():.2f}..{psnrs.max():.2f})")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="what", required=True)
+    r = sub.add_parser("reenact")
+    r.add_argument("--sources", default="astronaut,d12")
+    r.add_argument("--drivers", default="d0,d3,d12")
+    r.add_argument("--strips", default="", metavar="DIR")
+    c = sub.add_parser("coding")
+    c.add_argument("--videos", default="d0,d3,d12")
+    c.add_argument("--components", type=int, default=12)
+    args = p.parse_args()
+    from facesculpt.runtime.process_limits import limit_threads
+
+    limit_threads(1)
+    (bench_reenact if args.what == "reenact" else bench_coding)(args)
+
+
+if __name__ == "__main__":
+    main()
