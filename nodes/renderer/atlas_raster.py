@@ -245,8 +245,15 @@ class AtlasRasterizer:
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND | moderngl.DEPTH_TEST)
         self.fbo_uv.clear(np.nan, np.nan, 0.0, -2.0, viewport=(0, 0, S, S))
         vao.render(moderngl.TRIANGLES)
-        obs = np.frombuffer(self.fbo_uv.read(viewport=(0, 0, S, S), components=4, dtype="f4", alignment=1),
-                            np.float32).reshape(S, S, 4).copy()
+        # read back the layout's bounding box only
+        lo = np.clip(np.floor(np.min(uv, axis=0) * S).astype(int) - 1, 0, S - 1)
+        hi = np.clip(np.ceil(np.max(uv, axis=0) * S).astype(int) + 1, lo + 1, S)
+        obs = np.full((S, S, 4), np.nan, np.float32)
+        obs[..., 3] = -2.0
+        w, h = int(hi[0] - lo[0]), int(hi[1] - lo[1])
+        obs[lo[1]:hi[1], lo[0]:hi[0]] = np.frombuffer(
+            self.fbo_uv.read(viewport=(int(lo[0]), int(lo[1]), w, h), components=4, dtype="f4", alignment=1),
+            np.float32).reshape(h, w, 4)
         for obj in (vao, vbo, ibo):
             obj.release()
         return obs, view, box, px, np.asarray(triangles, np.int64), tol
