@@ -45,9 +45,12 @@ from facesculpt.nodes.fitter import (
 )
 from facesculpt.nodes.fitter.expression import face_expression
 from facesculpt.nodes.landmarks import LandmarkDetector
+from facesculpt.nodes.landmarks.working_resolution import track_at_working_resolution
 
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
 STAGES = ("landmarks", "fit", "merge", "render")
+#: Landmarks run on a copy of a larger frame halved to at most this many pixels (1920x1080).
+ANALYSIS_PIXELS = 1920 * 1080
 
 
 def load_face_model(name_or_path: str) -> MorphableModel:
@@ -122,7 +125,10 @@ class Pipeline:
     (issue 16, :mod:`facesculpt.nodes.renderer.background_plate`), "off" not; atlas: the face's texture memory (issue 16),
     "off", "on" (learned and blended where the frame sees the edited surface badly) or "learn"
     (learned only, for :meth:`texture`), in the model's UV layout (:meth:`uv_layout`); detector: a :class:`LandmarkDetector` to
-    reuse (reset here), else one is made. The GL context is made here; call :meth:`close` (or use
+    reuse (reset here), else one is made; analysis_pixels: landmarks run on a copy of a larger
+    frame halved until it holds at most this many pixels, their points carried back to the frame's
+    (:mod:`facesculpt.nodes.landmarks.working_resolution`; 0: on the frame itself); fitting and
+    compositing work at the frame's own resolution. The GL context is made here; call :meth:`close` (or use
     ``with``) to free it.
     """
 
@@ -130,7 +136,7 @@ class Pipeline:
                  neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
-                 plate: str = "off"):
+                 plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -138,6 +144,7 @@ class Pipeline:
         detector.reset()  # a detector reused from another video starts afresh
         detector.max_faces = max_faces_for(self.selection)
         self.detector = detector
+        self.analysis_pixels = int(analysis_pixels)
         self.fov_deg = float(fov_deg)
         self.neutral_frames = int(neutral_frames)
         self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames)
@@ -189,7 +196,7 @@ class Pipeline:
         self._prepare(w, h)
         timings = {} if timings is None else timings
         t0 = time.perf_counter()
-        found = self.detector.track(frame_bgr)
+        found = track_at_working_resolution(self.detector, frame_bgr, self.analysis_pixels)
         timings["landmarks"] = (time.perf_counter() - t0) * 1e3
         if not found:
             return {}
