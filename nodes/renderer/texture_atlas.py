@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 UV_MARGIN = 0.02  # share of the unit square left free around a derived layout
+CONFIDENT = (0.35, 0.7)  # best quality from which a texel's confidence rises from 0, and where it is 1
 
 
 def uv_layout(neutral: np.ndarray, texcoords: np.ndarray | None = None) -> np.ndarray:
@@ -65,7 +66,7 @@ class TextureAtlas:
     ``gain`` (3,) float32 (frame colour x gain = atlas colour), ``key`` (face key, layout hash),
     ``updates`` (frames taken since the reset)."""
 
-    def __init__(self, size: int = 256, *, min_quality: float = 0.1, keep_ratio: float = 0.6,
+    def __init__(self, size: int = 256, *, min_quality: float = 0.3, keep_ratio: float = 0.6,
                  replace_ratio: float = 1.4, max_weight: float = 3.0, decay: float = 0.998,
                  gain_limits: tuple[float, float] = (0.5, 2.0), min_overlap: int = 200):
         if not 16 <= int(size) <= 4096:
@@ -158,9 +159,11 @@ class TextureAtlas:
         return int(take.sum())
 
     def confidence(self) -> np.ndarray:
-        """(S, S) float32 in [0, 1]: how well each texel is known (its best quality, up to 0.5
-        counting as fully; 0 for texels never seen)."""
-        return np.where(self.weight > 0, np.minimum(self.best * 2.0, 1.0), 0.0).astype(np.float32)
+        """(S, S) float32 in [0, 1]: how well each texel is known: 0 up to a best quality of
+        CONFIDENT[0] (a texel only ever seen obliquely, where a fit that is off by a pixel or two
+        samples the wrong surface), rising to 1 at CONFIDENT[1]."""
+        lo, hi = CONFIDENT
+        return np.where(self.weight > 0, np.clip((self.best - lo) / (hi - lo), 0.0, 1.0), 0.0).astype(np.float32)
 
     def image(self, lighting: str = "atlas") -> np.ndarray:
         """(S, S, 3) uint8 BGR: the atlas in its own lighting ("atlas") or in the last frame's
