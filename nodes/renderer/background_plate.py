@@ -27,6 +27,7 @@ SMALL_FACTOR = 4           # the registration works on the grey frame downscaled
 STATIC_PX = 0.5            # motion of the frame's corners (full-resolution px) the plate may lag before it is warped
 MIN_INLIERS = 12           # RANSAC inliers a homography needs to be trusted
 NEVER = -1.0e9             # last-seen frame of a pixel never seen
+RING_PX = 8                # the light is compared on the known background this close to the fill, px
 
 
 def face_region(shape: tuple[int, int], projected_px: np.ndarray, margin_px: float) -> np.ndarray:
@@ -195,26 +196,39 @@ class BackgroundPlate:
         (x0, y0, x1, y1), already filled; modified in place) where it is known: ``fill`` (h, w) the
         filled pixels, ``source`` (h, w) the background pixels around them. The plate's colour is
         shifted by the mean difference between the crop and the plate on the ``source`` pixels it
-        knows (the light now), and it fades into the fill over ``blend_px`` pixels at the border of
+        knows within ``RING_PX`` of the fill (the light now), and it fades into the fill over ``blend_px`` pixels at the border of
         what it knows. Returns the (h, w) float32 weight the plate got (0 outside ``fill``)."""
-        x0, y0, x1, y1 = box
-        fill = np.asarray(fill) != 0
-        known = self.known(box)
-        weight = np.zeros(fill.shape, np.float32)
-        if not (known & fill).any():
+        x0, y0 = box[0], box[1]
+        fill_u8 = (np.asarray(fill) != 0).view(np.uint8) if np.asarray(fill).dtype == bool else \
+            (np.asarray(fill) != 0).astype(np.uint8)
+        weight = np.zeros(fill_u8.shape, np.float32)
+        rx, ry, rw, rh = cv2.boundingRect(fill_u8)
+        if rw == 0 or rh == 0:
             return weight
-        plate = self.colour[y0:y1, x0:x1]
-        ring = known & (np.asarray(source) != 0) & ~fill
+        # Work on the fill's bounding box grown by the ring the light is measured on.
+        h, w = fill_u8.shape
+        pad = RING_PX + int(np.ceil(blend_px))
+        sx0, sy0, sx1, sy1 = max(0, rx - pad), max(0, ry - pad), min(w, rx + rw + pad), min(h, ry + rh + pad)
+        sub = (slice(sy0, sy1), slice(sx0, sx1))
+        f = fill_u8[sub]
+        known = self.known((x0 + sx0, y0 + sy0, x0 + sx1, y0 + sy1))
+        if not (known & (f != 0)).any():
+            return weight
+        plate = self.colour[y0 + sy0:y0 + sy1, x0 + sx0:x0 + sx1]
+        part = crop[sub]
+        near = cv2.dilate(f, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * RING_PX + 1,) * 2)) != 0
+        ring = known & (np.asarray(source)[sub] != 0) & (f == 0) & near
         shift = np.zeros(3, np.float32)
         if ring.sum() >= 16:
-            shift = (crop[ring].astype(np.float32) - plate[ring]).mean(axis=0)
+            shift = (part[ring].astype(np.float32) - plate[ring]).mean(axis=0)
         if blend_px > 0:
             dist = cv2.distanceTransform(known.astype(np.uint8), cv2.DIST_L2, 3)
-            weight = np.clip(dist / float(blend_px), 0.0, 1.0).astype(np.float32)
+            wsub = np.clip(dist / float(blend_px), 0.0, 1.0).astype(np.float32)
         else:
-            weight = known.astype(np.float32)
-        weight[~fill] = 0.0
-        w3 = weight[..., None]
-        mixed = crop.astype(np.float32) * (1.0 - w3) + (plate + shift) * w3
-        np.copyto(crop, np.clip(np.rint(mixed), 0, 255).astype(np.uint8), where=(weight > 0)[..., None])
+            wsub = known.astype(np.float32)
+        wsub[f == 0] = 0.0
+        w3 = wsub[..., None]
+        mixed = part.astype(np.float32) * (1.0 - w3) + (plate + shift) * w3
+        np.copyto(part, np.clip(np.rint(mixed), 0, 255).astype(np.uint8), where=(wsub > 0)[..., None])
+        weight[sub] = wsub
         return weight
