@@ -15,4 +15,5 @@ BUILTIN_NODES = {
     "hands": "facesculpt.nodes.hands.node:HandsNode",
     "pinch": "facesculpt.nodes.input.pinch:PinchNode",
     "foxglove": "facesculpt.nodes.foxglove.node:FoxgloveNode",
+    "reenact": "facesculpt.nodes.reenact.node:ReenactNode",
 }
