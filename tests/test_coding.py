@@ -39,13 +39,13 @@ def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
     steps = np.array([ROT_STEP] * 3 + [TRANS_STEP] * 3 + [LOG_SCALE_STEP])
     assert np.all(np.abs(stream.pose - analysis.pose) <= steps / 2 + 1e-9)
     # The expression: the decoded shape against the fitted one, mm. 12 components of 40 frames,
-    # int8 coefficients and a float16 basis: within a few hundredths of a mm RMS.
+    # int8 coefficients and an int8 basis: within a few hundredths of a mm RMS.
     decoded = stream.arrays["mean"] + stream.coeffs @ stream.arrays["basis"]
     fitted = analysis.expression.reshape(len(frames), -1)
     rms = np.sqrt(((decoded - fitted) ** 2).mean(axis=1))
     assert rms.max() < 0.1, rms.max()
     assert np.abs(fitted).max() > 1.0  # the expression does move (mm), so the check above means something
-    assert np.allclose(stream.arrays["neutral"], analysis.neutral)
+    assert np.abs(stream.arrays["neutral"] - analysis.neutral).max() < 0.05  # mm, float16
 
 
 def test_per_frame_stream_is_within_the_target_bitrate(coded):

@@ -5,7 +5,7 @@ Encoding. The fitter learns the person's neutral from the first frames (:meth:`P
 every frame is then fitted, and described by its pose (a similarity from the fitted model-space
 shape onto the fitted camera-space mesh: rotation, translation, scale) and its expression
 displacement from the neutral (V, 3) mm. The displacements of the whole video are reduced to
-``components`` principal components (their mean and basis go in the header, once); each frame
+``components`` principal components (their mean and basis, int8 per row, go in the header, once); each frame
 sends its coefficients. The header also holds the keyframe (the first frame with a face, whole,
 as a JPEG: the face's texture and the background as a still; the background is never updated),
 its fit and the neutral. Stream layout: :mod:`facesculpt.app.coding_format`.

@@ -4,7 +4,7 @@ Layout (little-endian)::
 
     b"FSC1"  u32 n  header JSON (n bytes, UTF-8)
     u32 n  keyframe JPEG (n bytes)           the first coded frame, whole: face texture and background
-    u32 n  zlib(arrays)                      key fit, neutral, expression basis (float32 / float16)
+    u32 n  zlib(arrays)                      key fit (float32), neutral, mean (float16), basis (int8)
     records, RECORD_BYTES(components) each   one per frame, in order
 
 A record is the per-frame stream: a flag byte (1: a face; 0: none, the decoder holds the last
@@ -29,7 +29,7 @@ ROT_STEP = 1e-4
 TRANS_STEP = 0.1
 LOG_SCALE_STEP = 1e-4
 #: Arrays of the header: name -> stored dtype.
-ARRAYS = {"key_vertices": "<f4", "key_projected": "<f4", "neutral": "<f4", "mean": "<f2", "basis": "<f2"}
+ARRAYS = {"key_vertices": "<f4", "key_projected": "<f4", "neutral": "<f2", "mean": "<f2", "basis": "i1"}
 
 
 def record_bytes(components: int) -> int:
@@ -41,7 +41,7 @@ def record_bytes(components: int) -> int:
 class CodedStream:
     """A decoded `.fsc` file. header: fps, frames, width, height, K, model, components, coeff_steps;
     keyframe_jpeg: bytes; arrays: :data:`ARRAYS` as float32 (key_vertices (V, 3) camera space,
-    key_projected (V, 2) px, neutral (V, 3) model mm, mean (3V,), basis (C, 3V) mm per unit);
+    key_projected (V, 2) px, neutral (V, 3) model mm, mean (3V,), basis (C, 3V) mm per unit, dequantised);
     present (F,) bool; pose (F, 7) float64 dequantised; coeffs (F, C) float64 dequantised."""
 
     header: dict
@@ -76,8 +76,12 @@ def coefficient_steps(coeffs: np.ndarray) -> np.ndarray:
 def write_stream(path, header: dict, keyframe_jpeg: bytes, arrays: dict, present: np.ndarray,
                  pose: np.ndarray, coeffs: np.ndarray) -> dict:
     """Write a `.fsc` file; pose (F, 7) float, coeffs (F, C) float (quantised here with the
-    header's ``coeff_steps``). Returns the byte counts of its parts (header, keyframe, arrays,
+    header's ``coeff_steps``; the basis rows to int8, each with its own step, ``basis_steps`` added
+    to the header). Returns the byte counts of its parts (header, keyframe, arrays,
     records, total)."""
+    basis = np.asarray(arrays["basis"], np.float64)
+    header = dict(header, basis_steps=np.maximum(np.abs(basis).max(axis=1, initial=0.0) / 127.0, 1e-9).tolist())
+    arrays = dict(arrays, basis=np.round(basis / np.asarray(header["basis_steps"])[:, None]))
     steps = np.asarray(header["coeff_steps"], np.float64)
     qc = np.clip(np.round(np.asarray(coeffs, np.float64) / steps), -127, 127).astype(np.int8)
     qp = quantise_pose(pose)
@@ -117,6 +121,7 @@ def read_stream(path) -> CodedStream:
         count = int(np.prod(shapes[name]))
         arrays[name] = np.frombuffer(raw, dtype, count, off).reshape(shapes[name]).astype(np.float32)
         off += count * np.dtype(dtype).itemsize
+    arrays["basis"] *= np.asarray(header["basis_steps"], np.float32)[:, None]
     size = record_bytes(C)
     frames = (len(data) - pos) // size
     if frames != int(header["frames"]):
