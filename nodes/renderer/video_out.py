@@ -47,7 +47,8 @@ class VideoOutput:
     (default by suffix, :data:`CODEC_BY_SUFFIX`), ``crf``: its quality where it has one,
     ``preset``: its speed preset where it has one (:data:`PRESETS`; None: the encoder's default;
     "auto": the default up to :data:`AUTO_MAX_DEFAULT_PIXELS` a frame, :data:`AUTO_LARGE_PRESET`
-    above).
+    above). Frames above :data:`AUTO_MAX_DEFAULT_PIXELS` are converted to 4:2:0 by OpenCV, smaller
+    ones by FFmpeg's swscale (both BT.601, limited range).
     ``audio_from``: a media file whose first audio track is copied into the output, in sync with
     the frames and cut to their duration. Raises ValueError for an unknown suffix, codec or a
     frame of another size, RuntimeError when the file cannot be opened for writing.
@@ -139,7 +140,16 @@ class VideoOutput:
         if frame_bgr.shape[1] % 2 or frame_bgr.shape[0] % 2:
             frame_bgr = np.pad(frame_bgr, ((0, frame_bgr.shape[0] % 2), (0, frame_bgr.shape[1] % 2), (0, 0)),
                                mode="edge")
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame_bgr), format="bgr24")
+        h, w = frame_bgr.shape[:2]
+        if w * h > AUTO_MAX_DEFAULT_PIXELS and self._stream.pix_fmt == "yuv420p":
+            # OpenCV's BGR -> I420 (the same BT.601 limited-range matrix as swscale's, luma within 1)
+            # takes a few ms on a 4K frame where PyAV's bgr24 frame and swscale take about 20
+            import cv2
+
+            yuv = cv2.cvtColor(np.ascontiguousarray(frame_bgr), cv2.COLOR_BGR2YUV_I420)
+            frame = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+        else:
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame_bgr), format="bgr24")
         frame.pts = self.frames
         frame.time_base = 1 / self._rate
         for packet in self._stream.encode(frame):
