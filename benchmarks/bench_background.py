@@ -5,7 +5,8 @@ synthetic set, and the plate on a real video.
 1. Synthetic set (benchmarks/realism/: the textured SFM head turning over a static background,
    640x480, 25 fps, rendered by the benchmark's own rasteriser; a still camera; the background is
    the realism set's (s18.mp4's out-of-focus room) with sharp clutter drawn over it, boxes, lines
-   and words, unless ``--background s18``) with the edits that uncover background: ``jaw10`` (both sides of the jaw 10 mm toward
+   and words, unless ``--background s18``; the head turns as in the realism set and also sways
+   sideways ``--sway`` mm, default 40, so that what it covers in one frame it shows in another) with the edits that uncover background: ``jaw10`` (both sides of the jaw 10 mm toward
    the midline) and ``slim8`` (both cheeks 8 mm toward the midline).
 2. The same stages as ``facesculpt process`` in-process (facesculpt.app.pipeline.Pipeline:
    calibrate on the first ``--neutral-frames``, the preset solved once, then every frame analysed
@@ -14,7 +15,8 @@ synthetic set, and the plate on a real video.
    in the compositor, so the fits are shared; process --fill/--plate runs the same compositor.
 3. Scored over the frames after the neutral: fill-region PSNR (dB) and SSIM, the region being
    the pixels that were face in the input and are background in the ground truth; "do nothing"
-   is the input itself. Flicker: the mean absolute frame-to-frame change (grey levels) of the
+   is the input itself; also PSNR over the part of that region push-pull's compositor filled
+   (uncovered and not under the deformed face: the rest is face in every method). Flicker: the mean absolute frame-to-frame change (grey levels) of the
    result over the pixels the compositor filled (uncovered, not under the deformed face) in both
    frames, next to the input's over its background in both frames (a still camera: 0). Crops ``crops_EDIT_MODEL.png``: input | each method | ground truth
    at the most turned-left, frontal and most turned-right scored frames, enlarged 2x.
@@ -22,7 +24,7 @@ synthetic set, and the plate on a real video.
    pushed 8 mm in toward the midline), model ``facemesh``: the plate's share of the uncovered pixels per frame (pixels it gave at least
    half the colour), flicker in the uncovered region against the input's background (pixels away
    from the face), and ``real_VIDEO.png``: input | push-pull | plate at the frame where the plate
-   covers most.
+   gives the most pixels.
 
 Writes ``results.md`` and ``results.json`` to ``--out`` (default: a new temporary folder).
 
@@ -48,7 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from realism.edits import EditSpec, write_preset  # noqa: E402
 from realism.metrics import changed, psnr_from_mse, squared_error, ssim_map  # noqa: E402
 from realism.report import crop_boxes, side_by_side  # noqa: E402
-from realism.scene import make_scene  # noqa: E402
+from realism.scene import Scene, make_scene  # noqa: E402
 from realism.sequences import read_video, render_sequences  # noqa: E402
 
 from facesculpt.app.pipeline import Pipeline, read_preset  # noqa: E402
@@ -62,6 +64,7 @@ EDITS = {
 }
 METHODS = {"pushpull": ("pushpull", False), "telea": ("telea", False), "ns": ("ns", False),
            "patch": ("patch", False), "plate": ("pushpull", True), "patch+plate": ("patch", True)}
+SWAY_PERIOD = 50
 REAL_PRESET = Path(__file__).resolve().parent.parent / "nodes" / "deformer" / "presets" / "cheeks.json"
 
 
@@ -76,12 +79,25 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--real-video", default="d3", help="shared video for part 4 ('' for none)")
     p.add_argument("--real-frames", type=int, default=150)
     p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--sway", type=float, default=40.0, metavar="MM",
+                   help="the head also sways sideways this far (mm, period 50 frames; default 40); 0: the realism "
+                        "set's motion alone (turning, 12 mm of drift)")
     p.add_argument("--background", choices=("cluttered", "s18"), default="cluttered",
                    help="behind the head: s18's room with sharp clutter drawn over it (default), or s18's room "
                         "alone (out of focus)")
     a = p.parse_args(argv)
-    a.models, a.edits, a.methods = (x.split(",") for x in (a.models, a.edits, a.methods))
+    a.models, a.edits, a.methods = ([v for v in x.split(",") if v] for x in (a.models, a.edits, a.methods))
     return a
+
+
+class SwayingScene(Scene):
+    """The realism scene with the head also swaying sideways, ``sway_mm`` (camera x, mm) over a
+    period of ``SWAY_PERIOD`` frames, as a person in front of a still camera does."""
+
+    sway_mm: float = 0.0
+
+    def to_camera(self, V: np.ndarray, i: int) -> np.ndarray:
+        return super().to_camera(V, i) + np.array([self.sway_mm * np.sin(2 * np.pi * i / SWAY_PERIOD), 0.0, 0.0])
 
 
 def cluttered_background(base: np.ndarray, seed: int = 3) -> np.ndarray:
@@ -122,12 +138,16 @@ class Scores:
     """Pooled fill-region squared error, SSIM and flicker of one method."""
 
     def __init__(self):
-        self.se = self.n = self.ssim = self.ns = self.flick = self.nf = 0.0
+        self.se = self.n = self.ssim = self.ns = self.flick = self.nf = self.se2 = self.n2 = 0.0
 
-    def add(self, out, truth, region, prev_out=None, both=None):
-        """``region``: the fill region; ``both``: the pixels the flicker is taken over (None: none)."""
+    def add(self, out, truth, region, prev_out=None, both=None, filled=None):
+        """``region``: the fill region; ``both``: the pixels the flicker is taken over (None: none);
+        ``filled``: the part of the region push-pull's compositor filled (None: none)."""
         se, n = squared_error(out, truth, region)
         self.se, self.n = self.se + se, self.n + n
+        if filled is not None and filled.any():
+            se, n = squared_error(out, truth, filled)
+            self.se2, self.n2 = self.se2 + se, self.n2 + n
         s = ssim_map(out, truth)[region]
         self.ssim, self.ns = self.ssim + float(s.sum()), self.ns + s.size
         if prev_out is not None and both is not None and both.any():
@@ -138,7 +158,8 @@ class Scores:
     def summary(self) -> dict:
         return {"psnr": psnr_from_mse(self.se / self.n) if self.n else float("nan"),
                 "ssim": self.ssim / self.ns if self.ns else float("nan"),
-                "flicker": self.flick / self.nf if self.nf else float("nan"), "pixels": self.n / 3}
+                "flicker": self.flick / self.nf if self.nf else float("nan"), "pixels": self.n / 3,
+                "psnr_filled": psnr_from_mse(self.se2 / self.n2) if self.n2 else float("nan"), "filled": self.n2 / 3}
 
 
 def run_model(model: str, seq, scene, presets: dict, args, out: Path) -> dict:
@@ -185,7 +206,8 @@ def run_model(model: str, seq, scene, presets: dict, args, out: Path) -> dict:
                 p = prev[e]
                 for m, img in results.items():
                     both = filled[m] & p["filled"][m] if p and m in filled else None
-                    scores[e][m].add(img, truth, region, p.get(m), both)
+                    scores[e][m].add(img, truth, region, p.get(m), both,
+                                     region & filled["pushpull"] if "pushpull" in filled else None)
                 bg = ~seq.face[i] & ~seq.face[i - 1]  # the input's background in both frames
                 truth_flicker[e].add(frame, frame, region, p.get("do nothing"), bg)
             prev[e] = {**results, "filled": filled}
@@ -236,8 +258,8 @@ def real_video(args, data: Path, out: Path) -> dict:
         n = int(uncovered.sum())
         s = float((plate_w[uncovered] >= 0.5).mean()) if n else float("nan")
         share.append(s)
-        if n and s > best[0]:
-            best = (s, i, outs, frame, uncovered)
+        if n and s * n > best[0]:  # the frame where the plate gives the most pixels
+            best = (s * n, i, outs, frame, uncovered)
         face = np.zeros((H, W), np.uint8)
         if fits:
             hull = cv2.convexHull(np.asarray(fits[min(fits)].projected, np.float32)).astype(np.int32)
@@ -258,7 +280,7 @@ def real_video(args, data: Path, out: Path) -> dict:
         _, i, outs, frame, unc = best
         ys, xs = np.nonzero(unc)
         cx, cy = (xs.min() + xs.max()) // 2, (ys.min() + ys.max()) // 2
-        side = int(min(max(xs.max() - xs.min(), ys.max() - ys.min()) + 60, W, H))
+        side = int(min(max(xs.max() - xs.min(), ys.max() - ys.min(), 120) + 80, W, H))
         x0, y0 = int(np.clip(cx - side // 2, 0, W - side)), int(np.clip(cy - side // 2, 0, H - side))
         box = [(x0, y0, x0 + side, y0 + side)]
         panels = [[(f"input frame {i}", frame), ("push-pull", outs["pushpull"]), ("plate", outs["plate"])]]
@@ -269,7 +291,8 @@ def real_video(args, data: Path, out: Path) -> dict:
 
 
 def markdown(report: dict, args) -> str:
-    lines = [f"# bench_background ({report['frames']} frames, scored {report['frames'] - args.neutral_frames})", "",
+    lines = [f"# bench_background ({report['frames']} frames, scored {report['frames'] - args.neutral_frames}, "
+             f"sway {args.sway:g} mm, background {args.background})", "",
              "Fill region: PSNR dB / SSIM / flicker (mean |frame-to-frame change|, grey levels)", "",
              "| edit | model | " + " | ".join(["do nothing", *args.methods]) + " |",
              "| --- | --- | " + " | ".join("---" for _ in range(len(args.methods) + 1)) + " |"]
@@ -278,6 +301,12 @@ def markdown(report: dict, args) -> str:
             r = report["synthetic"][m][e]
             cells = [f"{r[k]['psnr']:.2f} / {r[k]['ssim']:.3f} / {r[k]['flicker']:.2f}" for k in ["do nothing", *args.methods]]
             lines.append(f"| {e} | {m} | " + " | ".join(cells) + " |")
+    lines += ["", "PSNR (dB) over the part of the fill region push-pull's compositor filled (the rest stays under "
+              "the deformed face in every method): " + "; ".join(
+                  f"{e} {m}: " + ", ".join(f"{k} {report['synthetic'][m][e][k]['psnr_filled']:.2f}"
+                                           for k in ["do nothing", *args.methods])
+                  + f" ({report['synthetic'][m][e]['pushpull']['filled'] / (report['frames'] - args.neutral_frames):.0f} px)"
+                  for m in args.models for e in args.edits)]
     lines += ["", "Flicker of the input's background (both frames): " + "; ".join(
         f"{e} {m} {report['synthetic'][m][e]['input background']['flicker']:.2f}" for m in args.models for e in args.edits)]
     lines += ["", "Plate share of the uncovered pixels (scored frames): " + "; ".join(
@@ -309,17 +338,9 @@ def main(argv=None) -> int:
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_background_"))
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    scene = make_scene(data, args.frames)
-    if args.background == "cluttered":
-        scene.background = cluttered_background(scene.background)
-    specs = [EDITS[e] for e in args.edits]
-    seq = render_sequences(scene, specs, args.workers or None)
-    model_rest = scene.rest[: int(scene.model_triangles.max()) + 1]
-    presets = {sp.name: write_preset(sp, model_rest, scene.landmarks, scene.model_triangles, out) for sp in specs}
     report = {"frames": args.frames, "synthetic": {}}
-    for m in args.models:
-        report["synthetic"][m] = run_model(m, seq, scene, presets, args, out)
-        print(f"{m} done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    if args.models and args.edits:
+        synthetic(args, data, out, report, t0)
     if args.real_video:
         report["real"] = real_video(args, data, out)
     report["total_s"] = time.perf_counter() - t0
@@ -329,6 +350,23 @@ def main(argv=None) -> int:
     print(text)
     print(f"results and crops in {out}")
     return 0
+
+
+def synthetic(args, data: Path, out: Path, report: dict, t0: float) -> None:
+    """Parts 1-3 for every model into ``report["synthetic"]``."""
+    scene = make_scene(data, args.frames)
+    if args.sway:
+        scene = SwayingScene(**{f: getattr(scene, f) for f in scene.__dataclass_fields__})
+        scene.sway_mm = args.sway
+    if args.background == "cluttered":
+        scene.background = cluttered_background(scene.background)
+    specs = [EDITS[e] for e in args.edits]
+    seq = render_sequences(scene, specs, args.workers or None)
+    model_rest = scene.rest[: int(scene.model_triangles.max()) + 1]
+    presets = {sp.name: write_preset(sp, model_rest, scene.landmarks, scene.model_triangles, out) for sp in specs}
+    for m in args.models:
+        report["synthetic"][m] = run_model(m, seq, scene, presets, args, out)
+        print(f"{m} done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
 
 
 if __name__ == "__main__":

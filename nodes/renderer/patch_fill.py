@@ -9,8 +9,8 @@ shift (with a small penalty on its length, so near sources win ties) copies its 
 overlap and are blended with tent weights. The copy is then corrected by a membrane: the
 difference between the image and the copy on the known pixels around the hole, spread into it by
 pull-push (:mod:`.inpaint`), is added, so the copy meets its surroundings without a seam and
-carries the low frequencies of the border. Tiles whose surroundings are too little known keep
-the plain pull-push fill.
+carries the low frequencies of the border. Tiles whose surroundings are too little known, or
+whose best match differs from them by more than ``MAX_MATCH_RMS``, keep the plain pull-push fill.
 
 Images are (h, w, 3) uint8 BGR; masks (h, w) bool (set = True).
 """
@@ -25,6 +25,7 @@ RIM_PX = 8            # known background matched around a tile, px
 SEARCH_PX = 24        # how far a source may lie from its tile, px
 OVERLAP_PX = 3        # a tile's copy reaches this far into its neighbours, blended, px
 SHIFT_PENALTY = 0.05  # squared grey difference per pixel added per px^2 of shift (half resolution)
+MAX_MATCH_RMS = 8.0   # a tile whose best match differs more (grey levels, RMS over its rim) keeps the smooth fill
 MARGIN_PX = TILE_PX + RIM_PX + SEARCH_PX  # background a part's box needs around it
 
 
@@ -39,7 +40,8 @@ def best_shift(grey: np.ndarray, known: np.ndarray, fill: np.ndarray, win: tuple
     """The shift (dx, dy) px whose copy of the window ``win`` (x0, y0, x1, y1) of ``grey``
     ((h, w) float32) best matches its ``known`` pixels (squared differences), with every ``fill``
     pixel of the window landing on a known one; None when no shift qualifies or less than a
-    quarter of the window is known. known, fill: (h, w) bool."""
+    quarter of the window is known, or when the best match differs from the window by more than
+    ``MAX_MATCH_RMS`` (a copy that does not fit its surroundings). known, fill: (h, w) bool."""
     h, w = known.shape
     x0, y0, x1, y1 = win
     m_known = known[y0:y1, x0:x1]
@@ -59,7 +61,7 @@ def best_shift(grey: np.ndarray, known: np.ndarray, fill: np.ndarray, win: tuple
     cost = ssd / n_known + SHIFT_PENALTY * (dx * dx + dy * dy)
     cost[(holes > 0.5) | ~np.isfinite(cost)] = np.inf
     k = int(np.argmin(cost))
-    if not np.isfinite(cost.flat[k]):
+    if not np.isfinite(cost.flat[k]) or ssd.flat[k] / n_known > MAX_MATCH_RMS ** 2:
         return None
     return int(dx.flat[k]), int(dy.flat[k])
 
