@@ -96,7 +96,8 @@ class Compositor:
     :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
     After each :meth:`render`, ``timings`` holds the stage times of that frame in ms
-    (plate (its learning; its use counts in inpaint), camera (with the subdivided vertices),
+    (plate (the main thread's part of its learning, whose update then runs on a thread of its own
+    until the fill waits for it; its use counts in inpaint), camera (with the subdivided vertices),
     draw, readback, masks, inpaint, texture (the sampling of the frame), composite, total),
     ``box`` the frame-pixel rectangle (x0, y0, x1, y1) it worked on (None when nothing changed) and ``deformed_px`` the (V, 2) pixels of the
     deformed vertices.
@@ -142,6 +143,8 @@ class Compositor:
         self.atlas_region: np.ndarray | None = None   # (h, w) float32 atlas weight of the last box
         self.plate = BackgroundPlate(width, height, max_age=plate_max_age, register=plate_register) if plate else None
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
+        self._plate_pool = ThreadPoolExecutor(1, thread_name_prefix="plate") if plate else None
+        self._plate_job = None
         self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles)
         self._mesh_key: tuple | None = None
         self._closed = self._S = self._fine = None
@@ -312,6 +315,7 @@ class Compositor:
         pixels (step 4), then lay the background plate over them where it knows the background."""
         fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius, in_place=True)
         if self.plate is not None:
+            self.plate_sync()
             self.plate_region = self.plate.take(crop, fill, source, box, self.feather_width(projected))
 
     def _learn_plate(self, frame: np.ndarray, projected: np.ndarray, keep_mask: np.ndarray | None) -> float:
@@ -321,6 +325,7 @@ class Compositor:
         if self.plate is None:
             return 0.0
         t0 = time.perf_counter()
+        self.plate_sync()
         self.plate_region = None
         occluded = keep_box = None
         if len(projected):
@@ -331,8 +336,18 @@ class Compositor:
             x0, y0 = np.floor(lo - 0.5 * size).astype(int)  # what the plate keeps when the camera moves
             x1, y1 = np.ceil(hi + 0.5 * size).astype(int)
             keep_box = (int(x0), int(y0), int(x1), int(y1))
-        self.plate.update(frame, occluded, keep_box)
+        # On a thread of its own (OpenCV lets go of the GIL), overlapping the drawing; waited for
+        # before the fill uses it, so every frame sees the same plate as without the thread. The
+        # frame is copied: the caller may reuse its buffer while the update runs.
+        self._plate_job = self._plate_pool.submit(self.plate.update, frame.copy(), occluded, keep_box)
         return (time.perf_counter() - t0) * 1e3
+
+    def plate_sync(self) -> None:
+        """Wait for the background plate's update of the last frame (it runs on a thread of its
+        own from :meth:`render` until the fill needs it or the next frame starts)."""
+        if self._plate_job is not None:
+            job, self._plate_job = self._plate_job, None
+            job.result()
 
     def _update_atlas(self, frame, fitted, projected, triangles, uv, face_key, keep_mask) -> np.ndarray | None:
         """With the atlas on and ``uv`` given: reset it on a new face, take this frame into it
@@ -497,6 +512,10 @@ class Compositor:
         if self.maps is not None:
             self.maps.release()
             self.maps = None
+        if self._plate_pool is not None:
+            self.plate_sync()
+            self._plate_pool.shutdown(wait=True)
+            self._plate_pool = None
         if self._atlas_pool is not None:
             self._atlas_pool.shutdown(wait=True)
             self._atlas_pool = None
