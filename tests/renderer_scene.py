@@ -164,3 +164,17 @@ def dilate(mask: np.ndarray, px: int) -> np.ndarray:
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
     return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
+
+
+def plane_mesh(centre, side: float, n: int = 12):
+    """A square grid mesh ``side`` px wide around ``centre`` (x, y) in the fitter's orthographic
+    camera space (x, y in pixels), bulged slightly in depth so that the camera is determined:
+    (vertices (n*n, 3), pixels (n*n, 2), triangles)."""
+    u = np.linspace(-side / 2, side / 2, n)
+    x, y = np.meshgrid(u + centre[0], u + centre[1])
+    r2 = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
+    vertices = np.column_stack([x.ravel(), y.ravel(), 0.002 * r2.ravel()])
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    triangles = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
+    return vertices, vertices[:, :2].copy(), triangles

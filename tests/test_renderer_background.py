@@ -8,6 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from renderer_scene import plane_mesh
 
 from facesculpt.nodes.renderer import Compositor
 from facesculpt.nodes.renderer.background_plate import BackgroundPlate, face_region
@@ -131,16 +132,6 @@ def gl():
     ctx.release()
 
 
-def square_mesh(centre, side: float, n: int = 10):
-    """A square grid mesh in the fitter's orthographic camera space (x, y pixels), bulged in depth
-    so the camera is determined: (vertices (n*n, 3), pixels (n*n, 2), triangles)."""
-    u = np.linspace(-side / 2, side / 2, n)
-    x, y = np.meshgrid(u + centre[0], u + centre[1])
-    r2 = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
-    vertices = np.column_stack([x.ravel(), y.ravel(), 0.002 * r2.ravel()])
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    return vertices, vertices[:, :2].copy(), np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
 
 
 def test_compositor_with_the_plate_uncovers_the_true_background(gl):
@@ -153,7 +144,7 @@ def test_compositor_with_the_plate_uncovers_the_true_background(gl):
         comp = Compositor(W, H, ctx=gl, plate=plate)
         for i in range(16):
             cx = 70 + 10 * i
-            vertices, projected, triangles = square_mesh((cx, 120), 90)
+            vertices, projected, triangles = plane_mesh((cx, 120), 90, n=10)
             frame = bg.copy()
             inside = np.zeros((H, W), bool)
             inside[75:166, cx - 45:cx + 46] = True

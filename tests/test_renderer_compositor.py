@@ -18,6 +18,7 @@ from renderer_scene import (
     issue_edit,
     place_fitted,
     place_marked,
+    plane_mesh,
     rasterize_region,
     read_frames,
 )
@@ -191,18 +192,6 @@ def test_bad_input_is_refused_with_a_clear_error(gl, data_dir, sfm):
 
 
 # -- the warp itself, on a known mesh ------------------------------------------------------------
-def plane_mesh(centre, side: float, n: int = 12):
-    """A square grid mesh ``side`` px wide around ``centre`` (x, y) in the fitter's orthographic
-    camera space (x, y in pixels), bulged slightly in depth so that the camera is determined:
-    (vertices (n*n, 3), pixels (n*n, 2), triangles)."""
-    u = np.linspace(-side / 2, side / 2, n)
-    x, y = np.meshgrid(u + centre[0], u + centre[1])
-    r2 = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
-    vertices = np.column_stack([x.ravel(), y.ravel(), 0.002 * r2.ravel()])
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    triangles = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
-    return vertices, vertices[:, :2].copy(), triangles
 
 
 def laplacian_variance(image: np.ndarray, mask: np.ndarray) -> float:
