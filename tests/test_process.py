@@ -232,3 +232,23 @@ def test_shipped_presets_resolve_by_name_and_a_missing_one_lists_them(tmp_path):
     assert read_preset(own) == {"edits": []}
     with pytest.raises(FileNotFoundError, match="nose_longer"):
         read_preset("no_such_preset")
+
+
+def test_lanczos_resamples_the_edited_region_only_and_sharper(nose_run, data_dir, tmp_path):
+    """--interpolation lanczos changes only pixels the edit re-rendered, and keeps more detail there."""
+    out, pattern, _ = nose_run
+    lanczos = tmp_path / "%05d.png"
+    result = process(data_dir / "video" / "d12.mp4", "-o", lanczos, "--edits", "nose_longer", "--quiet",
+                     "--max-frames", "60", "--interpolation", "lanczos")
+    assert result.returncode == 0, result.stderr
+    _, inputs = read_video(data_dir / "video" / "d12.mp4", keep={59})
+    before, cubic, sharp = inputs[59], cv2.imread(str(pattern) % 59), cv2.imread(str(lanczos) % 59)
+    edited = np.any(cubic != before, axis=2) | np.any(sharp != before, axis=2)
+    assert edited.sum() > 500
+    assert np.array_equal(cubic[~edited], sharp[~edited])
+    assert not np.array_equal(cubic[edited], sharp[edited])
+
+    def detail(img):  # variance of the Laplacian over the edited pixels
+        return float(cv2.Laplacian(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), cv2.CV_64F)[edited].var())
+
+    assert detail(sharp) > detail(cubic)

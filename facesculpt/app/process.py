@@ -94,6 +94,9 @@ def register(sub) -> None:
     p.add_argument("--plate", choices=("on", "off"), default="off",
                    help="keep a background plate (the background seen behind the face in other frames, registered "
                         "when the camera moves) and take what an edit uncovers from it where known (default off)")
+    p.add_argument("--interpolation", choices=("cubic", "lanczos"), default="cubic",
+                   help="kernel the frame is resampled with where the face moved: cubic (default) or lanczos "
+                        "(Lanczos-4: sharper, about 6 times the sampling time)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_process)
 
@@ -336,7 +339,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "pushpull"),
-                        plate=getattr(args, "plate", "off"))
+                        plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "cubic"))
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 
