@@ -75,6 +75,20 @@ def test_values_are_converted_and_checked():
         Param(1, "x", range=(0, 2), choices=(1, 2))
 
 
+def test_an_unquoted_on_or_off_in_yaml_is_the_string_choice():
+    """YAML 1.1 reads `plate: off` as False: a string parameter takes it back as "off"."""
+    import yaml
+
+    from facesculpt.nodes.renderer.node import RendererNode
+
+    given = yaml.safe_load("{plate: off, mouth: off, atlas: on}")
+    assert given == {"plate": False, "mouth": False, "atlas": True}
+    values = resolve_params("renderer", RendererNode.PARAMS, given)
+    assert (values["plate"], values["mouth"], values["atlas"]) == ("off", "off", "on")
+    with pytest.raises(ParameterError, match="is not one of off, paint"):
+        resolve_params("renderer", RendererNode.PARAMS, {"mouth": True})  # "on" is not a choice of mouth
+
+
 def test_plain_defaults_keep_working():
     node_values = resolve_params("plain", Plain.PARAMS, {"gain": "2", "on": "false"})
     assert node_values == {"gain": 2.0, "label": "x", "on": False}

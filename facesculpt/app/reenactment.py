@@ -29,11 +29,16 @@ import numpy as np
 
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.projection import project
-from facesculpt.nodes.renderer.mouth_interior import INNER_LIP_FACEMESH, opening_px, paint_mouth_interior
+from facesculpt.nodes.renderer.mouth_interior import (
+    CLOSED_MOUTH_PX,
+    INNER_LIP_FACEMESH,
+    opening_px,
+    paint_mouth_interior,
+)
 
 #: A source mouth whose inner lips are at least this far apart (px, :func:`opening_px`) shows its own
 #: interior, which the warp then stretches; a closer one gets the painted interior.
-SOURCE_OPEN_PX = 3.0
+SOURCE_OPEN_PX = CLOSED_MOUTH_PX
 
 
 def mean_rotation(rotations: list[np.ndarray]) -> np.ndarray:

@@ -132,6 +132,8 @@ def coerce_param(name: str, value: Any, default: Any) -> Any:
     if typ is int and isinstance(value, (int, float)) and not isinstance(value, bool) and float(value).is_integer():
         return int(value)
     if typ is str:
+        if isinstance(value, bool):  # YAML 1.1 reads an unquoted on/off (yes/no) as a boolean
+            return "on" if value else "off"
         return str(value)
     if isinstance(value, typ):
         return value

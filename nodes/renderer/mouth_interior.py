@@ -16,6 +16,9 @@ import numpy as np
 #: the right corner 78 to the left corner 308, then the lower lip back).
 INNER_LIP_FACEMESH: tuple[int, ...] = (78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308,
                                        324, 318, 402, 317, 14, 87, 178, 88, 95)
+#: A source mouth whose inner lips are less than this far apart (px, :func:`opening_px`) is closed:
+#: the frame holds no interior to stretch, so an opening the edit makes is painted.
+CLOSED_MOUTH_PX = 3.0
 #: How dark the interior is: a share of the lips' mean colour.
 INTERIOR_SHADE = 0.25
 #: The teeth band: its colour (BGR), height as a share of the opening's mean height, width as a
@@ -81,4 +84,24 @@ def paint_mouth_interior(image: np.ndarray, polygon_px: np.ndarray, source_openi
     fill = cv2.GaussianBlur(fill, (0, 0), 1.5)
     alpha = cv2.GaussianBlur(mask.astype(np.float32) / 255.0, (0, 0), 1.0)[..., None] * opacity
     out[y0:y1, x0:x1] = np.clip(crop * (1 - alpha) + fill * alpha + 0.5, 0, 255).astype(np.uint8)
+    return out
+
+
+def paint_opened_mouth(image: np.ndarray, source_px: np.ndarray, rendered_px: np.ndarray,
+                       keep_mask: np.ndarray | None = None) -> np.ndarray:
+    """``image`` (H, W, 3) uint8 BGR with the mouth painted (:func:`paint_mouth_interior`) where a
+    face-mesh face whose mouth is closed in the frame (its projected vertices ``source_px`` (468, 2)
+    px, inner lips under :data:`CLOSED_MOUTH_PX` apart) is rendered open (``rendered_px`` (468, 2)
+    px, the deformed vertices). A frame that shows its own open mouth, or another mesh, is returned
+    as it is. ``keep_mask`` (H, W) bool: pixels left as ``image`` has them (a hand in front)."""
+    src, dst = np.asarray(source_px), np.asarray(rendered_px)
+    if len(src) != 468 or len(dst) != 468:
+        return image
+    lips = np.asarray(INNER_LIP_FACEMESH)
+    source_opening = opening_px(src[lips])
+    if source_opening >= CLOSED_MOUTH_PX:
+        return image
+    out = paint_mouth_interior(image, dst[lips], source_opening)
+    if keep_mask is not None:
+        out[keep_mask] = image[keep_mask]
     return out

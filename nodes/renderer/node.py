@@ -39,6 +39,7 @@ from .compositor import Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
 from .inpaint import INPAINT_METHODS
+from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
 from .pinch_markers import PinchMarkers, draw_pinch_markers
 from .texture_atlas import uv_layout
@@ -60,6 +61,9 @@ class RendererNode(Node):
         "inpaint": Param("pushpull", "fill of the background the deformed face uncovers where it was never seen: "
                                      "pushpull (smooth), telea / ns (OpenCV inpainting), patch (background copied in "
                                      "from nearby, seams corrected)", choices=INPAINT_METHODS),
+        "mouth": Param("off", "paint: where an edit opens a mouth that is closed in the frame, paint a dark "
+                              "interior with a soft teeth band instead of stretching the lips (face-mesh "
+                              "model; on in launch/reenact.yaml); off: the lips stretch", choices=("off", "paint")),
         "interpolation": Param("cubic", "kernel the frame is resampled with where the face moved: cubic, or lanczos "
                                         "(Lanczos-4: sharper, about 6 times the sampling time)",
                                choices=("cubic", "lanczos")),
@@ -254,6 +258,8 @@ class RendererNode(Node):
                 self.count("bad_input")
                 self.log.warning("frame %d, face %d not rendered: %s", frame_msg.stamp, state.face_id, exc)
                 continue
+            if self.params.mouth == "paint" and self.compositor.deformed_px is not None:
+                out = paint_opened_mouth(out, state.projected, self.compositor.deformed_px, keep)
             drawn = True
             for name, ms in self.compositor.timings.items():
                 if name != "total":
