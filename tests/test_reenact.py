@@ -34,6 +34,19 @@ def _inner_lip_gap(detector, frame) -> float:
     return float(np.linalg.norm(p[13, :2] - p[14, :2]))
 
 
+def mouth_and_lip_grey(detector, frame) -> tuple[float, float]:
+    """Mean grey just inside the mouth's centre and on the lower lip's outer midpoint of ``frame``
+    (face-mesh points 13/14 and 17, found by ``detector``): an opened mouth painted dark has the
+    first well under the second."""
+    gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY).astype(np.float64)
+    detector.reset()
+    p = detector.track(frame)[0].points
+    centre = (p[13, :2] + p[14, :2]) / 2
+    inside = gray[int(centre[1]) + 2, int(centre[0]) - 3:int(centre[0]) + 4].mean()
+    lip = gray[int(p[17, 1]), int(p[17, 0]) - 3:int(p[17, 0]) + 4].mean()
+    return float(inside), float(lip)
+
+
 def test_output_mouth_opens_when_the_drivers_does(data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.app.reenactment import Reenactor, fit_source, inner_lip_ids
@@ -64,13 +77,7 @@ def test_output_mouth_opens_when_the_drivers_does(data_dir, models_dir):
     assert np.corrcoef(jaw, gaps)[0, 1] >= 0.8
     assert gaps[jaw.argmax()] - gaps[jaw.argmin()] > 8.0  # px, on a face about 120 px between the eyes
     # The painted interior is dark: inside the opened mouth, much darker than the lips around it.
-    out = outputs[int(jaw.argmax())]
-    gray = cv2.cvtColor(out, cv2.COLOR_BGR2GRAY).astype(np.float64)
-    detector.reset()
-    p = detector.track(out)[0].points
-    centre = (p[13, :2] + p[14, :2]) / 2
-    inside = gray[int(centre[1]) + 2, int(centre[0]) - 3:int(centre[0]) + 4].mean()
-    lip = gray[int(p[17, 1]), int(p[17, 0]) - 3:int(p[17, 0]) + 4].mean()  # lower lip's outer midpoint
+    inside, lip = mouth_and_lip_grey(detector, outputs[int(jaw.argmax())])
     assert inside < 0.6 * lip
 
 

@@ -11,6 +11,7 @@ import sys
 import cv2
 import numpy as np
 from conftest import free_port
+from test_reenact import mouth_and_lip_grey
 
 
 def _read(path, indices=None):
@@ -61,11 +62,5 @@ def test_driver_opens_the_source_mouth_through_the_graph(data_dir, models_dir, t
     assert np.nanmin(gaps[:5]) < 4.0  # px: the source's mouth is closed before the driver opens
     assert np.nanmax(gaps) > 20.0, gaps  # and opens wide when the driver's does
     # the renderer (mouth: paint in the launch file) paints the opened mouth dark, not stretched lips
-    widest = rendered[int(np.nanargmax(gaps))]
-    gray = cv2.cvtColor(widest, cv2.COLOR_BGR2GRAY).astype(np.float64)
-    detector.reset()
-    p = detector.track(widest)[0].points
-    centre = (p[13, :2] + p[14, :2]) / 2
-    inside = gray[int(centre[1]) + 2, int(centre[0]) - 3:int(centre[0]) + 4].mean()
-    lip = gray[int(p[17, 1]), int(p[17, 0]) - 3:int(p[17, 0]) + 4].mean()  # lower lip's outer midpoint
+    inside, lip = mouth_and_lip_grey(detector, rendered[int(np.nanargmax(gaps))])
     assert inside < 0.6 * lip, (inside, lip)
