@@ -74,6 +74,12 @@ ATLAS_STRETCH = (1.5, 3.0)   # source-map stretch (linear) from which the atlas 
 ATLAS_GRAZING = 0.35         # input-view frontality (cosine, 0 where hidden) under which the atlas takes over
 
 
+def face_size(projected: np.ndarray) -> float:
+    """A face's size (px): the geometric mean of the sides of its pixels' (V, 2) bounding box."""
+    side = projected.max(axis=0) - projected.min(axis=0)
+    return float(np.sqrt(max(side[0] * side[1], 0.0)))
+
+
 class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
@@ -330,7 +336,7 @@ class Compositor:
         occluded = keep_box = None
         if len(projected):
             lo, hi = projected.min(axis=0), projected.max(axis=0)
-            size = float(np.sqrt(max((hi - lo)[0] * (hi - lo)[1], 0.0)))
+            size = face_size(projected)
             margin = max(self.dilate_px + 2.0, PLATE_MARGIN * size)
             occluded = face_region((self.height, self.width), projected, margin)
             x0, y0 = np.floor(lo - 0.5 * size).astype(int)  # what the plate keeps when the camera moves
@@ -475,8 +481,7 @@ class Compositor:
         bounding box's sides); 0 when ``feather_px`` is 0."""
         if self.feather_px <= 0:
             return 0.0
-        side = projected.max(axis=0) - projected.min(axis=0)
-        return max(self.feather_px, FEATHER_FRACTION * float(np.sqrt(max(side[0] * side[1], 0.0))))
+        return max(self.feather_px, FEATHER_FRACTION * face_size(projected))
 
     def _composite(self, crop: np.ndarray, warped: np.ndarray, block: tuple[slice, slice],
                    offsets: np.ndarray, covered: np.ndarray, changed: np.ndarray, write: np.ndarray,
