@@ -25,9 +25,9 @@ import cv2
 import numpy as np
 
 from facesculpt.app.coding_format import CodedStream, coefficient_steps, read_stream, write_stream
-from facesculpt.app.reenactment import SOURCE_OPEN_PX, inner_lip_ids
+from facesculpt.app.reenactment import inner_lip_ids
 from facesculpt.geometry.projection import project
-from facesculpt.nodes.renderer.mouth_interior import opening_px, paint_mouth_interior
+from facesculpt.nodes.renderer.mouth_interior import CLOSED_MOUTH_PX, opening_px, paint_mouth_interior
 
 
 def fit_pose(model_vertices: np.ndarray, camera_vertices: np.ndarray) -> np.ndarray:
@@ -156,7 +156,7 @@ class Decoder:
         deformed = (a["key_vertices"] + self.posed(self.last) - self.anchor).astype(np.float32)
         out = self.compositor.render(self.image, a["key_vertices"], a["key_projected"], self.model.triangles,
                                      deformed)
-        if self.key_opening < SOURCE_OPEN_PX:
+        if self.key_opening < CLOSED_MOUTH_PX:
             lips = deformed[self.lips].astype(np.float64)
             out = paint_mouth_interior(out, project(lips, self.K) if self.K is not None else lips[:, :2],
                                        self.key_opening)

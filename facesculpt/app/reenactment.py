@@ -16,7 +16,8 @@ rotation of the calibration frames), about the source head's centre; translation
 The mouth: where the rendered inner lips open wider than the source frame's own mouth, the gap is
 painted as a dark interior with a soft teeth band under the upper lip
 (:mod:`facesculpt.nodes.renderer.mouth_interior`), but only when the source's mouth is closed
-(inner lips under :data:`SOURCE_OPEN_PX` apart): a source that shows its own mouth open (its
+(inner lips under :data:`~facesculpt.nodes.renderer.mouth_interior.CLOSED_MOUTH_PX` apart): a source that
+shows its own mouth open (its
 teeth) keeps them, stretched by the warp as the mouth opens further. Dense (``facemesh``) models only for the mouth polygon; a sparse model gets its iBUG
 inner-lip points 61–68.
 """
@@ -38,7 +39,6 @@ from facesculpt.nodes.renderer.mouth_interior import (
 
 #: A source mouth whose inner lips are at least this far apart (px, :func:`opening_px`) shows its own
 #: interior, which the warp then stretches; a closer one gets the painted interior.
-SOURCE_OPEN_PX = CLOSED_MOUTH_PX
 
 
 def mean_rotation(rotations: list[np.ndarray]) -> np.ndarray:
@@ -121,7 +121,7 @@ class Reenactor:
         src = self.source.fit
         deformed = self.deformed(driver_fit)
         out = self.compositor.render(self.source.image, src.vertices, src.projected, self.model.triangles, deformed)
-        if self.mouth and self.source_opening < SOURCE_OPEN_PX:
+        if self.mouth and self.source_opening < CLOSED_MOUTH_PX:
             lips = deformed[self.lips].astype(np.float64)
             poly = project(lips, src.K) if src.K is not None else lips[:, :2]
             out = paint_mouth_interior(out, poly, self.source_opening)
