@@ -7,11 +7,10 @@ tests/test_renderer_window.py, whose display fixture it uses."""
 from __future__ import annotations
 
 import os
-import subprocess
 import time
 
 import numpy as np
-from test_renderer_window import _visible_window, display, screenshot, xtool  # noqa: F401  (display: a fixture)
+from test_renderer_window import WindowShots, _visible_window, display, xtool  # noqa: F401  (display: a fixture)
 
 from facesculpt.nodes.renderer.correction_mode import CORRECTED_BGR, LANDMARK_BGR
 
@@ -87,14 +86,8 @@ def test_dragging_a_landmark_in_correction_mode_corrects_the_fit(display, graph,
     # The fitter and this feeder listen to the window's events before anything is sent.
     assert graph.spin_until(feeder, lambda: feeder.listeners == 2 and len(feeder.states) > 3, 60.0), \
         f"fitter not connected ({feeder.listeners} input/events listeners, {len(feeder.states)} states)"
-    shots = []
-
-    def shows(predicate):
-        try:
-            shots.append(screenshot(display, wid))
-        except subprocess.CalledProcessError:
-            return False  # being mapped or resized: try again
-        return predicate(shots[-1])
+    shots = WindowShots(display, wid)
+    shows = shots.shows
 
     fitted = feeder.states[-1].landmarks
     assert fitted.shape == (68, 2) and feeder.states[-1].corrected == []

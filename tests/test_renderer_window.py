@@ -82,6 +82,22 @@ def screenshot(display, window_id: str) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
 
 
+class WindowShots(list):
+    """Screenshots of window ``wid``, newest last: :meth:`shows` takes one and asks ``predicate``
+    of it; False while the window is being mapped or resized (xwd fails with BadMatch)."""
+
+    def __init__(self, display, wid: str):
+        super().__init__()
+        self.display, self.wid = display, wid
+
+    def shows(self, predicate) -> bool:
+        try:
+            self.append(screenshot(self.display, self.wid))
+        except subprocess.CalledProcessError:
+            return False
+        return predicate(self[-1])
+
+
 def poll_until(window, predicate, timeout=5.0):
     events = []
     deadline = time.monotonic() + timeout
@@ -249,14 +265,8 @@ def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph
 
     assert graph.spin_until(feeder, window_up, 40.0), "the renderer's window did not open"
     wid = found[0].decode()
-    shots = []
-
-    def shows(predicate):
-        try:
-            shots.append(screenshot(display, wid))
-        except subprocess.CalledProcessError:
-            return False  # the window is being mapped or resized (xwd fails with BadMatch): try again
-        return predicate(shots[-1])
+    shots = WindowShots(display, wid)
+    shows = shots.shows
 
     # No edit yet: the window shows the frame itself.
     assert graph.spin_until(feeder, lambda: shows(lambda s: s.shape == (H, W, 3) and psnr(s, frame) > 40), 20.0)
@@ -335,14 +345,8 @@ def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tm
     assert graph.spin_until(feeder, lambda: found.append(_visible_window(display, title)) or found[-1], 40.0), \
         f"the renderer's window did not open: {log.read_text()}"
     wid = found[-1]
-    shots = []
-
-    def shows(predicate):
-        try:
-            shots.append(screenshot(display, wid))
-        except subprocess.CalledProcessError:
-            return False  # being mapped or resized: try again
-        return predicate(shots[-1])
+    shots = WindowShots(display, wid)
+    shows = shots.shows
 
     def pinned(shot):
         hits = []
