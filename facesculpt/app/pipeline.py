@@ -30,6 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from facesculpt.geometry import merge_deformation
+from facesculpt.geometry.pose_offset import (
+    PoseOffset,
+    apply_pose_offset,
+    face_camera_offset,
+    head_pivot,
+    smooth_offset,
+)
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.nodes.deformer import EditStack
 from facesculpt.nodes.deformer.preset_format import merge_presets
@@ -51,6 +58,10 @@ from facesculpt.nodes.landmarks.working_resolution import track_at_working_resol
 STAGES = ("landmarks", "fit", "merge", "render")
 #: Landmarks run on a copy of a larger frame halved to at most this many pixels (1920x1080).
 ANALYSIS_PIXELS = 1920 * 1080
+#: Face-the-camera: the largest turn it applies (degrees, yaw and pitch each; README "New views").
+FACE_CAMERA_LIMIT_DEG = 15.0
+#: Face-the-camera: time constant (s) of the smoothing of its turn over the video's frames.
+FACE_CAMERA_SMOOTHING_S = 0.3
 
 
 def load_face_model(name_or_path: str) -> MorphableModel:
@@ -129,15 +140,20 @@ class Pipeline:
     reuse (reset here), else one is made; analysis_pixels: landmarks run on a copy of a larger
     frame halved until it holds at most this many pixels, their points carried back to the frame's
     (:mod:`facesculpt.nodes.landmarks.working_resolution`; 0: on the frame itself); fitting and
-    compositing work at the frame's own resolution. The GL context is made here; call :meth:`close` (or use
-    ``with``) to free it.
+    compositing work at the frame's own resolution; pose: a :class:`PoseOffset` every fitted head is
+    turned and moved by (issue 18; the face's motion is carried over the head around it); face_camera:
+    0-1, each frame turns every face that share of the way toward looking into the camera (at most
+    ``face_camera_limit_deg`` in yaw and pitch; smoothed over ``FACE_CAMERA_SMOOTHING_S``), on top of
+    ``pose``. The GL context is made here; call :meth:`close` (or use ``with``) to free it.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
                  neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
-                 plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic"):
+                 plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic",
+                 pose: PoseOffset | None = None, face_camera: float = 0.0,
+                 face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -157,6 +173,13 @@ class Pipeline:
         self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px,
                                    "atlas": atlas != "off", "atlas_blend": atlas == "on", "plate": plate == "on",
                                    "interpolation": interpolation}
+        if not 0.0 <= face_camera <= 1.0:
+            raise ValueError(f"face_camera must be 0 to 1, got {face_camera}")
+        if not 0.0 < face_camera_limit_deg <= 45.0:
+            raise ValueError(f"face_camera_limit_deg must be over 0 and at most 45, got {face_camera_limit_deg}")
+        self.pose = pose if pose is not None else PoseOffset()
+        self.face_camera, self.face_camera_limit_deg = float(face_camera), float(face_camera_limit_deg)
+        self._camera_turns: dict[int, tuple[float, PoseOffset]] = {}  # face key -> (stamp s, smoothed turn)
         self._uv = None
         self.faces: FaceFitters | None = None
         self.compositor = None
@@ -231,9 +254,25 @@ class Pipeline:
             raise ValueError("frames must be (H, W, 3) uint8 BGR")
         timings: dict[str, float] = {}
         fits = self.fit_faces(frame_bgr, stamp_s, timings)
-        for key in fits:
+        for key, fit in fits.items():
             self.displacement_of(key)
+            fit.pose_edit = self._pose_edit(key, fit, stamp_s)
         return fits, timings
+
+    def _pose_edit(self, key: int, fit, stamp_s: float) -> tuple[PoseOffset, np.ndarray] | None:
+        """Face ``key``'s pose edit on the frame at ``stamp_s`` (s): (``pose`` plus, with
+        ``face_camera``, the smoothed turn toward the camera; the head's pivot (3,) model mm, from
+        its neutral now: compose may run while the next frame's fit updates it); None when zero."""
+        offset, pivot = self.pose, head_pivot(self.neutral_of(key))
+        if self.face_camera > 0:
+            target = face_camera_offset(fit.R, fit.t, fit.scale, pivot, self.face_camera,
+                                        self.face_camera_limit_deg, perspective=fit.projection == "perspective")
+            last = self._camera_turns.get(key)
+            turn = smooth_offset(None if last is None else last[1], target,
+                                 0.0 if last is None else stamp_s - last[0], FACE_CAMERA_SMOOTHING_S)
+            self._camera_turns[key] = (stamp_s, turn)
+            offset = offset + turn
+        return None if offset.is_zero else (offset, pivot)
 
     def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict,
                 keep_mask: np.ndarray | None = None) -> FrameResult:
@@ -253,11 +292,14 @@ class Pipeline:
                 continue  # other faces are edited, not this one: its pixels stay the input's
             if displacement is not None:
                 deformed = merge_deformation(fit.vertices, fit.R, fit.scale, displacement)
+            if fit.pose_edit is not None:
+                deformed = apply_pose_offset(deformed, fit.R, fit.t, fit.scale, fit.pose_edit[1], fit.pose_edit[0])
             timings["merge"] += (time.perf_counter() - t0) * 1e3
             t0 = time.perf_counter()
             compositor = self._compositor()
             out = compositor.render(out, fit.vertices, fit.projected, self.model.triangles, deformed,
-                                    keep_mask=keep_mask, uv=self.uv_layout(), face_key=key)
+                                    keep_mask=keep_mask, uv=self.uv_layout(), face_key=key,
+                                    head_motion=fit.pose_edit is not None)
             timings["render"] += (time.perf_counter() - t0) * 1e3
             for k, v in compositor.timings.items():
                 if k != "total":

@@ -55,6 +55,14 @@ def register(sub) -> None:
                         "repeat to stack several, in order; N:PRESET edits face N only (with --faces all)")
     p.add_argument("--strength", type=float, default=1.0, metavar="S",
                    help="multiply the edits' offsets by S, 0 (no edit) to 3 (default 1)")
+    p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,roll=D,x=MM,y=MM,z=MM",
+                   help="turn (degrees, added to the head's own angles) and move (mm, camera axes) every edited head, "
+                        "e.g. yaw=10,pitch=-5 (README: New views, for the angles results hold to)")
+    p.add_argument("--face-camera", type=float, default=0.0, metavar="F",
+                   help="turn each face F (0-1) of the way toward looking into the camera, every frame, smoothed "
+                        "(at most --face-camera-limit degrees; on top of --pose)")
+    p.add_argument("--face-camera-limit", type=float, default=15.0, metavar="DEG",
+                   help="the largest turn --face-camera applies, yaw and pitch each (default 15; at most 45)")
     p.add_argument("--faces", default="largest", metavar="all|largest|N",
                    help="which faces to fit and edit: the largest (default), all, or face N only "
                         "(faces numbered 1, 2, ... from the left as they first appear)")
@@ -307,6 +315,21 @@ def _atlas_options(args) -> tuple[str, str]:
     return save_texture, "on" if atlas == "on" else ("learn" if save_texture else "off")
 
 
+def _pose_options(args) -> dict:
+    """The Pipeline's pose options from --pose, --face-camera and --face-camera-limit (ValueError
+    in one sentence on a bad value)."""
+    from facesculpt.geometry.pose_offset import parse_pose_offset
+
+    face_camera = getattr(args, "face_camera", 0.0)
+    limit = getattr(args, "face_camera_limit", 15.0)
+    if not 0.0 <= face_camera <= 1.0:
+        raise ValueError(f"--face-camera must be 0 to 1, got {face_camera}")
+    if not 0.0 < limit <= 45.0:
+        raise ValueError(f"--face-camera-limit must be over 0 and at most 45 degrees, got {limit}")
+    return {"pose": parse_pose_offset(getattr(args, "pose", "")), "face_camera": face_camera,
+            "face_camera_limit_deg": limit}
+
+
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:
     """One video through the pipeline with the options of ``args`` (the command line's); returns
     (exit status, the one line that says what was written). ``detector``: a
@@ -329,6 +352,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
+    pose_options = _pose_options(args)
     source = open_input(args.input)
     fps = source.native_fps
     total = source.frame_count or None
@@ -339,7 +363,8 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "pushpull"),
-                        plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "cubic"))
+                        plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "cubic"),
+                        **pose_options)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

@@ -16,14 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from facesculpt.geometry.head_angles import FRONTAL, euler_from_rotation, rotation_from_euler  # noqa: F401 (this module's API)
 from facesculpt.geometry.projection import project
 
 
 class PoseError(ValueError):
     """The correspondences do not determine a pose (too few, collinear, or not finite)."""
-
-
-FRONTAL = np.diag([1.0, -1.0, -1.0])
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -76,26 +74,6 @@ def nearest_rotation(M: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(M)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
     return U @ D @ Vt
-
-
-def euler_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
-    """Head yaw, pitch, roll in degrees of a model-to-camera rotation, relative to the frontal pose
-    (``R = FRONTAL · Rz(roll) · Rx(pitch) · Ry(yaw)``, angles about the model's y, x, z axes)."""
-    M = FRONTAL.T @ np.asarray(R, np.float64)  # = Rz(roll) Rx(pitch) Ry(yaw)
-    yaw = np.degrees(np.arctan2(-M[2, 0], M[2, 2]))
-    pitch = np.degrees(np.arcsin(np.clip(M[2, 1], -1, 1)))
-    roll = np.degrees(np.arctan2(-M[0, 1], M[1, 1]))
-    return float(yaw), float(pitch), float(roll)
-
-
-def rotation_from_euler(yaw: float, pitch: float, roll: float = 0.0) -> np.ndarray:
-    """Model-to-camera rotation for a head turned by yaw (about y), pitch (about x), roll (about z),
-    degrees, starting from the frontal pose; the inverse of :func:`euler_from_rotation`."""
-    y, p, r = np.radians([yaw, pitch, roll])
-    Ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
-    Rx = np.array([[1, 0, 0], [0, np.cos(p), -np.sin(p)], [0, np.sin(p), np.cos(p)]])
-    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
-    return FRONTAL @ (Rz @ Rx @ Ry)
 
 
 def _check(points3d: np.ndarray, points2d: np.ndarray, weights: np.ndarray | None, need: int):

@@ -52,6 +52,7 @@ from .camera import estimate_projection, project
 from .gl_context import create_headless_context
 from .inpaint import INPAINT_METHODS, dilate, fill_by_parts, uncovered_mask
 from .mesh import close_holes
+from .motion_extension import extend_motion, head_box, head_region
 from .source_map import SourceMapRenderer
 from .subdivision import levels_for, loop_subdivision
 from .texture_atlas import TextureAtlas
@@ -236,7 +237,8 @@ class Compositor:
     # -- the frame ---------------------------------------------------------------------------
     def render(self, frame_bgr: np.ndarray, fitted_vertices: np.ndarray, projected_px: np.ndarray,
                triangles: np.ndarray, deformed_vertices: np.ndarray,
-               keep_mask: np.ndarray | None = None, uv: np.ndarray | None = None, face_key=0) -> np.ndarray:
+               keep_mask: np.ndarray | None = None, uv: np.ndarray | None = None, face_key=0,
+               head_motion: bool = False) -> np.ndarray:
         """The frame with the face replaced by its deformed version.
 
         frame_bgr: (H, W, 3) uint8, the frame the face was fitted on (not modified).
@@ -249,6 +251,7 @@ class Compositor:
         keep_mask: optional (H, W) bool, pixels composited back from the input afterwards (what
             is in front of the face, e.g. a hand: nothing re-rendered covers it); None: none.
         uv, face_key: the face's (V, 2) texture coordinates in [0, 1] and key, for its atlas (step 6).
+        head_motion: carry the face's motion over the head around it (pose edits; :mod:`.motion_extension`).
         V = 0 (no face) returns a copy of the frame. Returns a new (H, W, 3) uint8 frame; it
         equals ``frame_bgr`` exactly wherever the source position is unchanged (offset under
         ``IDENTITY_PX``) and outside the union of the original and deformed face regions
@@ -256,8 +259,7 @@ class Compositor:
         """
         t_start = time.perf_counter()
         fitted, projected, deformed = self._check(frame_bgr, fitted_vertices, projected_px, deformed_vertices, keep_mask)
-        self.box = None
-        self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None
+        self.box = self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None
         self.deformed_px = self.atlas_region = None
         V = fitted.shape[0]
         t_plate = self._learn_plate(frame_bgr, projected, keep_mask)
@@ -272,7 +274,7 @@ class Compositor:
         self.deformed_px = dst_px
         offset = projected - dst_px
         moved = np.einsum("ij,ij->i", offset, offset) >= IDENTITY_PX ** 2
-        box = self._work_box(projected, dst_px, moved) if moved.any() else None
+        box = self._work_box(projected, dst_px, moved, head_motion) if moved.any() else None
         out = frame_bgr.copy()
         if box is None:  # nothing moves, or not inside the frame: every later stage takes no time
             self.timings = {**dict.fromkeys(STAGES, 0.0), "camera": (time.perf_counter() - t0) * 1e3,
@@ -283,7 +285,7 @@ class Compositor:
         t1 = time.perf_counter()
         self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
         t2 = time.perf_counter()
-        offsets, orig_mask = self.maps.read(box)
+        offsets, orig_mask = self._read_map(box, projected, dst_px, head_motion)
         t3 = time.perf_counter()
         covered, changed, fill, source = self._masks(offsets, orig_mask, projected)
         t4 = time.perf_counter()
@@ -301,8 +303,7 @@ class Compositor:
             self._blend_atlas(warped, block, offsets, changed, box, uvq is not None)
         t6 = time.perf_counter()
         if block is not None:
-            self._composite(crop, warped, block, offsets, covered, changed, write,
-                            self.feather_width(projected))
+            self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected))
         if keep_mask is not None:  # what is in front of the face is the input's, bit for bit
             np.copyto(crop, frame_bgr[y0:y1, x0:x1], where=np.asarray(keep_mask[y0:y1, x0:x1], bool)[..., None])
         t7 = time.perf_counter()
@@ -314,6 +315,17 @@ class Compositor:
             "plate": t_plate, "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4) * 1e3, "texture": (t6 - t5) * 1e3,
             "composite": (t7 - t6) * 1e3, "total": (time.perf_counter() - t_start) * 1e3}
         return out
+
+    def _read_map(self, box: tuple[int, int, int, int], projected: np.ndarray, dst_px: np.ndarray,
+                  head_motion: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`);
+        with ``head_motion``, the offsets carried over the head region around the face at
+        ``projected`` and ``dst_px`` (V, 2) px (:func:`.motion_extension.extend_motion`)."""
+        offsets, orig_mask = self.maps.read(box)
+        if head_motion:
+            head = head_region(offsets.shape[:2], box[:2], np.concatenate([projected, dst_px]))
+            offsets = extend_motion(offsets, head)
+        return offsets, orig_mask
 
     def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
               projected: np.ndarray) -> None:
@@ -431,13 +443,16 @@ class Compositor:
         self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
         self.atlas_region[block] = w
 
-    def _work_box(self, projected: np.ndarray, dst_px: np.ndarray,
-                  moved: np.ndarray) -> tuple[int, int, int, int] | None:
+    def _work_box(self, projected: np.ndarray, dst_px: np.ndarray, moved: np.ndarray,
+                  head_motion: bool = False) -> tuple[int, int, int, int] | None:
         """The frame-pixel rectangle (x0, y0, x1, y1) the frame's work is done on: where the
         triangles within two rings of a moved vertex (``moved`` (V,) bool; subdivision spreads an
         offset that far) lie before and after (projected, dst_px (V, 2) pixels), with background
         around them for the fill and the soft edge, cut to the frame. None when less than 2 x 2
-        pixels of it are in the frame."""
+        pixels of it are in the frame. ``head_motion``: the head region around the face too
+        (:func:`.motion_extension.head_box`)."""
+        if head_motion:
+            return head_box(np.concatenate([projected, dst_px]), self.width, self.height)
         near = moved
         for _ in range(2):
             ring = np.zeros_like(near)

@@ -1,0 +1,96 @@
+"""The face's motion carried over the head around it, for pose edits (issue 18).
+
+The face model ends at the forehead and the jaw; hair, ears and neck are not in it. When a pose
+edit turns the head, the source map moves the face but not what surrounds it, which would tear
+the head at the model's outline. This module extends the source map's offsets (backward: output
+pixel -> input position) from the face over a *head region* (an ellipse around the face's box,
+grown by ``HEAD_GROWTH`` of its sides: up for forehead and hair, sideways for the ears, down
+for the neck) by pull-push interpolation, which continues the face's outline values smoothly,
+and fades them to zero at the ellipse's border (smoothstep of the relative distance between the
+face and the border), so the background beyond the head does not move: the seed's
+"geometry-assisted warp of the surrounding regions".
+
+Offsets are (h, w, 2) float32 pixels with :data:`.source_map.UNCOVERED` where no triangle is.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .source_map import UNCOVERED
+
+#: How far the head region reaches past the face's box: shares of its width (each side) and of its
+#: height (up, down).
+HEAD_GROWTH = {"side": 0.22, "up": 0.55, "down": 0.30}
+
+
+def head_box(pixels: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
+    """The frame rectangle (x0, y0, x1, y1) of the head region around the face at ``pixels``
+    (N, 2) px (its vertices before and after the edit), cut to the ``width`` x ``height`` frame;
+    None when less than 2 x 2 pixels of it are in the frame."""
+    lo, hi = pixels.min(axis=0), pixels.max(axis=0)
+    w, h = hi - lo
+    x0 = int(np.floor(lo[0] - HEAD_GROWTH["side"] * w))
+    x1 = int(np.ceil(hi[0] + HEAD_GROWTH["side"] * w)) + 1
+    y0 = int(np.floor(lo[1] - HEAD_GROWTH["up"] * h))
+    y1 = int(np.ceil(hi[1] + HEAD_GROWTH["down"] * h)) + 1
+    box = (max(0, x0), max(0, y0), min(width, x1), min(height, y1))
+    return box if box[2] - box[0] >= 2 and box[3] - box[1] >= 2 else None
+
+
+def head_region(shape: tuple[int, int], origin: tuple[int, int], pixels: np.ndarray) -> np.ndarray:
+    """(h, w) uint8 0/1 the head region's ellipse on a crop of ``shape`` (h, w) whose top-left
+    pixel is the frame pixel ``origin`` (x, y); ``pixels`` as in :func:`head_box` (not cut to the
+    frame: the ellipse is the same whatever part of it the crop holds)."""
+    lo, hi = pixels.min(axis=0), pixels.max(axis=0)
+    w, h = hi - lo
+    left, right = lo[0] - HEAD_GROWTH["side"] * w, hi[0] + HEAD_GROWTH["side"] * w
+    top, bottom = lo[1] - HEAD_GROWTH["up"] * h, hi[1] + HEAD_GROWTH["down"] * h
+    cx, cy = 0.5 * (left + right) - origin[0], 0.5 * (top + bottom) - origin[1]
+    ax, ay = max(0.5 * (right - left), 1.0), max(0.5 * (bottom - top), 1.0)
+    ys, xs = np.ogrid[: shape[0], : shape[1]]
+    inside = ((xs - cx) / ax) ** 2 + ((ys - cy) / ay) ** 2 <= 1.0
+    return inside.astype(np.uint8)
+
+
+def pull_push(values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """(h, w, C) float32: ``values`` (h, w, C) float32 where ``known`` (h, w) bool, elsewhere a
+    smooth interpolation of them (pull: masked averages down an image pyramid; push: each level's
+    gaps filled from the coarser one). Known pixels keep their values exactly."""
+    w0 = known.astype(np.float32)
+    levels = [(values * w0[..., None], w0)]
+    while min(levels[-1][1].shape) > 4:
+        v, w = levels[-1]
+        levels.append((cv2.pyrDown(v), cv2.pyrDown(w)))
+    v, w = levels[-1]
+    estimate = np.where(w[..., None] > 1e-6, v / np.maximum(w, 1e-6)[..., None], 0.0).astype(np.float32)
+    for v, w in reversed(levels[:-1]):
+        up = cv2.pyrUp(estimate, dstsize=(w.shape[1], w.shape[0]))
+        if up.ndim == 2:
+            up = up[..., None]
+        own = np.where(w[..., None] > 1e-6, v / np.maximum(w, 1e-6)[..., None], 0.0)
+        trust = np.minimum(w * 4.0, 1.0)[..., None]
+        estimate = (trust * own + (1.0 - trust) * up).astype(np.float32)
+    estimate[known] = values[known]
+    return estimate
+
+
+def extend_motion(offsets: np.ndarray, head: np.ndarray) -> np.ndarray:
+    """The source map ``offsets`` (h, w, 2) float32 with the face's motion carried over the
+    ``head`` (h, w) uint8 0/1 region (:func:`head_region`): its uncovered pixels get the
+    interpolated offsets of the face (:func:`pull_push`), faded from full at the face's outline
+    to zero at the region's border. Covered pixels are unchanged, pixels outside both stay
+    UNCOVERED. Returns a new (h, w, 2) float32 array."""
+    covered = offsets[..., 0] < 0.5 * UNCOVERED
+    if not covered.any():
+        return offsets.copy()
+    field = pull_push(np.where(covered[..., None], offsets, 0.0).astype(np.float32), covered)
+    to_face = cv2.distanceTransform((~covered).view(np.uint8), cv2.DIST_L2, 3)
+    to_edge = cv2.distanceTransform(head, cv2.DIST_L2, 3)
+    u = to_face / np.maximum(to_face + to_edge, 1e-6)
+    fade = 1.0 - u * u * (3.0 - 2.0 * u)        # smoothstep: 1 at the face, 0 at the border
+    out = offsets.copy()
+    around = (head != 0) & ~covered
+    out[around] = field[around] * fade[around][:, None]
+    return out
