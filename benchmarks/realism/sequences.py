@@ -150,7 +150,8 @@ def importable_checkout(checkout: Path, shim: Path) -> Path:
 def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames: int = 0,
                 neutral_frames: int = 30, pythonpath: str = "", data: Path | None = None,
                 extra_args: tuple = ()) -> tuple[list, float]:
-    """``facesculpt process VIDEO -o OUT/%05d.png --edits PRESET --model MODEL`` in a
+    """``facesculpt process VIDEO -o OUT/%05d.png --edits PRESET --model MODEL`` (no --edits when
+    ``preset`` is None) in a
     subprocess (with ``pythonpath`` first on its PYTHONPATH when given: another build of
     facesculpt) and FACESCULPT_DATA set to ``data`` when given (where ``sfm`` is read), with
     ``extra_args`` (more process options, e.g. ``--atlas on``) at the end: (the
@@ -158,9 +159,11 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
     import time
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    video, out_dir, preset = Path(video).resolve(), Path(out_dir).resolve(), Path(preset).resolve()
+    video, out_dir = Path(video).resolve(), Path(out_dir).resolve()
     cmd = [sys.executable, "-m", "facesculpt.cli", "process", str(video), "-o", str(out_dir / "%05d.png"),
-           "--edits", str(preset), "--model", model, "--neutral-frames", str(neutral_frames), "--quiet"]
+           "--model", model, "--neutral-frames", str(neutral_frames), "--quiet"]
+    if preset is not None:
+        cmd += ["--edits", str(Path(preset).resolve())]
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]
     cmd += list(extra_args)

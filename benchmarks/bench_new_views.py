@@ -1,0 +1,227 @@
+"""New-views benchmark (issue 18): ``facesculpt process --pose`` against the same head filmed at
+the new pose, on synthetic videos with exact ground truth.
+
+1. The synthetic scene of the realism benchmark (``benchmarks/realism/``: the Surrey Face Model
+   with a random identity, textured from a real face, over a real background, turning smoothly:
+   yaw ±25°, pitch ±10°), rendered at its own pose θ (the input) and at θ + Δ for each Δ of
+   ``--deltas`` (yaw, then pitch): the head's own yaw (or pitch) increased by Δ, exactly what
+   ``--pose yaw=Δ`` promises (:mod:`facesculpt.geometry.pose_offset`), turning about the scene's
+   pivot (90 mm behind the model's origin).
+2. ``facesculpt process SYNTH.mkv -o FRAMES/%05d.png --pose yaw=Δ --model M`` (a subprocess, as a
+   user runs it, on a lossless FFV1 input) for each model, scored on every frame after
+   ``--skip`` against the θ + Δ truth, next to "do nothing" (the input) and a 2D baseline: the
+   input warped by the homography that best maps the head's visible vertices from θ to θ + Δ
+   (an oracle: it is given the true vertex positions), applied over the head and faded out
+   around it (no hole, no ghost: the best a 2D warp of the face region can do).
+3. Figures: PSNR (dB) and SSIM over the head region (where the input or the truth shows the
+   head, dilated by 4 px), per Δ and method. Crops ``crops_yaw_D_MODEL.png`` (rows: the most
+   turned-left, a frontal and the most turned-right scored frames; columns: input | result |
+   ground truth | 2D homography).
+
+Writes ``results.md``, ``results.json`` and the crops to ``--out`` (default: a new temporary
+folder) and prints the table.
+
+Run: ``python benchmarks/bench_new_views.py [--out DIR] [--frames 60] [--models facemesh,sfm]
+[--deltas 5,10,15,20] [--pitch-deltas 5,10]``. Needs the shared data (../shared/data or
+FACESCULPT_DATA) and ``facesculpt setup``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from realism.metrics import Pooled, changed, psnr_from_mse, squared_error, ssim_map  # noqa: E402
+from realism.raster import project, render_textured, visible_vertices  # noqa: E402
+from realism.report import side_by_side  # noqa: E402
+from realism.scene import FACING, PIVOT, Scene, head_pose, make_scene, rotation  # noqa: E402
+from realism.sequences import run_process, write_lossless  # noqa: E402
+
+from facesculpt.geometry.head_angles import euler_from_rotation, rotation_from_euler  # noqa: E402
+from facesculpt.paths import shared_data_dir  # noqa: E402
+
+#: Dilation (px) of the head's region for the scores.
+REGION_DILATE_PX = 4
+#: Width of the 2D baseline's fade around the head, as a share of the head's size.
+FADE_FRACTION = 0.3
+
+_SCENE: Scene | None = None
+
+
+def _init(scene: Scene) -> None:
+    global _SCENE
+    _SCENE = scene
+
+
+def posed_vertices(scene: Scene, i: int, d_yaw: float = 0.0, d_pitch: float = 0.0) -> np.ndarray:
+    """(V, 3) camera mm: frame ``i``'s head with its own yaw and pitch increased by the deltas."""
+    yaw, pitch, t = head_pose(i)
+    y, p, r = euler_from_rotation(rotation(yaw, pitch) @ FACING)
+    R = rotation_from_euler(y + d_yaw, p + d_pitch, r)
+    return (scene.rest - PIVOT) @ R.T + t
+
+
+def render_frame(job: tuple[int, float, float]) -> dict:
+    """Frame ``i`` at the offset (d_yaw, d_pitch): the image, its vertices' pixels and visibility."""
+    i, d_yaw, d_pitch = job
+    s = _SCENE
+    X = posed_vertices(s, i, d_yaw, d_pitch)
+    size = (s.background.shape[1], s.background.shape[0])
+    img = render_textured(s.K, X, s.triangles, s.texcoords, s.alpha, s.texture, s.background)
+    return {"image": np.clip(np.rint(img), 0, 255).astype(np.uint8), "px": project(s.K, X)[0],
+            "visible": visible_vertices(s.K, X, s.triangles, size, tolerance_mm=3.0)}
+
+
+def render_all(scene: Scene, offsets: list[tuple[float, float]], workers: int) -> dict:
+    """(d_yaw, d_pitch) -> list of :func:`render_frame` results for every frame."""
+    jobs = [(i, dy, dp) for dy, dp in offsets for i in range(scene.frames)]
+    with ProcessPoolExecutor(workers, initializer=_init, initargs=(scene,)) as pool:
+        done = list(pool.map(render_frame, jobs, chunksize=4))
+    out = {}
+    for (_, dy, dp), frame in zip(jobs, done):
+        out.setdefault((dy, dp), []).append(frame)
+    return out
+
+
+def head_mask(img: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """(H, W) bool: where the head covers the background, holes filled."""
+    m = changed(img, background).astype(np.uint8)
+    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    filled = np.zeros_like(m)
+    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
+    return filled.astype(bool)
+
+
+def homography_baseline(inp: dict, truth: dict, background: np.ndarray) -> np.ndarray:
+    """The input warped by the homography of the visible vertices from the input to the truth,
+    over the head (where the input or the warped input shows it), faded out around it."""
+    both = inp["visible"] & truth["visible"]
+    H, _ = cv2.findHomography(inp["px"][both].astype(np.float32), truth["px"][both].astype(np.float32), 0)
+    h, w = inp["image"].shape[:2]
+    head = head_mask(inp["image"], background)
+    moved = cv2.warpPerspective(head.astype(np.uint8), H, (w, h), flags=cv2.INTER_NEAREST).astype(bool)
+    region = (head | moved).astype(np.uint8)
+    ys, xs = np.nonzero(region)
+    size = np.sqrt(max(np.ptp(xs) * np.ptp(ys), 1.0))
+    fade = cv2.distanceTransform(1 - region, cv2.DIST_L2, 3) / (FADE_FRACTION * size)
+    weight = np.clip(1.0 - fade, 0.0, 1.0)
+    weight = weight * weight * (3 - 2 * weight)
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pts = np.stack([gx, gy, np.ones_like(gx)], -1) @ np.linalg.inv(H).T
+    sx, sy = pts[..., 0] / pts[..., 2], pts[..., 1] / pts[..., 2]
+    map_x = (gx + weight * (sx - gx)).astype(np.float32)
+    map_y = (gy + weight * (sy - gy)).astype(np.float32)
+    return cv2.remap(inp["image"], map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+
+
+def score(frames: list, inputs: list, truths: list, background: np.ndarray, scored: list[int]) -> dict:
+    """PSNR (dB) and SSIM of ``frames`` against ``truths`` over the head region of each scored frame."""
+    pool = Pooled()
+    for i in scored:
+        region = head_mask(inputs[i]["image"], background) | head_mask(truths[i]["image"], background)
+        region = cv2.dilate(region.astype(np.uint8), np.ones((2 * REGION_DILATE_PX + 1,) * 2, np.uint8)).astype(bool)
+        se, n = squared_error(frames[i], truths[i]["image"], region)
+        pool.add("se", se, n)
+        pool.add("ssim", float(ssim_map(frames[i], truths[i]["image"])[region].sum()), int(region.sum()))
+    return {"psnr": psnr_from_mse(pool.mean("se")), "ssim": pool.mean("ssim"), "frames": len(scored)}
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
+    p.add_argument("--frames", type=int, default=60, help="synthetic frames, 25 fps (default 60)")
+    p.add_argument("--skip", type=int, default=5, help="frames not scored at the start (default 5)")
+    p.add_argument("--models", default="facemesh,sfm", help="models to run process with (default facemesh,sfm)")
+    p.add_argument("--deltas", default="5,10,15,20", help="yaw offsets, degrees (default 5,10,15,20)")
+    p.add_argument("--pitch-deltas", default="5,10", help="pitch offsets, degrees (default 5,10; '' for none)")
+    p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
+    a = p.parse_args(argv)
+    a.models = [m for m in a.models.split(",") if m]
+    a.offsets = [(float(d), 0.0) for d in a.deltas.split(",") if d] + \
+                [(0.0, float(d)) for d in a.pitch_deltas.split(",") if d]
+    if a.frames <= a.skip:
+        p.error(f"--frames {a.frames} leaves no frame after --skip {a.skip}")
+    return a
+
+
+def _name(offset: tuple[float, float]) -> str:
+    dy, dp = offset
+    return f"yaw={dy:g}" if dy else f"pitch={dp:g}"
+
+
+def crop_rows(inputs: list, scored: list[int]) -> list[int]:
+    yaw = np.array([head_pose(i)[0] for i in scored])
+    return [scored[int(np.argmin(yaw))], scored[int(np.argmin(np.abs(yaw)))], scored[int(np.argmax(yaw))]]
+
+
+def head_box(frames: list, background: np.ndarray, size: tuple[int, int], pad: int = 16) -> tuple[int, int, int, int]:
+    """One square box around the head in every frame of ``frames``, inside the image."""
+    W, H = size
+    ys, xs = np.nonzero(np.logical_or.reduce([head_mask(f, background) for f in frames]))
+    side = int(min(max(np.ptp(xs), np.ptp(ys)) + 2 * pad, W, H))
+    cx, cy = (xs.min() + xs.max()) / 2, (ys.min() + ys.max()) / 2
+    x0, y0 = int(np.clip(cx - side / 2, 0, W - side)), int(np.clip(cy - side / 2, 0, H - side))
+    return x0, y0, x0 + side, y0 + side
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    data = shared_data_dir()
+    if data is None:
+        print("bench_new_views: the shared data folder is missing (../shared/data or FACESCULPT_DATA)", file=sys.stderr)
+        return 2
+    out = args.out or Path(tempfile.mkdtemp(prefix="bench_new_views_"))
+    out.mkdir(parents=True, exist_ok=True)
+    workers = args.workers or max(1, min(4, len(os.sched_getaffinity(0))))
+    t0 = time.perf_counter()
+    scene = make_scene(data, frames=args.frames)
+    rendered = render_all(scene, [(0.0, 0.0)] + args.offsets, workers)
+    inputs = rendered[(0.0, 0.0)]
+    print(f"rendered {len(rendered)} sequences of {args.frames} frames in {time.perf_counter() - t0:.0f} s", flush=True)
+    video = write_lossless([f["image"] for f in inputs], out / "synthetic.mkv")
+    scored = list(range(args.skip, args.frames))
+    bg = scene.background
+    size = (bg.shape[1], bg.shape[0])
+    results: dict = {}
+    for offset in args.offsets:
+        name, truths = _name(offset), rendered[offset]
+        row = {"do nothing": score([f["image"] for f in inputs], inputs, truths, bg, scored)}
+        homog = [homography_baseline(inputs[i], truths[i], bg) for i in range(args.frames)]
+        row["2D homography"] = score(homog, inputs, truths, bg, scored)
+        for m in args.models:
+            got, took = run_process(video, out / "frames" / f"{name}_{m}", None, m, pythonpath="", data=data,
+                                    extra_args=("--pose", name))
+            row[f"process {m}"] = {**score(got, inputs, truths, bg, scored), "seconds": round(took, 1)}
+            rows = crop_rows(inputs, scored)
+            box = head_box([inputs[i]["image"] for i in rows] + [truths[i]["image"] for i in rows], bg, size)
+            panels = [[(f"input yaw {head_pose(i)[0]:+.0f}", inputs[i]["image"]), (f"process {m} {name}", got[i]),
+                       ("ground truth", truths[i]["image"]), ("2D homography", homog[i])] for i in rows]
+            cv2.imwrite(str(out / f"crops_{name.replace('=', '_')}_{m}.png"), side_by_side(panels, [box] * len(rows)))
+        results[name] = row
+        print(name, {k: (round(v["psnr"], 2), round(v["ssim"], 3)) for k, v in row.items()}, flush=True)
+    methods = list(next(iter(results.values())))
+    lines = ["| offset | " + " | ".join(methods) + " |", "| --- |" + " --- |" * len(methods)]
+    for name, row in results.items():
+        lines.append(f"| {name} | " + " | ".join(f"{row[k]['psnr']:.2f} dB / {row[k]['ssim']:.3f}" for k in methods) + " |")
+    table = "\n".join(lines)
+    (out / "results.md").write_text(f"PSNR / SSIM over the head region, frames {args.skip}-{args.frames - 1}\n\n{table}\n")
+    (out / "results.json").write_text(json.dumps(results, indent=1))
+    print(table)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,177 @@
+"""Pose edits (issue 18): the offset's geometry, the compositor carrying the face's motion over
+the head, and `facesculpt process --pose` turning a real head by about the angle asked for."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from facesculpt.geometry.head_angles import euler_from_rotation, rotation_from_euler
+from facesculpt.geometry.pose_offset import (
+    PoseOffset,
+    apply_pose_offset,
+    face_camera_offset,
+    head_pivot,
+    parse_pose_offset,
+    posed_rotation,
+    smooth_offset,
+)
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+# -- the offset ------------------------------------------------------------------------------------
+def test_parse_reads_every_field_and_refuses_in_one_sentence():
+    assert parse_pose_offset("yaw=10, pitch=-5,z=20") == PoseOffset(yaw=10, pitch=-5, z=20)
+    assert parse_pose_offset("").is_zero
+    for bad, says in (("yaw10", "NAME=VALUE"), ("tilt=3", "NAME=VALUE"), ("yaw=x", "must be a number"),
+                      ("yaw=60", "±45 degrees"), ("x=900", "±200 mm")):
+        with pytest.raises(ValueError, match=says) as err:
+            parse_pose_offset(bad)
+        assert "\n" not in str(err.value)
+
+
+def test_the_offset_adds_to_the_heads_own_angles_about_its_pivot():
+    rng = np.random.default_rng(3)
+    model = rng.normal(0, 40, (50, 3))
+    pivot = np.array([0.0, 5.0, -90.0])
+    R, t = rotation_from_euler(18, -7, 4), np.array([20.0, -10.0, 520.0])
+    cam = model @ R.T + t
+    offset = PoseOffset(yaw=10, pitch=5, roll=-3, x=4, y=-2, z=30)
+    moved = apply_pose_offset(cam, R, t, 1.0, pivot, offset)
+    R2 = posed_rotation(R, offset)
+    assert euler_from_rotation(R2) == pytest.approx((28, -2, 1))
+    # the same head posed at the new angles, turned about the pivot, then moved
+    expected = (model - pivot) @ R2.T + R @ pivot + t + [4, -2, 30]
+    assert np.abs(moved - expected).max() < 1e-9
+    assert np.array_equal(apply_pose_offset(cam, R, t, 1.0, pivot, PoseOffset()), cam)
+
+
+def test_head_pivot_lies_behind_the_foremost_point():
+    V = np.array([[-70.0, -80, -100], [70, 100, 5], [0, 10, -20]])
+    assert head_pivot(V) == pytest.approx([0.0, 10.0, 5 - 95.0])
+
+
+def test_face_camera_turns_a_face_onto_the_ray_to_the_camera_and_smooths():
+    pivot = np.array([0.0, 0.0, -90.0])
+    R, t = rotation_from_euler(20, -8, 5), np.array([60.0, -30.0, 500.0])
+    full = face_camera_offset(R, t, 1.0, pivot, 1.0, 45.0)
+    facing = posed_rotation(R, full)[:, 2]
+    centre = R @ pivot + t
+    assert np.dot(facing, -centre / np.linalg.norm(centre)) > 0.9999
+    assert euler_from_rotation(posed_rotation(R, full))[2] == pytest.approx(5.0)  # roll kept
+    half = face_camera_offset(R, t, 1.0, pivot, 0.5, 45.0)
+    assert half.yaw == pytest.approx(0.5 * full.yaw) and half.pitch == pytest.approx(0.5 * full.pitch)
+    clamped = face_camera_offset(R, t, 1.0, pivot, 1.0, 5.0)
+    assert abs(clamped.yaw) == pytest.approx(5.0) and abs(clamped.pitch) <= 5.0
+    step = smooth_offset(PoseOffset(), PoseOffset(yaw=10), 0.1, 0.3)
+    assert 0 < step.yaw < 10
+    assert smooth_offset(step, PoseOffset(yaw=10), 5.0, 0.3).yaw == pytest.approx(10, abs=1e-5)
+
+
+# -- the compositor ----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def turned(data_dir):
+    """Frame 0 of d0 with the SFM mean posed on it, rendered with the head turned 12° of yaw,
+    with and without head_motion."""
+    from renderer_scene import place_marked, read_frames
+
+    from facesculpt.nodes.fitter import load_model
+    from facesculpt.nodes.renderer import Compositor
+
+    frame = read_frames(data_dir, "d0")[0]
+    p = place_marked(load_model("sfm"), "d0")
+    t = p.fitted.mean(axis=0) - p.R @ p.rest.mean(axis=0)
+    deformed = apply_pose_offset(p.fitted, p.R, t, 1.0, head_pivot(p.rest), PoseOffset(yaw=12))
+    out = {}
+    with Compositor(frame.shape[1], frame.shape[0]) as comp:
+        for head in (False, True):
+            out[head] = comp.render(frame, p.fitted, p.projected, p.triangles, deformed, head_motion=head)
+            out[head, "regions"] = comp.full_frame_regions()
+    return frame, p, out
+
+
+def test_head_motion_moves_the_head_around_the_face_and_nothing_far_away(turned):
+    frame, p, out = turned
+    lo, hi = p.projected.min(axis=0), p.projected.max(axis=0)
+    face = out[False, "regions"]["original"] | out[False, "regions"]["deformed"]
+    grown = cv2.dilate(face.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    # the band above the face (forehead, hair) that neither face region touches
+    band = np.zeros(face.shape, bool)
+    band[max(0, int(lo[1] - 0.3 * (hi[1] - lo[1]))):int(lo[1]), int(lo[0]):int(hi[0])] = True
+    band &= ~grown
+    diff = {h: np.abs(out[h].astype(int) - frame.astype(int)).max(axis=2) for h in (False, True)}
+    assert band.sum() > 500
+    assert (diff[False][band] == 0).all()          # without it the hair stays where it was
+    assert (diff[True][band] > 8).mean() > 0.05     # with it the hair turns with the face
+    far = np.ones(face.shape, bool)
+    far[max(0, int(lo[1] - 0.7 * (hi[1] - lo[1]))):int(hi[1] + 0.5 * (hi[1] - lo[1])),
+        max(0, int(lo[0] - 0.4 * (hi[0] - lo[0]))):int(hi[0] + 0.4 * (hi[0] - lo[0]))] = False
+    assert far.sum() > 1000 and (diff[True][far] == 0).all()
+
+
+def test_the_extended_motion_continues_the_faces_offsets_across_its_outline():
+    from facesculpt.nodes.renderer.motion_extension import extend_motion
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    h, w = 120, 160
+    ys, xs = np.mgrid[:h, :w]
+    covered = (xs - 80) ** 2 / 30 ** 2 + (ys - 60) ** 2 / 40 ** 2 <= 1
+    offsets = np.full((h, w, 2), UNCOVERED, np.float32)
+    offsets[covered] = np.stack([3.0 + 0.02 * xs, -2.0 + 0.01 * ys], -1)[covered]
+    head = ((xs - 80) ** 2 / 70 ** 2 + (ys - 55) ** 2 / 58 ** 2 <= 1).astype(np.uint8)
+    ext = extend_motion(offsets, head)
+    assert np.array_equal(ext[covered], offsets[covered])
+    ring = cv2.dilate(covered.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~covered
+    inner = cv2.dilate(ring.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & covered
+    assert np.abs(np.linalg.norm(ext[ring], axis=1).mean() - np.linalg.norm(offsets[inner], axis=1).mean()) < 0.3
+    edge = head.astype(bool) & ~cv2.erode(head, np.ones((3, 3), np.uint8)).astype(bool)
+    assert np.abs(ext[edge]).max() < 0.3           # faded out at the head region's border
+    assert (ext[~head.astype(bool) & ~covered] == UNCOVERED).all()
+
+
+# -- process --pose --------------------------------------------------------------------------------
+def _yaws(frames: list, detector, model) -> list[float]:
+    from facesculpt.nodes.fitter import FitterConfig, make_fitter
+
+    out = []
+    for frame in frames:
+        fitter = make_fitter(model, FitterConfig(), (frame.shape[1], frame.shape[0]))
+        detector.reset()
+        faces = detector.detect(frame)
+        out.append(fitter.fit(faces[0].points).yaw_pitch_roll[0])
+    return out
+
+
+def test_process_pose_turns_a_real_head_by_about_the_angle_asked(data_dir, models_dir, tmp_path):
+    from facesculpt.nodes.fitter import load_model
+    from facesculpt.nodes.landmarks import LandmarkDetector
+
+    video = data_dir / "video" / "d0.mp4"
+    done = subprocess.run([sys.executable, "-m", "facesculpt.cli", "process", str(video), "-o",
+                           str(tmp_path / "%05d.png"), "--pose", "yaw=12", "--max-frames", "12", "--quiet"],
+                          cwd=REPO, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    cap = cv2.VideoCapture(str(video))
+    inputs = [cap.read()[1] for _ in range(12)]
+    cap.release()
+    outputs = [cv2.imread(str(tmp_path / f"{i:05d}.png")) for i in (3, 7, 11)]
+    detector, model = LandmarkDetector(), load_model("facemesh")
+    turn = np.subtract(_yaws(outputs, detector, model), _yaws([inputs[i] for i in (3, 7, 11)], detector, model))
+    assert 8.0 < turn.mean() < 16.0, turn  # the refit sees the turned head
+    corner = (slice(0, 40), slice(0, 40))
+    assert all(np.array_equal(o[corner], inputs[i][corner]) for o, i in zip(outputs, (3, 7, 11)))
+
+
+def test_process_refuses_a_bad_pose_before_writing_anything(data_dir, tmp_path):
+    for args, says in ((["--pose", "yaw=90"], "±45 degrees"), (["--face-camera", "2"], "0 to 1")):
+        done = subprocess.run([sys.executable, "-m", "facesculpt.cli", "process", str(data_dir / "video" / "d0.mp4"),
+                               "-o", str(tmp_path / "out.mp4"), *args], cwd=REPO, capture_output=True, text=True,
+                              timeout=60)
+        assert done.returncode != 0 and says in done.stderr, done.stderr
+        assert not list(tmp_path.iterdir())
