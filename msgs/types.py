@@ -116,9 +116,9 @@ class FaceState(Message):
     corrected: list = field(default_factory=list)
 
 
-INPUT_KINDS = ("press", "drag", "release", "depth", "move", "axes", "buttons", "command")
+INPUT_KINDS = ("press", "drag", "release", "depth", "move", "axes", "buttons", "command", "pose")
 INPUT_COMMANDS = ("reset", "undo", "save_preset", "load_preset", "select_edit", "toggle_static",
-                  "correct_landmark", "clear_corrections")
+                  "correct_landmark", "clear_corrections", "reset_pose")
 
 
 @register
@@ -132,9 +132,13 @@ class InputEvent(Message):
     depth: mm along the view ray, + toward the camera (kind "depth").
     vector: (3,) float32 model-space displacement in mm (kind "move").
     axes: (A,) float32 joystick axes in -1..1; buttons: bit mask.
+    pose: (6,) float32, kind "pose": a change of the face's pose offset (issue 18), added to it:
+    yaw, pitch, roll in degrees, x, y, z in mm (camera axes); without it, ``argument`` may give
+    the change as text ("yaw=2,pitch=-1", facesculpt.geometry.pose_offset.parse_pose_offset).
     command / argument: kind "command" (INPUT_COMMANDS; argument e.g. a preset path, or for
     correct_landmark the iBUG number 1..68 of the landmark to put at x, y; the fitter handles
-    correct_landmark and clear_corrections, the deformer the others).
+    correct_landmark and clear_corrections, the deformer the others; reset_pose clears the pose
+    offset alone, reset clears it with every edit).
     face: which face (FaceState.face_id) the event edits; -1: the face under the pointer for
     pixel events, every face for landmark presses and commands.
     """
@@ -153,6 +157,7 @@ class InputEvent(Message):
     argument: str = ""
     source: str = ""
     face: int = -1
+    pose: np.ndarray = array("f4", 6, optional=True)
 
     def check(self) -> None:
         if self.kind not in INPUT_KINDS:
@@ -169,6 +174,10 @@ class Deformation(Message):
     edited).  version grows with every solve.  Several faces: face_ids (P,) int32 and
     displacements (P, V, 3) float32 give each edited face its own; a face not listed (or no
     lists) uses ``displacement``.
+    pose: (6,) float32, optional: the pose offset of face ``face_id`` (issue 18): yaw, pitch, roll
+    in degrees added to the head's own angles, x, y, z in mm (camera axes), as
+    facesculpt.geometry.pose_offset.PoseOffset.as_list; poses (P, 6) float32 that of each face of
+    ``face_ids``. Absent or zeros: the head keeps its tracked pose.
     """
 
     TYPE = "Deformation"
@@ -181,6 +190,17 @@ class Deformation(Message):
     face_id: int = 0
     face_ids: np.ndarray = array("i4", "P", optional=True)
     displacements: np.ndarray = array("f4", "P", "V", 3, optional=True)
+    pose: np.ndarray = array("f4", 6, optional=True)
+    poses: np.ndarray = array("f4", "P", 6, optional=True)
+
+    def pose_of(self, face_id: int) -> np.ndarray:
+        """(6,) float32 the pose offset of face ``face_id`` (yaw, pitch, roll deg, x, y, z mm): its
+        own when ``face_ids`` and ``poses`` list it, else ``pose``, else zeros."""
+        if self.face_ids is not None and self.poses is not None:
+            hit = np.flatnonzero(self.face_ids == int(face_id))
+            if hit.size:
+                return self.poses[hit[0]]
+        return np.zeros(6, np.float32) if self.pose is None else self.pose
 
     def displacement_of(self, face_id: int) -> np.ndarray:
         """(V, 3) the displacement of face ``face_id``: its own when listed, else ``displacement``."""

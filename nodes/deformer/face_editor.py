@@ -6,6 +6,11 @@ selected, joystick motion, and the solve's convergence. The node routes each inp
 editors it concerns and asks each for a round (:meth:`FaceEditor.round`); sockets, timers and
 publishing stay in the node. Bad input raises :class:`DeformerError`; a round that cannot be
 solved rolls back and keeps the last good displacement.
+
+The face's pose offset (issue 18, :class:`facesculpt.geometry.pose_offset.PoseOffset`) lives here
+too: a "pose" event adds to it, ``reset`` and ``reset_pose`` clear it, a preset with a ``pose``
+sets it, ``save_preset`` writes it. It is rigid, so changing it never solves ARAP: it sets
+:attr:`FaceEditor.pose_changed` for the node to publish. ``undo`` leaves it as it is.
 """
 
 from __future__ import annotations
@@ -18,15 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from facesculpt.geometry import axes_velocity, merge_deformation, project
+from facesculpt.geometry.pose_offset import MAX_OFFSET_DEG, MAX_OFFSET_MM, PoseOffset, parse_pose_offset
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
 
 from .dragging import depth_delta, drag_delta
 from .edits import EditStack
 from .errors import DeformerError
 from .picking import pick_vertex
-from .preset_format import find_preset, read_preset_file, scale_preset
+from .preset_format import find_preset, pose_to_preset, preset_pose, read_preset_file, scale_preset
 
 MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
+POSE_LIMITS = np.array([MAX_OFFSET_DEG] * 3 + [MAX_OFFSET_MM] * 3)  # yaw, pitch, roll deg; x, y, z mm
 
 
 class FaceEditor:
@@ -59,6 +66,8 @@ class FaceEditor:
         self.loaded: tuple[dict, str] | None = None
         self.initial_preset = initial_preset
         self.preset_name = preset_name
+        self.pose = PoseOffset()  # the head's pose offset, published with the displacement
+        self.pose_changed = False  # set when the pose changed; the node publishes and clears it
 
     def _bad(self, counter: str, exc: Exception):
         self.count(counter)
@@ -125,6 +134,7 @@ class FaceEditor:
         if first or self.loaded is not None:
             self.loaded = (doc, _fingerprint(stack))
         if first:
+            self._set_pose(preset_pose(doc))
             self.count("preset_loaded")
             self.log.info("applied preset %s to face %d", self.preset_name, self.face_id)
 
@@ -205,6 +215,8 @@ class FaceEditor:
             self._axes(ev)
         elif kind == "command":
             self._command(ev)
+        elif kind == "pose":
+            self._pose_event(ev)
         else:  # buttons: mapped to commands by the input nodes
             self.count(f"ignored_{kind}")
 
@@ -300,6 +312,40 @@ class FaceEditor:
             return
         self._move(self.selected, self.velocity * min(dt, 0.1))
 
+    def _set_pose(self, pose: PoseOffset | None) -> None:
+        """Make ``pose`` the face's pose offset (None: leave it), flagging a change."""
+        if pose is not None and pose != self.pose:
+            self.pose, self.pose_changed = pose, True
+
+    def _pose_event(self, ev: InputEvent) -> None:
+        """A "pose" event: its change (``pose`` (6,) finite, else ``argument`` text such as
+        "yaw=2") added to the pose offset, each component (and the sum) clamped to its limit."""
+        try:
+            if ev.pose is not None:
+                values = np.asarray(ev.pose, np.float64).ravel()
+                if not np.all(np.isfinite(values)):
+                    raise ValueError(f"a pose event's pose must be finite, got {values.tolist()}")
+                change = PoseOffset.from_list(np.clip(values, -POSE_LIMITS, POSE_LIMITS))
+            elif ev.argument:
+                change = parse_pose_offset(ev.argument)
+            else:
+                raise ValueError("a pose event needs pose (6,) [yaw, pitch, roll deg, x, y, z mm] "
+                                 "or an argument such as 'yaw=2,pitch=-1'")
+        except ValueError as exc:
+            raise DeformerError(str(exc)) from None
+        self._set_pose(self.pose + change)
+        self.count("pose")
+
+    def _save_preset(self, path: Path) -> Path:
+        """Write the edits, pins and (when not zero) the pose offset as a preset at ``path``;
+        the absolute path written (OSError when it cannot be written)."""
+        doc = self.stack.to_preset()
+        if not self.pose.is_zero:
+            doc["pose"] = pose_to_preset(self.pose)
+        path = Path(path).expanduser().resolve()
+        path.write_text(json.dumps(doc, indent=1))
+        return path
+
     def _preset_path(self, argument: str) -> Path:
         if not argument:
             raise DeformerError("preset command needs a path argument")
@@ -313,6 +359,10 @@ class FaceEditor:
             self.pointers.clear()
             self.selected = None
             self.velocity[:] = 0
+            self._set_pose(PoseOffset())
+        elif cmd == "reset_pose":  # rigid: published without a solve
+            self._set_pose(PoseOffset())
+            return
         elif cmd == "undo":
             if not self.stack.undo():
                 self.count("undo_empty")
@@ -321,7 +371,7 @@ class FaceEditor:
         elif cmd == "save_preset":
             path = self._preset_path(ev.argument)
             try:
-                path = self.stack.save_preset(path)
+                path = self._save_preset(path)
             except OSError as exc:
                 raise DeformerError(f"cannot write preset {path}: {exc}") from exc
             self.last_saved_preset = str(path)
@@ -335,6 +385,7 @@ class FaceEditor:
             # a file (relative to preset_dir) or the name of a shipped preset, e.g. "nose_longer"
             doc = scale_preset(read_preset_file(find_preset(ev.argument, self.params.preset_dir)), self.params.strength)
             self.stack.apply_preset(doc)
+            self._set_pose(preset_pose(doc))
             self.loaded = (doc, _fingerprint(self.stack))
             self.pointers.clear()
             self.selected = None

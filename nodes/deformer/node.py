@@ -13,6 +13,11 @@ Several faces: each fitted face (``FaceState.face_id``) has its own edits on its
 and joystick axes to the face of their pointer or selection; a landmark press, a preset and the
 other commands to every face, unless the event names one (``InputEvent.face``). One
 Deformation carries every face's displacement (``face_ids``, ``displacements``).
+
+Pose edits (issue 18): a "pose" event adds to the pose offset of the face it names, else of the
+selected face (the one last pressed), else of every face; ``reset`` and ``reset_pose`` clear it,
+``undo`` leaves it. A pose change is rigid: it is published (``Deformation.pose`` / ``poses``)
+without an ARAP solve.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_
 MAX_PENDING_WITHOUT_MODEL = 10000
 MAX_FACES = 16  # editors kept; the face edited longest ago is dropped first
 POINTER_KINDS = ("drag", "release", "depth", "move")
-SELECTED_KINDS = ("depth", "move", "axes")
+SELECTED_KINDS = ("depth", "move", "axes", "pose")
 
 
 class DeformerNode(Node):
@@ -175,13 +180,16 @@ class DeformerNode(Node):
             self.stamp = ev.stamp or self.stamp
             for face_id in self._faces_of(ev):
                 routed[face_id].append(ev)
-        solved = False
+        changed = False
         for face_id, editor in self.editors.items():
             displacement = editor.round(routed.get(face_id, []))
             if displacement is not None:
                 self.displacements[face_id] = displacement
-                solved = True
-        if solved:
+                changed = True
+            if editor.pose_changed:  # rigid: published as it is, nothing to solve
+                editor.pose_changed = False
+                changed = True
+        if changed:
             self.publish()
 
     def _faces_of(self, ev: InputEvent) -> list[int]:
@@ -222,12 +230,22 @@ class DeformerNode(Node):
             return []
         return [min(hits, key=hits.get)]
 
+    def _displacement_of(self, face_id: int) -> np.ndarray:
+        """(V, 3) mm the last solved displacement of a face; zeros before its first solve."""
+        own = self.displacements.get(face_id)
+        stack = self.editors[face_id].stack
+        return own if own is not None or stack is None else np.zeros_like(stack.rest)
+
     def publish(self):
         editor = self.editor
         static, handles, roi, _ = editor.stack.anchors()
-        own = self.displacements.get(editor.face_id, np.zeros_like(editor.stack.rest))
+        own = self._displacement_of(editor.face_id)
         several = len(self.editors) > 1
-        faces = sorted(k for k in self.displacements if k in self.editors)
+        # faces with a solve or a pose (a face turned before its first solve is listed with zeros)
+        faces = sorted(k for k, e in self.editors.items() if (k in self.displacements or not e.pose.is_zero)
+                       and self._displacement_of(k) is not None and len(self._displacement_of(k)) == len(own))
+        poses = {k: self.editors[k].pose.as_list() for k in faces}
+        posed = any(any(p) for p in poses.values()) or not editor.pose.is_zero
         self.last = Deformation(
             stamp=self.stamp or time.time_ns(),
             model_id=self.model.model_id,
@@ -238,7 +256,10 @@ class DeformerNode(Node):
             version=sum(e.stack.version for e in self.editors.values() if e.stack is not None),
             face_id=editor.face_id,
             face_ids=np.array(faces, np.int32) if several else None,
-            displacements=np.stack([self.displacements[k] for k in faces]).astype(np.float32) if several else None,
+            displacements=(np.stack([self._displacement_of(k) for k in faces]).astype(np.float32)
+                           if several else None),
+            pose=np.array(editor.pose.as_list(), np.float32) if posed else None,
+            poses=np.array([poses[k] for k in faces], np.float32).reshape(-1, 6) if several and posed else None,
         )
         self.pub.publish(self.last)
 

@@ -7,6 +7,7 @@ A preset is an object::
      "strength": 1.0,                                   # optional, 0..3, multiplies every offset
      "landmarks": {"nose_tip": [x, y, z], ...},         # optional: the neutral it was made on, mm
      "topology": {...},                                 # optional: the mesh it was made on
+     "pose": {"yaw": 10, "pitch": -5},                 # optional: the head's pose offset (issue 18)
      "static": [HANDLE, ...],                           # pinned points
      "edits": [{"handles": [HANDLE + {"offset": [dx, dy, dz]}, ...],   # mm, model space
                 "roi": {"radius": 40.0, "metric": "geodesic"}}, ...]}
@@ -15,7 +16,10 @@ where a HANDLE names a landmark (``{"landmark": "nose_tip"}``), or a vertex with
 position (``{"vertex": 115, "point": [x, y, z]}``: exact on the same mesh topology, carried
 through ``landmarks`` onto any other, :mod:`.landmark_warp`), or both. An edit or a pin may
 carry its own ``topology`` and ``landmarks`` (:func:`merge_presets` of presets made on different
-meshes), which then replace the document's for it.
+meshes), which then replace the document's for it. ``pose`` names any of yaw, pitch, roll
+(degrees) and x, y, z (mm, camera axes) of :class:`facesculpt.geometry.pose_offset.PoseOffset`
+(each within its limits); the deformer applies it on load (a preset without one leaves the pose
+as it is) and saves a non-zero pose back.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+from facesculpt.geometry.pose_offset import MAX_OFFSET_DEG, MAX_OFFSET_MM, PoseOffset
 
 from .anchors import METRICS
 from .errors import DeformerError
@@ -107,6 +113,28 @@ def _check_edit(item, k: int) -> None:
         raise DeformerError(f"unknown ROI metric {roi['metric']!r} (use one of {METRICS})")
 
 
+def preset_pose(preset: dict) -> PoseOffset | None:
+    """The preset's ``pose`` as a PoseOffset; None when it has none. DeformerError in one sentence
+    when it is not an object of yaw/pitch/roll (degrees) and x/y/z (mm) numbers within the limits."""
+    pose = preset.get("pose")
+    if pose is None:
+        return None
+    if not isinstance(pose, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                             for v in pose.values()):
+        raise DeformerError(f"preset pose must be an object such as {{\"yaw\": 10, \"pitch\": -5}}, got {pose!r}")
+    try:
+        return PoseOffset(**{k: float(v) for k, v in pose.items()})
+    except TypeError:
+        raise DeformerError(f"preset pose names only yaw, pitch, roll, x, y, z, got {sorted(pose)}") from None
+    except ValueError as exc:
+        raise DeformerError(f"preset {exc}") from None
+
+
+def pose_to_preset(offset: PoseOffset) -> dict:
+    """The preset's ``pose`` object of ``offset``: its non-zero components by name."""
+    return {k: v for k, v in zip(("yaw", "pitch", "roll", "x", "y", "z"), offset.as_list()) if v}
+
+
 def validate_preset(preset) -> None:
     """Check a preset document without a mesh (format, version, shapes, finite numbers, ROI,
     strength); DeformerError in one sentence at the first problem. Whether its landmarks exist
@@ -121,6 +149,7 @@ def validate_preset(preset) -> None:
         raise DeformerError("malformed preset: 'edits' is not a list")
     if not isinstance(preset.get("static", []), list):
         raise DeformerError("malformed preset: 'static' is not a list")
+    preset_pose(preset)
     for h in preset.get("static", []):
         _check_handle(h, "pin")
     _check_origin(preset)
@@ -131,8 +160,8 @@ def validate_preset(preset) -> None:
 def scale_preset(preset: dict, strength: float = 1.0) -> dict:
     """A copy of ``preset`` whose offsets are multiplied by ``strength`` and by the preset's own
     ``"strength"`` field (each in 0..3, default 1), which the copy no longer has (its offsets
-    now hold it). ROI radii and pins are unchanged. DeformerError naming a strength outside
-    0..3 or a malformed preset."""
+    now hold it). Its ``pose`` is multiplied too (each component clamped to its limit). ROI radii
+    and pins are unchanged. DeformerError naming a strength outside 0..3 or a malformed preset."""
     s = check_strength(strength)
     validate_preset(preset)
     out = copy.deepcopy(preset)
@@ -140,6 +169,10 @@ def scale_preset(preset: dict, strength: float = 1.0) -> dict:
     for item in out["edits"]:
         for h in item["handles"]:
             h["offset"] = [float(x) * s for x in h["offset"]]
+    if out.get("pose") is not None:
+        limits = {"yaw": MAX_OFFSET_DEG, "pitch": MAX_OFFSET_DEG, "roll": MAX_OFFSET_DEG}
+        out["pose"] = {k: float(np.clip(float(v) * s, -limits.get(k, MAX_OFFSET_MM), limits.get(k, MAX_OFFSET_MM)))
+                       for k, v in out["pose"].items()}
     return out
 
 
@@ -148,8 +181,9 @@ def merge_presets(presets: list[dict], strength: float = 1.0) -> dict:
     cheeks (the paper's Fig. 6e); later edits of the same handle win when applied. Each
     preset's offsets are multiplied by ``strength`` and by its own ``"strength"``
     (:func:`scale_preset`). Presets made on different meshes keep their own: each of their
-    edits and pins carries its preset's ``topology`` and ``landmarks``. DeformerError when
-    there is none, or one is malformed or its strength is outside 0..3."""
+    edits and pins carries its preset's ``topology`` and ``landmarks``. Their poses add up
+    (clamped to the limits). DeformerError when there is none, or one is malformed or its
+    strength is outside 0..3."""
     if not presets:
         raise DeformerError("no preset to merge")
     scaled = [scale_preset(p, strength) for p in presets]
@@ -161,6 +195,9 @@ def merge_presets(presets: list[dict], strength: float = 1.0) -> dict:
         own = {} if shared else origin
         out["static"] += [dict(r, **own) for r in p.get("static", [])]
         out["edits"] += [dict(e, **own) for e in p["edits"]]
+    poses = [preset_pose(p) for p in scaled if p.get("pose") is not None]
+    if poses:
+        out["pose"] = pose_to_preset(sum(poses[1:], poses[0]))
     return out
 
 
