@@ -18,7 +18,10 @@ the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_
 pinch_markers (a marker at each pinch of the pinch node's input/events, ``pinch_markers.py``),
 atlas ("on" | "off": the face's texture memory, ``texture_atlas.py``), atlas_size, atlas_every,
 texture_size and texture_period_s (face/texture: FaceTexture, latched, the atlas downscaled, with
-atlas on; the UV layout is a frontal projection of the first face/model's neutral per face).
+atlas on; the UV layout is a frontal projection of the first face/model's neutral per face),
+face_camera and face_camera_limit (pose edits, ``pose_edit.py``: each face is turned by its
+Deformation ``pose`` plus, with face_camera above 0, a smoothed turn toward the camera; the head
+around the face moves with it).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from .inpaint import INPAINT_METHODS
 from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
 from .pinch_markers import PinchMarkers, draw_pinch_markers
+from .pose_edit import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_LIMIT_RANGE, PoseEdits, pose_from_values
 from .texture_atlas import uv_layout
 
 
@@ -95,6 +99,11 @@ class RendererNode(Node):
                                 "work runs on a thread of its own, skipped while the last one runs)", range=(1, 100)),
         "texture_size": Param(128, "face/texture: the atlas downscaled to this many texels a side", range=(16, 2048)),
         "texture_period_s": Param(1.0, "face/texture: published at most this often, s", range=(0.0, 3600.0)),
+        "face_camera": Param(0.0, "turn each face this share of the way toward looking into the camera (0: off, "
+                                  "1: all the way, up to face_camera_limit), smoothed over 0.3 s, on top of the "
+                                  "deformer's pose edit; the head around the face moves with it", range=(0.0, 1.0)),
+        "face_camera_limit": Param(FACE_CAMERA_LIMIT_DEG, "face_camera: the largest turn, degrees of yaw and of "
+                                                          "pitch", range=FACE_CAMERA_LIMIT_RANGE),
     }
     NOTICE_S = 3.0                    # how long the window shows a notice (a saved preset), s
     _notice: tuple[str, float] | None = None   # (text, monotonic time it ends)
@@ -135,6 +144,7 @@ class RendererNode(Node):
         self._shown_at: list[float] = []
         self._overlay_px: np.ndarray | None = None  # (V, 2) the edited face's deformed pixels this frame
         self.correction = CorrectionMode()  # the window's landmark correction mode (L)
+        self.poses = PoseEdits(p.face_camera, p.face_camera_limit)
         if p.window:
             self.timer(1.0 / 120.0, self.on_tick)
 
@@ -199,6 +209,26 @@ class RendererNode(Node):
         with self.stage("merge"):
             return merge_deformation(state.vertices, state.R, state.scale, displacement)
 
+    def _pose_of(self, state: FaceState):
+        """The deformer's pose offset of ``state``'s face (a PoseOffset; zero without one)."""
+        d = self.deformation
+        values = np.zeros(6) if d is None or d.model_id != state.model_id else d.pose_of(state.face_id)
+        return pose_from_values(values)
+
+    def _render_face(self, out: np.ndarray, state: FaceState, keep, stamp: int) -> np.ndarray:
+        """``out`` with ``state``'s face composited: its edit merged (Eq. 5), then its pose edit
+        (the deformer's pose plus face_camera's turn, ``pose_edit.py``) with the head's motion
+        carried over the head around it. ValueError on input the compositor refuses."""
+        deformed = self._deformed_vertices(state)
+        edit = self.poses.edit(state, self._pose_of(state), self.model.neutral_of(state.face_id), stamp)
+        if edit is not None:
+            with self.stage("pose"):
+                deformed = self.poses.apply(deformed, state, edit)
+            self.count("pose_edited")
+        return self.compositor.render(out, state.vertices, state.projected, self.model.triangles, deformed,
+                                      keep_mask=keep, uv=self._uv_of(state), face_key=state.face_id,
+                                      head_motion=edit is not None)
+
     def _ensure_output(self, width: int, height: int) -> bool:
         """(Re)create window and compositor for this frame size; False when the size is unusable."""
         if self.compositor is not None and (self.compositor.width, self.compositor.height) == (width, height):
@@ -251,9 +281,7 @@ class RendererNode(Node):
                 self.count("state_size_mismatch")
                 continue
             try:
-                deformed = self._deformed_vertices(state)
-                out = self.compositor.render(out, state.vertices, state.projected, self.model.triangles, deformed,
-                                             keep_mask=keep, uv=self._uv_of(state), face_key=state.face_id)
+                out = self._render_face(out, state, keep, frame_msg.stamp)
             except ValueError as exc:
                 self.count("bad_input")
                 self.log.warning("frame %d, face %d not rendered: %s", frame_msg.stamp, state.face_id, exc)

@@ -10,6 +10,9 @@ events come back from :meth:`Window.poll` as plain dicts holding the fields of a
 * wheel: ``depth``, +1 mm per notch toward the camera (handle 0);
 * keys: R ``reset``, U or Ctrl+Z ``undo``, S ``save_preset`` (a timestamped JSON);
   Escape and Q close the window (the node decides what closing stops: its ``close`` param);
+* pose edits (issue 18): the arrow keys send ``pose`` events turning the head ``POSE_STEP_DEG``
+  (yaw: left / right, pitch: up / down, the nose going the arrow's way), comma and period roll it
+  (counter-clockwise / clockwise on screen), held keys repeat; 0 sends ``reset_pose``;
 * L toggles the landmark correction mode (:attr:`Window.correcting`): the left button's
   press / drag / release then carry ``"correct": True`` (the node turns them into
   ``correct_landmark`` commands, ``correction_mode.py``, never into edits), and the wheel and
@@ -33,6 +36,12 @@ import numpy as np
 from .overlay import draw_overlay  # noqa: F401  (the window's overlay; kept importable from here)
 
 WHEEL_MM_PER_NOTCH = 1.0
+#: Degrees a pose key turns the head (yaw, pitch or roll).
+POSE_STEP_DEG = 2.0
+#: Pose keys -> (yaw, pitch, roll) sign of their step: + yaw turns the nose to the image's right,
+#: + pitch down, + roll counter-clockwise on screen (facesculpt.geometry.pose_offset).
+POSE_KEYS = {glfw.KEY_LEFT: (-1, 0, 0), glfw.KEY_RIGHT: (1, 0, 0), glfw.KEY_UP: (0, -1, 0),
+             glfw.KEY_DOWN: (0, 1, 0), glfw.KEY_COMMA: (0, 0, 1), glfw.KEY_PERIOD: (0, 0, -1)}
 
 
 def keys_help(close: str = "graph", correcting: bool = False) -> str:
@@ -42,7 +51,8 @@ def keys_help(close: str = "graph", correcting: bool = False) -> str:
     quit_key = "Q quit" if close == "graph" else "Q close"
     if correcting:
         return f"CORRECTION MODE  drag a landmark: put it there  C clear corrections  L back to editing  {quit_key}"
-    return f"drag: move  right-click: pin  wheel: depth  R reset  U undo  S save  L correct landmarks  {quit_key}"
+    return (f"drag: move  right-click: pin  wheel: depth  R reset  U undo  S save  L correct landmarks  "
+            f"arrows , . turn head  0 head straight  {quit_key}")
 
 _QUAD_VS = """
 #version 330
@@ -167,9 +177,15 @@ class Window:
         self._events.append({"kind": "depth", "depth": float(dy) * WHEEL_MM_PER_NOTCH, "x": x, "y": y, "handle": 0})
 
     def _on_key(self, _win, key, _scancode, action, mods) -> None:
+        if key in POSE_KEYS and action in (glfw.PRESS, glfw.REPEAT):
+            step = POSE_STEP_DEG * np.array(POSE_KEYS[key] + (0, 0, 0), np.float32)
+            self._events.append({"kind": "pose", "pose": step})
+            return
         if action != glfw.PRESS:
             return
-        if key in (glfw.KEY_ESCAPE, glfw.KEY_Q):
+        if key == glfw.KEY_0:
+            self._events.append({"kind": "command", "command": "reset_pose"})
+        elif key in (glfw.KEY_ESCAPE, glfw.KEY_Q):
             self.closed = True
         elif key == glfw.KEY_R:
             self._events.append({"kind": "command", "command": "reset"})

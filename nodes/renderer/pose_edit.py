@@ -1,0 +1,79 @@
+"""The renderer's pose edits (issue 18): the pose offset the deformer publishes for a face, plus
+the renderer's own face-the-camera turn, applied to that face's deformed mesh.
+
+A head turns about :func:`facesculpt.geometry.pose_offset.head_pivot` of its neutral. With
+``face_camera`` above 0, each frame adds :func:`~facesculpt.geometry.pose_offset.face_camera_offset`
+(that share of the way toward looking into the camera, at most ``limit_deg`` in yaw and pitch),
+smoothed per face over the frames' stamps (:func:`~facesculpt.geometry.pose_offset.smooth_offset`,
+time constant ``FACE_CAMERA_SMOOTHING_S``) so the tracker's jitter does not shake the head. The
+offline ``Pipeline`` does the same (``Pipeline._pose_edit``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facesculpt.geometry.pose_offset import (
+    MAX_OFFSET_DEG,
+    MAX_OFFSET_MM,
+    PoseOffset,
+    apply_pose_offset,
+    face_camera_offset,
+    head_pivot,
+    smooth_offset,
+)
+from facesculpt.msgs import FaceState
+
+#: Face-the-camera: the default largest turn, degrees (yaw and pitch each).
+FACE_CAMERA_LIMIT_DEG = 15.0
+#: Face-the-camera: the range of that limit, degrees.
+FACE_CAMERA_LIMIT_RANGE = (1.0, 45.0)
+#: Face-the-camera: time constant of the smoothing of its turn over the frames, s.
+FACE_CAMERA_SMOOTHING_S = 0.3
+_LIMITS = np.array([MAX_OFFSET_DEG] * 3 + [MAX_OFFSET_MM] * 3)
+
+
+def pose_from_values(values) -> PoseOffset:
+    """A PoseOffset from (6,) [yaw, pitch, roll deg, x, y, z mm] (a Deformation's ``pose_of``),
+    each clamped to its limit; ValueError when they are not 6 finite numbers."""
+    v = np.asarray(values, np.float64).ravel()
+    if v.shape != (6,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"a pose offset is 6 finite numbers, got {v.tolist()}")
+    return PoseOffset.from_list(np.clip(v, -_LIMITS, _LIMITS))
+
+
+class PoseEdits:
+    """Per face, the pose edit of each frame. ``face_camera``: 0-1 (0: off); ``limit_deg``: its
+    largest turn in yaw and pitch, degrees."""
+
+    def __init__(self, face_camera: float = 0.0, limit_deg: float = FACE_CAMERA_LIMIT_DEG,
+                 time_constant_s: float = FACE_CAMERA_SMOOTHING_S):
+        self.face_camera = float(face_camera)
+        self.limit_deg = float(limit_deg)
+        self.time_constant_s = float(time_constant_s)
+        self._turns: dict[int, tuple[int, PoseOffset]] = {}  # face -> (frame stamp ns, smoothed turn)
+
+    def edit(self, state: FaceState, pose: PoseOffset, neutral: np.ndarray,
+             stamp_ns: int) -> tuple[PoseOffset, np.ndarray] | None:
+        """The pose edit of ``state``'s face on the frame stamped ``stamp_ns``: (``pose`` plus the
+        smoothed face-the-camera turn, the head's pivot (3,) model mm from ``neutral`` (V, 3)
+        model mm); None when it is zero."""
+        pivot = head_pivot(neutral)
+        if self.face_camera > 0:
+            target = face_camera_offset(state.R, state.t, state.scale, pivot, self.face_camera, self.limit_deg,
+                                        perspective=state.projection == "perspective")
+            last = self._turns.get(state.face_id)
+            if last is None:
+                turn = target
+            else:
+                turn = smooth_offset(last[1], target, (stamp_ns - last[0]) * 1e-9, self.time_constant_s)
+            self._turns[state.face_id] = (int(stamp_ns), turn)
+            pose = pose + turn
+        return None if pose.is_zero else (pose, pivot)
+
+    @staticmethod
+    def apply(deformed: np.ndarray, state: FaceState, edit: tuple[PoseOffset, np.ndarray]) -> np.ndarray:
+        """The (V, 3) camera-space ``deformed`` mesh of ``state``'s face turned and moved by
+        ``edit`` (from :meth:`edit`)."""
+        pose, pivot = edit
+        return apply_pose_offset(deformed, state.R, state.t, state.scale, pivot, pose)
