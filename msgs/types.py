@@ -140,7 +140,8 @@ class InputEvent(Message):
     correct_landmark and clear_corrections, the deformer the others; reset_pose clears the pose
     offset alone, reset clears it with every edit).
     face: which face (FaceState.face_id) the event edits; -1: the face under the pointer for
-    pixel events, every face for landmark presses and commands.
+    pixel events, every face for landmark presses and commands, the selected face (else every
+    face) for pose events.
     """
 
     TYPE = "InputEvent"
