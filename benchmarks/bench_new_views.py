@@ -12,7 +12,9 @@ the new pose, on synthetic videos with exact ground truth.
    ``--skip`` against the θ + Δ truth, next to "do nothing" (the input) and a 2D baseline: the
    input warped by the homography that best maps the head's visible vertices from θ to θ + Δ
    (an oracle: it is given the true vertex positions), applied over the head and faded out
-   around it (no hole, no ghost: the best a 2D warp of the face region can do).
+   around it (no hole, no ghost: the best a 2D warp of the face region can do). The models of
+   ``--atlas-models`` run once more with ``--atlas on``: the face's texture memory supplies the
+   surface the input frame sees badly (hidden or foreshortened at θ, shown at θ + Δ).
 3. Figures: PSNR (dB) and SSIM over the head region (where the input or the truth shows the
    head, dilated by 4 px), per Δ and method. Crops ``crops_yaw_D_MODEL.png`` (rows: the most
    turned-left, a frontal and the most turned-right scored frames; columns: input | result |
@@ -22,7 +24,7 @@ Writes ``results.md``, ``results.json`` and the crops to ``--out`` (default: a n
 folder) and prints the table.
 
 Run: ``python benchmarks/bench_new_views.py [--out DIR] [--frames 60] [--models facemesh,sfm]
-[--deltas 5,10,15,20] [--pitch-deltas 5,10]``. Needs the shared data (../shared/data or
+[--deltas 5,10,15,20] [--pitch-deltas 5,10,15,20] [--atlas-models facemesh,sfm]``. Needs the shared data (../shared/data or
 FACESCULPT_DATA) and ``facesculpt setup``.
 """
 
@@ -145,10 +147,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--skip", type=int, default=5, help="frames not scored at the start (default 5)")
     p.add_argument("--models", default="facemesh,sfm", help="models to run process with (default facemesh,sfm)")
     p.add_argument("--deltas", default="5,10,15,20", help="yaw offsets, degrees (default 5,10,15,20)")
-    p.add_argument("--pitch-deltas", default="5,10", help="pitch offsets, degrees (default 5,10; '' for none)")
+    p.add_argument("--pitch-deltas", default="5,10,15,20", help="pitch offsets, degrees (default 5,10,15,20; '' for none)")
+    p.add_argument("--atlas-models", default="facemesh,sfm",
+                   help="models also run with process --atlas on (the face's texture memory; '' for none)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     a = p.parse_args(argv)
     a.models = [m for m in a.models.split(",") if m]
+    a.atlas_models = [m for m in a.atlas_models.split(",") if m]
     a.offsets = [(float(d), 0.0) for d in a.deltas.split(",") if d] + \
                 [(0.0, float(d)) for d in a.pitch_deltas.split(",") if d]
     if a.frames <= a.skip:
@@ -200,15 +205,17 @@ def main(argv=None) -> int:
         row = {"do nothing": score([f["image"] for f in inputs], inputs, truths, bg, scored)}
         homog = [homography_baseline(inputs[i], truths[i], bg) for i in range(args.frames)]
         row["2D homography"] = score(homog, inputs, truths, bg, scored)
-        for m in args.models:
-            got, took = run_process(video, out / "frames" / f"{name}_{m}", None, m, pythonpath="", data=data,
-                                    extra_args=("--pose", name))
-            row[f"process {m}"] = {**score(got, inputs, truths, bg, scored), "seconds": round(took, 1)}
-            rows = crop_rows(inputs, scored)
-            box = head_box([inputs[i]["image"] for i in rows] + [truths[i]["image"] for i in rows], bg, size)
-            panels = [[(f"input yaw {head_pose(i)[0]:+.0f}", inputs[i]["image"]), (f"process {m} {name}", got[i]),
+        rows = crop_rows(inputs, scored)
+        box = head_box([inputs[i]["image"] for i in rows] + [truths[i]["image"] for i in rows], bg, size)
+        for m, atlas in [(m, False) for m in args.models] + [(m, True) for m in args.atlas_models]:
+            label = f"process {m}" + (" + atlas" if atlas else "")
+            got, took = run_process(video, out / "frames" / f"{name}_{m}{'_atlas' if atlas else ''}", None, m,
+                                    data=data, extra_args=("--pose", name) + (("--atlas", "on") if atlas else ()))
+            row[label] = {**score(got, inputs, truths, bg, scored), "seconds": round(took, 1)}
+            panels = [[(f"input yaw {head_pose(i)[0]:+.0f}", inputs[i]["image"]), (f"{label} {name}", got[i]),
                        ("ground truth", truths[i]["image"]), ("2D homography", homog[i])] for i in rows]
-            cv2.imwrite(str(out / f"crops_{name.replace('=', '_')}_{m}.png"), side_by_side(panels, [box] * len(rows)))
+            crops = out / f"crops_{name.replace('=', '_')}_{m}{'_atlas' if atlas else ''}.png"
+            cv2.imwrite(str(crops), side_by_side(panels, [box] * len(rows)))
         results[name] = row
         print(name, {k: (round(v["psnr"], 2), round(v["ssim"], 3)) for k, v in row.items()}, flush=True)
     methods = list(next(iter(results.values())))

@@ -40,7 +40,9 @@ def test_input_events_from_json_are_checked():
     event = input_event_from_json(b'{"kind": "move", "landmark": "chin", "handle": 3, "vector": [0, -1, 2]}')
     assert (event.kind, event.landmark, event.handle, event.source) == ("move", "chin", 3, "foxglove")
     assert event.vector.dtype == np.float32 and event.vector.tolist() == [0.0, -1.0, 2.0]
-    for bad, why in ((b"not json", "not JSON"), (b"[1]", "not a JSON object"), (b'{"kind": "fly"}', "kind 'fly'"),
+    turn = input_event_from_json(b'{"kind": "pose", "pose": [2, -1, 0, 0, 0, 5], "face": 1}')
+    assert (turn.kind, turn.face, turn.pose.tolist()) == ("pose", 1, [2.0, -1.0, 0.0, 0.0, 0.0, 5.0])
+    for bad, why in ((b"not json", "not JSON"), (b'{"kind": "pose", "pose": [2, 1]}', "'pose' must be a list of 6"), (b"[1]", "not a JSON object"), (b'{"kind": "fly"}', "kind 'fly'"),
                      (b'{"kind": "press", "x": "left"}', "'x' must be a number"),
                      (b'{"kind": "move", "vector": [1, 2]}', "'vector' must be a list of 3"),
                      (b'{"kind": "press", "colour": 1}', "unknown fields colour")):

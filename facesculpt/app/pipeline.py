@@ -39,7 +39,7 @@ from facesculpt.geometry.pose_offset import (
 )
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.nodes.deformer import EditStack
-from facesculpt.nodes.deformer.preset_format import merge_presets
+from facesculpt.nodes.deformer.preset_format import merge_presets, preset_pose
 from facesculpt.nodes.fitter import (
     FaceFitters,
     Fitter,
@@ -260,10 +260,14 @@ class Pipeline:
         return fits, timings
 
     def _pose_edit(self, key: int, fit, stamp_s: float) -> tuple[PoseOffset, np.ndarray] | None:
-        """Face ``key``'s pose edit on the frame at ``stamp_s`` (s): (``pose`` plus, with
-        ``face_camera``, the smoothed turn toward the camera; the head's pivot (3,) model mm, from
-        its neutral now: compose may run while the next frame's fit updates it); None when zero."""
+        """Face ``key``'s pose edit on the frame at ``stamp_s`` (s): (``pose``, plus the ``pose`` of
+        the presets that edit it, plus, with ``face_camera``, the smoothed turn toward the camera;
+        the head's pivot (3,) model mm, from its neutral now: compose may run while the next
+        frame's fit updates it); None when zero."""
         offset, pivot = self.pose, head_pivot(self.neutral_of(key))
+        for face, preset in self.presets:  # a preset's own "pose" turns the faces it edits
+            if face is None or face == key:
+                offset = offset + (preset_pose(preset) or PoseOffset())
         if self.face_camera > 0:
             target = face_camera_offset(fit.R, fit.t, fit.scale, pivot, self.face_camera,
                                         self.face_camera_limit_deg, perspective=fit.projection == "perspective")

@@ -127,7 +127,7 @@ def input_event_from_json(data: bytes | str | dict, source: str = "foxglove") ->
     if kind not in INPUT_KINDS:
         raise ValueError(f"input event kind {kind!r} is not one of {', '.join(INPUT_KINDS)}")
     known = {"kind", "x", "y", "landmark", "handle", "depth", "vector", "axes", "buttons", "command", "argument",
-             "face", "stamp", "source"}
+             "face", "stamp", "source", "pose"}
     unknown = sorted(set(d) - known)
     if unknown:
         raise ValueError(f"input event has unknown fields {', '.join(unknown)}")
@@ -137,7 +137,7 @@ def input_event_from_json(data: bytes | str | dict, source: str = "foxglove") ->
                        command=str(d.get("command", "")), argument=str(d.get("argument", "")),
                        face=int(_number(d, "face", -1)), source=str(d.get("source", source)),
                        stamp=int(_number(d, "stamp", 0)))
-    for key, size in (("vector", 3), ("axes", None)):
+    for key, size in (("vector", 3), ("axes", None), ("pose", 6)):
         if d.get(key) is not None:
             arr = np.asarray(d[key], np.float32) if isinstance(d[key], list) else None
             if arr is None or arr.ndim != 1 or (size and arr.size != size) or not np.isfinite(arr).all():
