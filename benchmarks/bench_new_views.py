@@ -12,9 +12,12 @@ the new pose, on synthetic videos with exact ground truth.
    ``--skip`` against the θ + Δ truth, next to "do nothing" (the input) and a 2D baseline: the
    input warped by the homography that best maps the head's visible vertices from θ to θ + Δ
    (an oracle: it is given the true vertex positions), applied over the head and faded out
-   around it (no hole, no ghost: the best a 2D warp of the face region can do). The models of
-   ``--atlas-models`` run once more with ``--atlas on``: the face's texture memory supplies the
-   surface the input frame sees badly (hidden or foreshortened at θ, shown at θ + Δ).
+   around it (no hole, no ghost: the best a 2D warp of the face region can do). ``process``'s
+   default takes the surface the input frame sees badly (hidden or foreshortened at θ, shown at
+   θ + Δ) from the stored view of the head closest to the one rendered (``--keyframes auto``:
+   image-based rendering from keyframes, seed 003); the models of ``--geometry-models`` run once
+   more with ``--keyframes off`` (geometry and the current frame only), those of
+   ``--atlas-models`` with ``--atlas on`` (the face's texture memory too).
 3. Figures: PSNR (dB) and SSIM over the head region (where the input or the truth shows the
    head, dilated by 4 px), per Δ and method. Crops ``crops_yaw_D_MODEL.png`` (rows: the most
    turned-left, a frontal and the most turned-right scored frames; columns: input | result |
@@ -24,7 +27,8 @@ Writes ``results.md``, ``results.json`` and the crops to ``--out`` (default: a n
 folder) and prints the table.
 
 Run: ``python benchmarks/bench_new_views.py [--out DIR] [--frames 60] [--models facemesh,sfm]
-[--deltas 5,10,15,20] [--pitch-deltas 5,10,15,20] [--atlas-models facemesh,sfm]``. Needs the shared data (../shared/data or
+[--deltas 5,10,15,20] [--pitch-deltas 5,10,15,20] [--geometry-models facemesh,sfm]
+[--atlas-models facemesh,sfm]``. Needs the shared data (../shared/data or
 FACESCULPT_DATA) and ``facesculpt setup``.
 """
 
@@ -148,17 +152,28 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--models", default="facemesh,sfm", help="models to run process with (default facemesh,sfm)")
     p.add_argument("--deltas", default="5,10,15,20", help="yaw offsets, degrees (default 5,10,15,20)")
     p.add_argument("--pitch-deltas", default="5,10,15,20", help="pitch offsets, degrees (default 5,10,15,20; '' for none)")
+    p.add_argument("--geometry-models", default="facemesh,sfm",
+                   help="models also run with process --keyframes off (geometry only, no stored views; '' for none)")
     p.add_argument("--atlas-models", default="facemesh,sfm",
                    help="models also run with process --atlas on (the face's texture memory; '' for none)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     a = p.parse_args(argv)
     a.models = [m for m in a.models.split(",") if m]
     a.atlas_models = [m for m in a.atlas_models.split(",") if m]
+    a.geometry_models = [m for m in a.geometry_models.split(",") if m]
     a.offsets = [(float(d), 0.0) for d in a.deltas.split(",") if d] + \
                 [(0.0, float(d)) for d in a.pitch_deltas.split(",") if d]
     if a.frames <= a.skip:
         p.error(f"--frames {a.frames} leaves no frame after --skip {a.skip}")
     return a
+
+
+def runs(args) -> list[tuple[str, str, tuple]]:
+    """(model, variant label, process options) of every process run per offset."""
+    out = [(m, "--keyframes off", ("--keyframes", "off")) for m in args.geometry_models]
+    out += [(m, "", ()) for m in args.models]
+    out += [(m, "--atlas on", ("--atlas", "on")) for m in args.atlas_models]
+    return out
 
 
 def _name(offset: tuple[float, float]) -> str:
@@ -207,15 +222,15 @@ def main(argv=None) -> int:
         row["2D homography"] = score(homog, inputs, truths, bg, scored)
         rows = crop_rows(inputs, scored)
         box = head_box([inputs[i]["image"] for i in rows] + [truths[i]["image"] for i in rows], bg, size)
-        for m, atlas in [(m, False) for m in args.models] + [(m, True) for m in args.atlas_models]:
-            label = f"process {m}" + (" + atlas" if atlas else "")
-            got, took = run_process(video, out / "frames" / f"{name}_{m}{'_atlas' if atlas else ''}", None, m,
-                                    data=data, extra_args=("--pose", name) + (("--atlas", "on") if atlas else ()))
+        for m, variant, extra in runs(args):
+            label = f"process {m}" + (f" {variant}" if variant else "")
+            tag = "_".join(w for w in (m, *variant.replace("-", "").split()) if w != "on")
+            got, took = run_process(video, out / "frames" / f"{name}_{tag}", None, m, data=data,
+                                    extra_args=("--pose", name, *extra))
             row[label] = {**score(got, inputs, truths, bg, scored), "seconds": round(took, 1)}
             panels = [[(f"input yaw {head_pose(i)[0]:+.0f}", inputs[i]["image"]), (f"{label} {name}", got[i]),
                        ("ground truth", truths[i]["image"]), ("2D homography", homog[i])] for i in rows]
-            crops = out / f"crops_{name.replace('=', '_')}_{m}{'_atlas' if atlas else ''}.png"
-            cv2.imwrite(str(crops), side_by_side(panels, [box] * len(rows)))
+            cv2.imwrite(str(out / f"crops_{name.replace('=', '_')}_{tag}.png"), side_by_side(panels, [box] * len(rows)))
         results[name] = row
         print(name, {k: (round(v["psnr"], 2), round(v["ssim"], 3)) for k, v in row.items()}, flush=True)
     methods = list(next(iter(results.values())))

@@ -196,3 +196,57 @@ def test_a_presets_pose_turns_the_head_in_process_as_pose_does(data_dir, models_
     assert turned.mean() > 0.05
     # the same turn (the pivot comes from a neutral learned over more frames with the preset)
     assert np.abs(outs["preset"] - outs["pose"])[turned].mean() < 0.25 * np.abs(outs["pose"] - frame)[turned].mean()
+
+
+# -- keyframes (image-based rendering) -------------------------------------------------------------
+def test_keyframe_views_keep_distinct_poses_and_choose_the_closest_better_view():
+    from facesculpt.nodes.renderer.keyframe_views import KeyframeViews, rotation_angle_deg
+
+    rng = np.random.default_rng(5)
+    head = rng.normal(0, 50, (80, 3))
+    at = {yaw: head @ rotation_from_euler(yaw, 0, 0).T + [0, 0, 500] for yaw in (-20, -12, -10, 0, 2, 9)}
+    assert rotation_angle_deg(at[0], at[-12]) == pytest.approx(12, abs=1e-6)
+    image = np.zeros((200, 300, 3), np.uint8)
+    px = rng.uniform(50, 150, (80, 2))
+    views = KeyframeViews(spacing_deg=5, max_keyframes=3, refresh_frames=100)
+    stored = [views.offer(image, at[y], px, np.ones(80, np.float32)) for y in (0, 2, -12, -10, 9, -20)]
+    assert stored == [True, False, True, False, True, True]   # within 5 degrees of one kept: not kept
+    assert len(views.keyframes) == 3 and views.keyframes[0].frame == 3   # the oldest (yaw 0) made room
+    assert views.keyframes[0].image.shape[:2] != image.shape[:2]          # a crop around the face is kept
+    # rendering the head at yaw -11 from a frame at yaw 0: the view at -12 is the closest
+    assert views.choose(at[0], at[-10]).frame == 3
+    assert views.choose(at[-10], at[-10]) is None                       # no turn: the frame itself
+
+
+def test_a_keyframe_is_sampled_at_its_own_pixels_and_blended_where_the_frame_sees_badly(data_dir):
+    """A keyframe that is the frame itself seen from the rendered view changes nothing; one whose
+    colours are shifted shows the shift on the turned face's sides, never elsewhere."""
+    from renderer_scene import place_marked, read_frames
+
+    from facesculpt.nodes.fitter import load_model
+    from facesculpt.nodes.renderer import Compositor
+    from facesculpt.nodes.renderer.keyframe_views import Keyframe, KeyframeViews
+
+    frame = read_frames(data_dir, "d0")[0]
+    p = place_marked(load_model("sfm"), "d0")
+    t = p.fitted.mean(axis=0) - p.R @ p.rest.mean(axis=0)
+    deformed = apply_pose_offset(p.fitted, p.R, t, 1.0, head_pivot(p.rest), PoseOffset(yaw=15))
+    with Compositor(frame.shape[1], frame.shape[0]) as plain:
+        base = plain.render(frame, p.fitted, p.projected, p.triangles, deformed, head_motion=True)
+    out = {}
+    for shift in (0, 40):
+        with Compositor(frame.shape[1], frame.shape[0], keyframes=True) as comp:
+            shifted = frame.astype(int)
+            shifted[..., 0] = np.minimum(shifted[..., 0] + shift, 255)
+            views = comp.views[0] = KeyframeViews()
+            views.keyframes.append(Keyframe(shifted.astype(np.uint8)[10:, 20:], (20, 10), deformed.copy(),
+                                            p.projected.copy(), np.ones(len(deformed), np.float32), 0))
+            out[shift] = comp.render(frame, p.fitted, p.projected, p.triangles, deformed, head_motion=True)
+            assert comp.keyframe_used == 0
+            changed = comp.full_frame_regions()["changed"]
+    assert np.abs(out[0].astype(int) - base.astype(int)).max() <= 1
+    blue = out[40][..., 0].astype(int) - base[..., 0].astype(int)
+    green = np.abs(out[40][..., 1].astype(int) - base[..., 1].astype(int))
+    assert (blue[~changed] == 0).all() and green.max() <= 1
+    assert (blue[changed] >= 30).sum() > 500     # where the frame sees the turned surface badly
+    assert (blue[changed] <= 1).sum() > 500      # the front of the face, seen well, stays the frame's

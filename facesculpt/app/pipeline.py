@@ -144,7 +144,10 @@ class Pipeline:
     turned and moved by (issue 18; the face's motion is carried over the head around it); face_camera:
     0-1, each frame turns every face that share of the way toward looking into the camera (at most
     ``face_camera_limit_deg`` in yaw and pitch; smoothed over ``FACE_CAMERA_SMOOTHING_S``), on top of
-    ``pose``. The GL context is made here; call :meth:`close` (or use ``with``) to free it.
+    ``pose``; keyframes: "on" keeps views of each face at the poses it shows and renders turned
+    surface from the closest one where it sees it better than the frame (image-based rendering,
+    :mod:`facesculpt.nodes.renderer.keyframe_views`), "auto" (the default) does so when a pose edit
+    is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never. The GL context is made here; call :meth:`close` (or use ``with``) to free it.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
@@ -152,7 +155,7 @@ class Pipeline:
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic",
-                 pose: PoseOffset | None = None, face_camera: float = 0.0,
+                 pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
@@ -168,11 +171,14 @@ class Pipeline:
         self.min_score = float(min_score)
         if plate not in ("off", "on"):
             raise ValueError(f"plate must be off or on, got {plate!r}")
+        if keyframes not in ("off", "on", "auto"):
+            raise ValueError(f"keyframes must be off, on or auto, got {keyframes!r}")
         if atlas not in ("off", "on", "learn"):
             raise ValueError(f"atlas must be off, on or learn, got {atlas!r}")
         self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px,
                                    "atlas": atlas != "off", "atlas_blend": atlas == "on", "plate": plate == "on",
                                    "interpolation": interpolation}
+        self.keyframes = keyframes
         if not 0.0 <= face_camera <= 1.0:
             raise ValueError(f"face_camera must be 0 to 1, got {face_camera}")
         if not 0.0 < face_camera_limit_deg <= 45.0:
@@ -205,7 +211,9 @@ class Pipeline:
         if self.compositor is None:
             from facesculpt.nodes.renderer import Compositor
 
-            self.compositor = Compositor(self.size[0], self.size[1], **self.compositor_options)
+            turns = not self.pose.is_zero or self.face_camera > 0 or any(p.get("pose") for _, p in self.presets)
+            keyframes = self.keyframes == "on" or (self.keyframes == "auto" and turns)
+            self.compositor = Compositor(self.size[0], self.size[1], keyframes=keyframes, **self.compositor_options)
         return self.compositor
 
     @property

@@ -63,6 +63,9 @@ def register(sub) -> None:
                         "(at most --face-camera-limit degrees; on top of --pose)")
     p.add_argument("--face-camera-limit", type=float, default=15.0, metavar="DEG",
                    help="the largest turn --face-camera applies, yaw and pitch each (default 15; at most 45)")
+    p.add_argument("--keyframes", choices=("auto", "on", "off"), default="auto",
+                   help="render a turned head's surface from the stored view of the video closest to it where that "
+                        "sees it better than the frame (image-based rendering); auto (default): with a pose edit")
     p.add_argument("--faces", default="largest", metavar="all|largest|N",
                    help="which faces to fit and edit: the largest (default), all, or face N only "
                         "(faces numbered 1, 2, ... from the left as they first appear)")
@@ -327,7 +330,7 @@ def _pose_options(args) -> dict:
     if not 0.0 < limit <= 45.0:
         raise ValueError(f"--face-camera-limit must be over 0 and at most 45 degrees, got {limit}")
     return {"pose": parse_pose_offset(getattr(args, "pose", "")), "face_camera": face_camera,
-            "face_camera_limit_deg": limit}
+            "face_camera_limit_deg": limit, "keyframes": getattr(args, "keyframes", "auto")}
 
 
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:

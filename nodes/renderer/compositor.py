@@ -51,6 +51,7 @@ from .background_plate import BackgroundPlate, face_region
 from .camera import estimate_projection, project
 from .gl_context import create_headless_context
 from .inpaint import INPAINT_METHODS, dilate, fill_by_parts, uncovered_mask
+from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .mesh import close_holes
 from .motion_extension import extend_motion, head_box, head_region
 from .source_map import SourceMapRenderer
@@ -98,7 +99,8 @@ class Compositor:
     work of its updates on a thread of its own (an update is skipped while the last one runs: not
     deterministic, for live use); ``plate`` keep a background plate
     (:class:`.background_plate.BackgroundPlate`; ``plate_max_age`` frames an estimate is used,
-    ``plate_register`` follow camera motion) and take uncovered pixels from it; ``inpaint``
+    ``plate_register`` follow camera motion) and take uncovered pixels from it; ``keyframes`` keep views
+    of the face at other poses and take turned surface from them (:mod:`.keyframe_views`); ``inpaint``
     "pushpull", "telea", "ns" or "patch" (:mod:`.inpaint`). ``atlases`` holds one
     :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
@@ -115,7 +117,8 @@ class Compositor:
                  telea_radius: float = 3.0, interpolation: str = "cubic", subdivision: int | None = None,
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
-                 plate: bool = False, plate_max_age: int = 150, plate_register: bool = True):
+                 plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,
+                 keyframes: bool = False):
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -136,13 +139,17 @@ class Compositor:
         self.subdivision = subdivision
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_headless_context()
-        self.maps = SourceMapRenderer(self.ctx, width, height, extras=bool(atlas))
+        self.maps = SourceMapRenderer(self.ctx, width, height, extras=bool(atlas) or bool(keyframes))
         if atlas_every < 1:
             raise ValueError(f"atlas_every must be >= 1, got {atlas_every}")
         self.atlas_on, self.atlas_size, self.atlas_blend = bool(atlas), int(atlas_size), bool(atlas_blend)
         self.atlases: dict = {}
         self.atlas: TextureAtlas | None = TextureAtlas(atlas_size) if atlas else None
         self._atlas_raster = AtlasRasterizer(self.ctx, atlas_size, width, height) if atlas else None
+        # keyframes need how well each frame sees each vertex: the atlas's rasteriser, or one of their own
+        self._quality_raster = self._atlas_raster or (AtlasRasterizer(self.ctx, 16, width, height) if keyframes else None)
+        self.views: dict | None = {} if keyframes else None   # face key -> KeyframeViews
+        self.keyframe_used: int | None = None   # the frame index of the keyframe the last render blended in
         self.atlas_every = int(atlas_every)
         self._atlas_pool = ThreadPoolExecutor(1, thread_name_prefix="atlas") if atlas and atlas_thread else None
         self._atlas_job = None
@@ -268,7 +275,7 @@ class Compositor:
             return frame_bgr.copy()
         self._set_triangles(triangles, V)
         t0 = time.perf_counter()
-        uvq = self._update_atlas(frame_bgr, fitted, projected, triangles, uv, face_key, keep_mask)
+        uvq, chosen = self._update_memory(frame_bgr, fitted, projected, triangles, deformed, uv, face_key, keep_mask)
         t_atlas, t0 = (time.perf_counter() - t0) * 1e3, time.perf_counter()
         dst_px, depth = self.deformed_pixels(fitted, projected, deformed)
         self.deformed_px = dst_px
@@ -300,7 +307,7 @@ class Compositor:
         if block is not None:
             rows, cols = block
             warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation)
-            self._blend_atlas(warped, block, offsets, changed, box, uvq is not None)
+            self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
         t6 = time.perf_counter()
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected))
@@ -402,6 +409,37 @@ class Compositor:
             self._atlas_raster.see(fitted, projected, tri, P)
         self._atlas_frames += 1
         return np.column_stack([uv, self._atlas_raster.vertex_quality]).astype(np.float32)
+
+    def _update_memory(self, frame, fitted, projected, triangles, deformed, uv, face_key, keep_mask):
+        """Step 6's inputs: the atlas's per-vertex (u, v, quality) (:meth:`_update_atlas`) and,
+        with keyframes on, (the keyframe chosen for the ``deformed`` view, its (V,) weights)
+        (:mod:`.keyframe_views`) or None; the frame is then offered as a keyframe (not with a
+        ``keep_mask``: a hand in front of the face would be kept with it)."""
+        uvq = self._update_atlas(frame, fitted, projected, triangles, uv, face_key, keep_mask)
+        self.keyframe_used = None
+        if self.views is None:
+            return uvq, None
+        if face_key not in self.views and len(self.views) >= 8:
+            self.views.clear()
+        views = self.views.setdefault(face_key, KeyframeViews())
+        quality = uvq[:, 2] if uvq is not None else self._quality_raster.see(
+            fitted, projected, np.asarray(triangles, np.int64), estimate_projection(fitted, projected))[0]
+        key = views.choose(fitted, deformed)
+        if keep_mask is None or not np.any(keep_mask):
+            views.offer(frame, fitted, projected, quality)
+        return uvq, None if key is None else (key, keyframe_weights(key.quality, quality))
+
+    def _blend_memory(self, warped: np.ndarray, block: tuple[slice, slice], offsets: np.ndarray, changed: np.ndarray,
+                      box: tuple[int, int, int, int], has_uv: bool, draw: tuple) -> None:
+        """Blend the atlas (:meth:`_blend_atlas`), then the chosen keyframe
+        (:func:`.keyframe_views.blend_keyframe`), into ``warped`` (the sampled ``block`` of the box, in
+        place). ``draw``: (the fine vertices (Vf, >= 5), the triangles drawn, how many of them move,
+        the keyframe choice of :meth:`_update_memory`)."""
+        self._blend_atlas(warped, block, offsets, changed, box, has_uv)
+        fine, draw_tris, n_moving, chosen = draw
+        if chosen is not None:
+            self.keyframe_used = blend_keyframe(warped, self.maps, self._S, fine, draw_tris, n_moving, box, block,
+                                                changed, chosen, self.interpolation)
 
     def _extras(self, fine: np.ndarray) -> np.ndarray | None:
         """The source map's per-vertex extras: (Vf, 4) float32 (u, v, input frontality, 0) from the
@@ -539,6 +577,9 @@ class Compositor:
         if self._atlas_pool is not None:
             self._atlas_pool.shutdown(wait=True)
             self._atlas_pool = None
+        if self._quality_raster is not None and self._quality_raster is not self._atlas_raster:
+            self._quality_raster.release()
+        self._quality_raster = None
         if self._atlas_raster is not None:
             self._atlas_raster.release()
             self._atlas_raster = None

@@ -104,6 +104,9 @@ class RendererNode(Node):
                                   "deformer's pose edit; the head around the face moves with it", range=(0.0, 1.0)),
         "face_camera_limit": Param(FACE_CAMERA_LIMIT_DEG, "face_camera: the largest turn, degrees of yaw and of "
                                                           "pitch", range=FACE_CAMERA_LIMIT_RANGE),
+        "keyframes": Param("off", "keep views of each face at the poses it shows and render a turned head's surface "
+                                  "from the closest one where it sees it better than the frame (image-based rendering "
+                                  "for pose edits; a few ms a frame)", choices=("on", "off")),
     }
     NOTICE_S = 3.0                    # how long the window shows a notice (a saved preset), s
     _notice: tuple[str, float] | None = None   # (text, monotonic time it ends)
@@ -256,7 +259,7 @@ class RendererNode(Node):
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
                                      atlas_every=p.atlas_every, atlas_thread=True,
                                      plate=p.plate == "on", plate_max_age=p.plate_max_age,
-                                     interpolation=p.interpolation)
+                                     interpolation=p.interpolation, keyframes=p.keyframes == "on")
         return True
 
     def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:
