@@ -128,6 +128,39 @@ def test_pty_lines_become_events_with_the_right_axis_values(graph, tmp_path):
         pty.close()
 
 
+def test_the_pose_button_makes_the_axes_turn_the_head(graph, tmp_path):
+    pty = Pty(tmp_path / "joystick0")
+    try:
+        graph.spawn("run", "joystick", f"port={pty.link}", "grab_landmark=nose_tip", "pose_speed_deg_s=40",
+                    "deadzone=0.1")
+        listener = Listener(graph)
+        listener.sync(pty)
+        listener.events.clear()
+        pty.write(b"0 0 0 1\n")           # grab
+        pty.write(b"0 0 0 9\n")           # pose mode on (bit 3), still holding the grab button
+        for _ in range(15):
+            pty.write(b"1000 0 -500 9\n")  # full right, half roll
+            time.sleep(0.01)
+        pty.write(b"0 0 0 1\n")           # the pose button let go: still in pose mode
+        pty.write(b"0 0 0 9\n")           # pose mode off
+        for _ in range(5):
+            pty.write(b"1000 0 0 9\n")
+            time.sleep(0.01)
+        pty.write(b"0 0 0 3\n")           # release
+        assert listener.wait(lambda: any(e.kind == "release" for e in listener.events))
+        kinds = [e.kind for e in listener.events]
+        poses = [e for e in listener.events if e.kind == "pose"]
+        assert poses and all(e.kind != "move" for e in listener.events[:kinds.index("pose") + len(poses)])
+        turn = np.sum([e.pose for e in poses], axis=0)
+        assert turn[0] > 0 and turn[1] == 0 and turn[2] < 0 and not turn[3:].any()
+        velocity = axes_velocity([1.0, 0.0, -0.5], 40.0, 0.1)   # deg/s of yaw, pitch, roll
+        assert np.allclose(turn[:3] / np.linalg.norm(turn[:3]), velocity / np.linalg.norm(velocity), atol=1e-4)
+        assert 0 < turn[0] <= 40.0 * 0.25 * 16       # at most 40 deg/s over the samples' intervals
+        assert "move" in kinds[kinds.index("pose") + len(poses):]   # pose mode off: the handle moves again
+    finally:
+        pty.close()
+
+
 def test_unplug_and_replug_resume_without_restart(graph, tmp_path):
     pty = Pty(tmp_path / "joystick0")
     try:

@@ -8,7 +8,8 @@ so a joystick unplugged and plugged back resumes without a restart. The node's t
 samples to events (:class:`.joystick_protocol.JoystickMapper`): deadzone and speed turn the axes into a
 model-space velocity (mm/s) that moves the grabbed handle; the grab button presses the
 landmark nearest the centre of the fitted face's ROI (or ``grab_landmark``), the release
-button releases it, the reset button sends ``command reset``.
+button releases it, the reset button sends ``command reset``; the pose button toggles pose
+mode, where the axes turn the head (``pose`` events, ``pose_speed_deg_s`` at full deflection).
 
 Diagnostics counters: ``lines`` (valid samples), ``malformed`` (skipped lines), ``connects``,
 ``disconnects``, ``open_failures``, ``events``, ``grab_failed``; ``connected`` and
@@ -139,6 +140,10 @@ class JoystickNode(Node):
                              range=(-1, 30)),
         "release_button": Param(1, "bit that releases it; -1: none", range=(-1, 30)),
         "reset_button": Param(2, "bit that sends `command reset`; -1: none", range=(-1, 30)),
+        "pose_button": Param(3, "bit that toggles pose mode: the axes turn the head (x yaw, y pitch, z roll) instead "
+                                "of moving the handle; -1: none", range=(-1, 30)),
+        "pose_speed_deg_s": Param(30.0, "pose mode: degrees/s of the head's turn at full deflection",
+                                  range=(0.1, 360.0)),
         "grab_landmark": Param("", "grab this landmark instead of the nearest one"),
         "handle": Param(1, "pointer id of the joystick's handle (the mouse is 0)", range=(0, None)),
         "max_dt_s": Param(0.25, "longest interval one sample's velocity is applied over, s", range=(0.001, 10.0)),
@@ -156,7 +161,8 @@ class JoystickNode(Node):
         self.mapper = JoystickMapper(
             velocity=lambda axes: axes_velocity(axes, p.speed_mm_s, p.deadzone),
             signs=axis_signs(p.invert), grab_button=p.grab_button, release_button=p.release_button,
-            reset_button=p.reset_button, handle=p.handle, max_dt_s=p.max_dt_s)
+            reset_button=p.reset_button, handle=p.handle, max_dt_s=p.max_dt_s, pose_button=p.pose_button,
+            pose_velocity=lambda axes: axes_velocity(axes, p.pose_speed_deg_s, p.deadzone))
         self.events = self.advertise("input/events", InputEvent)
         self.subscribe("face/model", FaceModel, self.on_model)
         self.subscribe("face/state", FaceState, self.on_state)

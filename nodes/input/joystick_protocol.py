@@ -121,8 +121,10 @@ class JoystickMapper:
     rising edge (grab: ``press`` at a landmark; release: ``release``; reset: ``command reset``);
     while it holds a handle, a ``move`` of ``velocity * dt`` (model-space mm), where velocity is
     ``axes_velocity(axes, speed_mm_s, deadzone)`` (mm/s) and dt the time since the previous
-    sample, at most ``max_dt_s`` (so a gap in the stream never makes a jump). Button numbers
-    are bit indices; -1 disables one.
+    sample, at most ``max_dt_s`` (so a gap in the stream never makes a jump). The pose button
+    toggles a pose mode (issue 18): there the axes turn the head instead, a ``pose`` event of
+    ``pose_velocity(axes) * dt`` degrees of yaw, pitch and roll (x, y, z axes) per sample, and a
+    held handle does not move. Button numbers are bit indices; -1 disables one.
     """
 
     velocity: Callable[[np.ndarray], np.ndarray]  # (3,) axes in -1..1 -> (3,) model-space mm/s
@@ -132,6 +134,9 @@ class JoystickMapper:
     reset_button: int = 2
     handle: int = 1
     max_dt_s: float = 0.25
+    pose_button: int = -1
+    pose_velocity: Callable[[np.ndarray], np.ndarray] | None = None  # (3,) axes -> (3,) yaw, pitch, roll deg/s
+    pose_mode: bool = False
     grabbed: bool = False
     buttons: int = 0
     last_t: float | None = None
@@ -155,6 +160,8 @@ class JoystickMapper:
             if self._rose(mask, self.release_button) and self.grabbed:
                 events.append(dict(kind="release", handle=self.handle))
                 self.grabbed = False
+            if self._rose(mask, self.pose_button) and self.pose_velocity is not None:
+                self.pose_mode = not self.pose_mode
             if self._rose(mask, self.grab_button) and not self.grabbed:
                 try:
                     events.append(dict(kind="press", landmark=grab_target(), handle=self.handle))
@@ -164,7 +171,12 @@ class JoystickMapper:
             self.buttons = mask
         dt = 0.0 if self.last_t is None else min(max(t - self.last_t, 0.0), self.max_dt_s)
         self.last_t = t
-        if self.grabbed and dt > 0:
+        if self.pose_mode and dt > 0:
+            turn = np.asarray(self.pose_velocity(axes), np.float64) * dt
+            if np.any(turn != 0):
+                events.append(dict(kind="pose", pose=np.concatenate([turn, np.zeros(3)]).astype(np.float32),
+                                   axes=axes, buttons=mask, handle=self.handle))
+        elif self.grabbed and dt > 0:
             v = np.asarray(self.velocity(axes), np.float64)
             if np.any(v != 0):
                 events.append(dict(kind="move", vector=(v * dt).astype(np.float32), axes=axes,
