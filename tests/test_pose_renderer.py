@@ -130,4 +130,15 @@ def test_window_keys_turn_the_head_and_the_other_keys_keep_their_commands():
     assert press(glfw.KEY_S)[0][0]["command"] == "save_preset"
     assert press(glfw.KEY_Q) == ([], True) and press(glfw.KEY_ESCAPE) == ([], True)
     assert press(glfw.KEY_R, glfw.REPEAT)[0] == []  # only pose keys repeat
-    assert "arrows , . turn head" in keys_help() and "0 head straight" in keys_help()
+    assert "arrows , . shift/ctrl+wheel: turn head" in keys_help() and "0 head straight" in keys_help()
+
+
+def test_shift_and_ctrl_wheel_turn_the_head_and_the_plain_wheel_still_sets_depth():
+    from facesculpt.nodes.renderer.window import POSE_STEP_DEG, WHEEL_MM_PER_NOTCH, scroll_event
+
+    assert scroll_event(0, 2, False, False, 10, 20) == {"kind": "depth", "depth": 2 * WHEEL_MM_PER_NOTCH,
+                                                          "x": 10, "y": 20, "handle": 0}
+    for args, want in (((0, 1, True, False), [POSE_STEP_DEG, 0, 0]), ((0, -2, False, True), [0, -2 * POSE_STEP_DEG, 0]),
+                       ((-1, 0, False, False), [-POSE_STEP_DEG, 0, 0])):
+        event = scroll_event(*args, 10, 20)
+        assert event["kind"] == "pose" and event["pose"].tolist() == want + [0, 0, 0]

@@ -31,11 +31,9 @@ import numpy as np
 
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.pose_offset import (
+    FACE_CAMERA_LIMIT_DEG,
+    FACE_CAMERA_SMOOTHING_S,
     PoseOffset,
-    apply_pose_offset,
-    face_camera_offset,
-    head_pivot,
-    smooth_offset,
 )
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.nodes.deformer import EditStack
@@ -58,10 +56,6 @@ from facesculpt.nodes.landmarks.working_resolution import track_at_working_resol
 STAGES = ("landmarks", "fit", "merge", "render")
 #: Landmarks run on a copy of a larger frame halved to at most this many pixels (1920x1080).
 ANALYSIS_PIXELS = 1920 * 1080
-#: Face-the-camera: the largest turn it applies (degrees, yaw and pitch each; README "New views").
-FACE_CAMERA_LIMIT_DEG = 15.0
-#: Face-the-camera: time constant (s) of the smoothing of its turn over the video's frames.
-FACE_CAMERA_SMOOTHING_S = 0.3
 
 
 def load_face_model(name_or_path: str) -> MorphableModel:
@@ -185,7 +179,7 @@ class Pipeline:
             raise ValueError(f"face_camera_limit_deg must be over 0 and at most 45, got {face_camera_limit_deg}")
         self.pose = pose if pose is not None else PoseOffset()
         self.face_camera, self.face_camera_limit_deg = float(face_camera), float(face_camera_limit_deg)
-        self._camera_turns: dict[int, tuple[float, PoseOffset]] = {}  # face key -> (stamp s, smoothed turn)
+        self._pose_edits = None   # the renderer's PoseEdits (made with the compositor's package, on first use)
         self._uv = None
         self.faces: FaceFitters | None = None
         self.compositor = None
@@ -272,19 +266,15 @@ class Pipeline:
         the presets that edit it, plus, with ``face_camera``, the smoothed turn toward the camera;
         the head's pivot (3,) model mm, from its neutral now: compose may run while the next
         frame's fit updates it); None when zero."""
-        offset, pivot = self.pose, head_pivot(self.neutral_of(key))
+        offset = self.pose
         for face, preset in self.presets:  # a preset's own "pose" turns the faces it edits
             if face is None or face == key:
                 offset = offset + (preset_pose(preset) or PoseOffset())
-        if self.face_camera > 0:
-            target = face_camera_offset(fit.R, fit.t, fit.scale, pivot, self.face_camera,
-                                        self.face_camera_limit_deg, perspective=fit.projection == "perspective")
-            last = self._camera_turns.get(key)
-            turn = smooth_offset(None if last is None else last[1], target,
-                                 0.0 if last is None else stamp_s - last[0], FACE_CAMERA_SMOOTHING_S)
-            self._camera_turns[key] = (stamp_s, turn)
-            offset = offset + turn
-        return None if offset.is_zero else (offset, pivot)
+        if self._pose_edits is None:
+            from facesculpt.nodes.renderer.pose_edit import PoseEdits
+
+            self._pose_edits = PoseEdits(self.face_camera, self.face_camera_limit_deg, FACE_CAMERA_SMOOTHING_S)
+        return self._pose_edits.edit(fit, offset, self.neutral_of(key), int(round(stamp_s * 1e9)), face=key)
 
     def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict,
                 keep_mask: np.ndarray | None = None) -> FrameResult:
@@ -305,7 +295,7 @@ class Pipeline:
             if displacement is not None:
                 deformed = merge_deformation(fit.vertices, fit.R, fit.scale, displacement)
             if fit.pose_edit is not None:
-                deformed = apply_pose_offset(deformed, fit.R, fit.t, fit.scale, fit.pose_edit[1], fit.pose_edit[0])
+                deformed = self._pose_edits.apply(deformed, fit, fit.pose_edit)
             timings["merge"] += (time.perf_counter() - t0) * 1e3
             t0 = time.perf_counter()
             compositor = self._compositor()

@@ -27,7 +27,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG
+
 LOSSLESS_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
+
+
+def _add_pose_arguments(p) -> None:
+    """--pose, --face-camera, --face-camera-limit, --keyframes (README "New views")."""
+    p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,roll=D,x=MM,y=MM,z=MM",
+                   help="turn (degrees, added to the head's own angles) and move (mm, camera axes) every fitted head, "
+                        "e.g. yaw=10,pitch=-5 (README: New views, for the angles results hold to)")
+    p.add_argument("--face-camera", type=float, default=0.0, metavar="F",
+                   help="turn each face F (0-1) of the way toward looking into the camera, every frame, smoothed "
+                        "(at most --face-camera-limit degrees; on top of --pose)")
+    p.add_argument("--face-camera-limit", type=float, default=FACE_CAMERA_LIMIT_DEG, metavar="DEG",
+                   help=f"the largest turn --face-camera applies, yaw and pitch each (default {FACE_CAMERA_LIMIT_DEG:g}, "
+                        "the largest the README's figures hold for; at most 45)")
+    p.add_argument("--keyframes", choices=("auto", "on", "off"), default="auto",
+                   help="render a turned head's surface from the stored view of the video closest to it where that "
+                        "sees it better than the frame (image-based rendering); auto (default): with a pose edit")
 
 
 def register(sub) -> None:
@@ -55,17 +73,7 @@ def register(sub) -> None:
                         "repeat to stack several, in order; N:PRESET edits face N only (with --faces all)")
     p.add_argument("--strength", type=float, default=1.0, metavar="S",
                    help="multiply the edits' offsets by S, 0 (no edit) to 3 (default 1)")
-    p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,roll=D,x=MM,y=MM,z=MM",
-                   help="turn (degrees, added to the head's own angles) and move (mm, camera axes) every edited head, "
-                        "e.g. yaw=10,pitch=-5 (README: New views, for the angles results hold to)")
-    p.add_argument("--face-camera", type=float, default=0.0, metavar="F",
-                   help="turn each face F (0-1) of the way toward looking into the camera, every frame, smoothed "
-                        "(at most --face-camera-limit degrees; on top of --pose)")
-    p.add_argument("--face-camera-limit", type=float, default=15.0, metavar="DEG",
-                   help="the largest turn --face-camera applies, yaw and pitch each (default 15; at most 45)")
-    p.add_argument("--keyframes", choices=("auto", "on", "off"), default="auto",
-                   help="render a turned head's surface from the stored view of the video closest to it where that "
-                        "sees it better than the frame (image-based rendering); auto (default): with a pose edit")
+    _add_pose_arguments(p)
     p.add_argument("--faces", default="largest", metavar="all|largest|N",
                    help="which faces to fit and edit: the largest (default), all, or face N only "
                         "(faces numbered 1, 2, ... from the left as they first appear)")
@@ -324,7 +332,7 @@ def _pose_options(args) -> dict:
     from facesculpt.geometry.pose_offset import parse_pose_offset
 
     face_camera = getattr(args, "face_camera", 0.0)
-    limit = getattr(args, "face_camera_limit", 15.0)
+    limit = getattr(args, "face_camera_limit", FACE_CAMERA_LIMIT_DEG)
     if not 0.0 <= face_camera <= 1.0:
         raise ValueError(f"--face-camera must be 0 to 1, got {face_camera}")
     if not 0.0 < limit <= 45.0:

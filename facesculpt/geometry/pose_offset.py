@@ -20,6 +20,13 @@ HEAD_PIVOT_DEPTH_MM = 95.0
 MAX_OFFSET_DEG = 45.0
 #: Largest translation (mm, each axis) a pose offset may have.
 MAX_OFFSET_MM = 200.0
+#: Face-the-camera: its default largest turn (degrees, yaw and pitch each): the largest offset the
+#: new-views benchmark measures (benchmarks/bench_new_views.py; README "New views").
+FACE_CAMERA_LIMIT_DEG = 20.0
+#: Face-the-camera: the range of that limit, degrees.
+FACE_CAMERA_LIMIT_RANGE = (1.0, 45.0)
+#: Face-the-camera: time constant of the smoothing of its turn over the frames, s.
+FACE_CAMERA_SMOOTHING_S = 0.3
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from facesculpt.geometry.pose_offset import (
+    FACE_CAMERA_LIMIT_DEG,
+    FACE_CAMERA_LIMIT_RANGE,  # noqa: F401 (the renderer node's parameter range)
+    FACE_CAMERA_SMOOTHING_S,
     MAX_OFFSET_DEG,
     MAX_OFFSET_MM,
     PoseOffset,
@@ -24,12 +27,6 @@ from facesculpt.geometry.pose_offset import (
 )
 from facesculpt.msgs import FaceState
 
-#: Face-the-camera: the default largest turn, degrees (yaw and pitch each).
-FACE_CAMERA_LIMIT_DEG = 15.0
-#: Face-the-camera: the range of that limit, degrees.
-FACE_CAMERA_LIMIT_RANGE = (1.0, 45.0)
-#: Face-the-camera: time constant of the smoothing of its turn over the frames, s.
-FACE_CAMERA_SMOOTHING_S = 0.3
 _LIMITS = np.array([MAX_OFFSET_DEG] * 3 + [MAX_OFFSET_MM] * 3)
 
 
@@ -53,21 +50,23 @@ class PoseEdits:
         self.time_constant_s = float(time_constant_s)
         self._turns: dict[int, tuple[int, PoseOffset]] = {}  # face -> (frame stamp ns, smoothed turn)
 
-    def edit(self, state: FaceState, pose: PoseOffset, neutral: np.ndarray,
-             stamp_ns: int) -> tuple[PoseOffset, np.ndarray] | None:
-        """The pose edit of ``state``'s face on the frame stamped ``stamp_ns``: (``pose`` plus the
-        smoothed face-the-camera turn, the head's pivot (3,) model mm from ``neutral`` (V, 3)
-        model mm); None when it is zero."""
+    def edit(self, state: FaceState, pose: PoseOffset, neutral: np.ndarray, stamp_ns: int,
+             face: int | None = None) -> tuple[PoseOffset, np.ndarray] | None:
+        """The pose edit of ``state``'s face (``face``, default its ``face_id``) on the frame stamped
+        ``stamp_ns``: (``pose`` plus the smoothed face-the-camera turn, the head's pivot (3,) model
+        mm from ``neutral`` (V, 3) model mm); None when it is zero. ``state``: anything with the
+        pose fields R, t, scale and projection (a FaceState, a fitter's FitResult)."""
         pivot = head_pivot(neutral)
+        face = state.face_id if face is None else face
         if self.face_camera > 0:
             target = face_camera_offset(state.R, state.t, state.scale, pivot, self.face_camera, self.limit_deg,
                                         perspective=state.projection == "perspective")
-            last = self._turns.get(state.face_id)
+            last = self._turns.get(face)
             if last is None:
                 turn = target
             else:
                 turn = smooth_offset(last[1], target, (stamp_ns - last[0]) * 1e-9, self.time_constant_s)
-            self._turns[state.face_id] = (int(stamp_ns), turn)
+            self._turns[face] = (int(stamp_ns), turn)
             pose = pose + turn
         return None if pose.is_zero else (pose, pivot)
 

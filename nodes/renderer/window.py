@@ -7,7 +7,8 @@ events come back from :meth:`Window.poll` as plain dicts holding the fields of a
 
 * left button: ``press`` / ``drag`` (motion while held) / ``release``, handle 0;
 * right button: ``command`` ``toggle_static`` at the pointer;
-* wheel: ``depth``, +1 mm per notch toward the camera (handle 0);
+* wheel: ``depth``, +1 mm per notch toward the camera (handle 0); Shift+wheel (or a sideways
+  wheel) turns the head (yaw), Ctrl+wheel nods it (pitch), ``POSE_STEP_DEG`` per notch;
 * keys: R ``reset``, U or Ctrl+Z ``undo``, S ``save_preset`` (a timestamped JSON);
   Escape and Q close the window (the node decides what closing stops: its ``close`` param);
 * pose edits (issue 18): the arrow keys send ``pose`` events turning the head ``POSE_STEP_DEG``
@@ -44,6 +45,17 @@ POSE_KEYS = {glfw.KEY_LEFT: (-1, 0, 0), glfw.KEY_RIGHT: (1, 0, 0), glfw.KEY_UP: 
              glfw.KEY_DOWN: (0, 1, 0), glfw.KEY_COMMA: (0, 0, 1), glfw.KEY_PERIOD: (0, 0, -1)}
 
 
+def scroll_event(dx: float, dy: float, shift: bool, ctrl: bool, x: float, y: float) -> dict:
+    """The input event of a wheel turn (``dy`` notches, ``dx`` of a sideways wheel) at frame pixel
+    (x, y): ``depth`` (WHEEL_MM_PER_NOTCH per notch toward the camera); with Shift held, or on a
+    sideways wheel, a ``pose`` turn of POSE_STEP_DEG yaw per notch; with Ctrl held, of pitch."""
+    if shift or ctrl or (dx and not dy):
+        notches = float(dy if dy else dx)
+        turn = [notches * POSE_STEP_DEG, 0.0, 0.0] if not ctrl else [0.0, notches * POSE_STEP_DEG, 0.0]
+        return {"kind": "pose", "pose": np.array(turn + [0.0, 0.0, 0.0], np.float32)}
+    return {"kind": "depth", "depth": float(dy) * WHEEL_MM_PER_NOTCH, "x": x, "y": y, "handle": 0}
+
+
 def keys_help(close: str = "graph", correcting: bool = False) -> str:
     """The window's mouse and keys in one line (groups apart by two spaces, where the overlay
     wraps it); ``close``: what Q does, "graph" (quit) or "node" (close this window);
@@ -52,7 +64,7 @@ def keys_help(close: str = "graph", correcting: bool = False) -> str:
     if correcting:
         return f"CORRECTION MODE  drag a landmark: put it there  C clear corrections  L back to editing  {quit_key}"
     return (f"drag: move  right-click: pin  wheel: depth  R reset  U undo  S save  L correct landmarks  "
-            f"arrows , . turn head  0 head straight  {quit_key}")
+            f"arrows , . shift/ctrl+wheel: turn head  0 head straight  {quit_key}")
 
 _QUAD_VS = """
 #version 330
@@ -170,11 +182,12 @@ class Window:
         if self._dragging:
             self._pointer_event("drag", *self.to_frame(wx, wy))
 
-    def _on_scroll(self, _win, _dx, dy) -> None:
+    def _on_scroll(self, _win, dx, dy) -> None:
         if self.correcting:
             return
-        x, y = self._cursor()
-        self._events.append({"kind": "depth", "depth": float(dy) * WHEEL_MM_PER_NOTCH, "x": x, "y": y, "handle": 0})
+        held = [glfw.get_key(self.handle, k) == glfw.PRESS for k in
+                (glfw.KEY_LEFT_SHIFT, glfw.KEY_RIGHT_SHIFT, glfw.KEY_LEFT_CONTROL, glfw.KEY_RIGHT_CONTROL)]
+        self._events.append(scroll_event(dx, dy, held[0] or held[1], held[2] or held[3], *self._cursor()))
 
     def _on_key(self, _win, key, _scancode, action, mods) -> None:
         if key in POSE_KEYS and action in (glfw.PRESS, glfw.REPEAT):
