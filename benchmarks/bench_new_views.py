@@ -18,7 +18,11 @@ the new pose, on synthetic videos with exact ground truth.
    image-based rendering from keyframes, seed 003); the models of ``--geometry-models`` run once
    more with ``--keyframes off`` (geometry and the current frame only), those of
    ``--atlas-models`` with ``--atlas on`` (the face's texture memory too).
-3. Figures: PSNR (dB) and SSIM over the head region (where the input or the truth shows the
+3. Real videos (``--real-videos``, default d3, d12; no ground truth): ``process --face-camera 1`` at
+   the default ``--face-camera-limit`` and at 45°; the project's landmarks and fitter run on the
+   input and on each output, and the mean absolute yaw and pitch still needed to look into the
+   camera is compared (``face_camera_VIDEO.png``: input | default limit | 45°, three frames).
+4. Figures: PSNR (dB) and SSIM over the head region (where the input or the truth shows the
    head, dilated by 4 px), per Δ and method. Crops ``crops_yaw_D_MODEL.png`` (rows: the most
    turned-left, a frontal and the most turned-right scored frames; columns: input | result |
    ground truth | 2D homography).
@@ -55,6 +59,7 @@ from realism.scene import FACING, PIVOT, Scene, head_pose, make_scene, rotation 
 from realism.sequences import run_process, write_lossless  # noqa: E402
 
 from facesculpt.geometry.head_angles import euler_from_rotation, rotation_from_euler  # noqa: E402
+from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
 #: Dilation (px) of the head's region for the scores.
@@ -144,6 +149,46 @@ def score(frames: list, inputs: list, truths: list, background: np.ndarray, scor
     return {"psnr": psnr_from_mse(pool.mean("se")), "ssim": pool.mean("ssim"), "frames": len(scored)}
 
 
+def face_camera_residuals(frames: list, fov_deg: float = 60.0) -> np.ndarray:
+    """(N, 2) degrees: per frame with a face, the yaw and pitch still needed to look into the camera
+    (:func:`face_camera_offset` all the way, unclamped), from the project's landmarks and
+    ``facemesh`` fitter run over ``frames`` in order, as ``process`` fits them."""
+    from facesculpt.app.pipeline import Pipeline
+    from facesculpt.geometry.pose_offset import face_camera_offset, head_pivot
+
+    out = []
+    with Pipeline("facemesh", fov_deg=fov_deg) as pipe:
+        for i, frame in enumerate(frames):
+            fit = pipe.fit_frame(frame, i / 25.0)
+            if fit is not None:
+                turn = face_camera_offset(fit.R, fit.t, fit.scale, head_pivot(pipe.neutral), 1.0, 90.0,
+                                          perspective=fit.projection == "perspective")
+                out.append((turn.yaw, turn.pitch))
+    return np.array(out)
+
+
+def real_face_camera(data: Path, name: str, count: int, out: Path, limits: list[float]) -> dict:
+    """``process --face-camera 1`` on the shared video ``name`` (``count`` frames) at each
+    ``--face-camera-limit`` of ``limits``: the mean absolute yaw and pitch still needed to look
+    into the camera, refitted on the input and on each output; a picture input | outputs."""
+    from realism.sequences import read_video
+
+    video = data / "video" / f"{name}.mp4"
+    inputs = read_video(video, count)
+    row = {"input": np.abs(face_camera_residuals(inputs)).mean(axis=0).round(2).tolist()}
+    shown = [inputs]
+    for limit in limits:
+        got, _ = run_process(video, out / "frames" / f"face_camera_{name}_{limit:g}", None, "facemesh",
+                             max_frames=count, data=data,
+                             extra_args=("--face-camera", "1", "--face-camera-limit", f"{limit:g}"))
+        row[f"limit {limit:g}"] = np.abs(face_camera_residuals(got)).mean(axis=0).round(2).tolist()
+        shown.append(got)
+    picks = np.linspace(count // 6, count - 1, 3).astype(int)
+    grid = np.vstack([np.hstack([seq[i] for seq in shown]) for i in picks])
+    cv2.imwrite(str(out / f"face_camera_{name}.png"), grid)
+    return row
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
@@ -156,11 +201,14 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="models also run with process --keyframes off (geometry only, no stored views; '' for none)")
     p.add_argument("--atlas-models", default="facemesh,sfm",
                    help="models also run with process --atlas on (the face's texture memory; '' for none)")
+    p.add_argument("--real-videos", default="d3,d12", help="shared videos run with --face-camera 1 ('' for none)")
+    p.add_argument("--real-frames", type=int, default=90, help="frames of each real video (default 90)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     a = p.parse_args(argv)
     a.models = [m for m in a.models.split(",") if m]
     a.atlas_models = [m for m in a.atlas_models.split(",") if m]
     a.geometry_models = [m for m in a.geometry_models.split(",") if m]
+    a.real_videos = [v for v in a.real_videos.split(",") if v]
     a.offsets = [(float(d), 0.0) for d in a.deltas.split(",") if d] + \
                 [(0.0, float(d)) for d in a.pitch_deltas.split(",") if d]
     if a.frames <= a.skip:
@@ -233,14 +281,21 @@ def main(argv=None) -> int:
             cv2.imwrite(str(out / f"crops_{name.replace('=', '_')}_{tag}.png"), side_by_side(panels, [box] * len(rows)))
         results[name] = row
         print(name, {k: (round(v["psnr"], 2), round(v["ssim"], 3)) for k, v in row.items()}, flush=True)
-    methods = list(next(iter(results.values())))
+    methods = list(next(iter(results.values()), {}))
     lines = ["| offset | " + " | ".join(methods) + " |", "| --- |" + " --- |" * len(methods)]
     for name, row in results.items():
         lines.append(f"| {name} | " + " | ".join(f"{row[k]['psnr']:.2f} dB / {row[k]['ssim']:.3f}" for k in methods) + " |")
     table = "\n".join(lines)
-    (out / "results.md").write_text(f"PSNR / SSIM over the head region, frames {args.skip}-{args.frames - 1}\n\n{table}\n")
-    (out / "results.json").write_text(json.dumps(results, indent=1))
+    real = {v: real_face_camera(data, v, args.real_frames, out, [FACE_CAMERA_LIMIT_DEG, 45.0]) for v in args.real_videos}
+    lines = ["| video | " + " | ".join(next(iter(real.values()), {})) + " |", "| --- |" + " --- |" * 3]
+    lines += [f"| {v} | " + " | ".join(f"{y:.1f} / {p:.1f}" for y, p in row.values()) + " |" for v, row in real.items()]
+    real_table = "\n".join(lines) if real else ""
+    (out / "results.md").write_text(f"PSNR / SSIM over the head region, frames {args.skip}-{args.frames - 1}\n\n{table}\n\n"
+                                    f"--face-camera 1: mean |yaw| / |pitch| (degrees) still needed to look into the "
+                                    f"camera, refitted\n\n{real_table}\n")
+    (out / "results.json").write_text(json.dumps({"synthetic": results, "face_camera": real}, indent=1))
     print(table)
+    print(real_table)
     print(f"wrote {out}")
     return 0
 

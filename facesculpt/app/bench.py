@@ -92,6 +92,8 @@ def register(sub) -> None:
     p.add_argument("--size", default="", metavar="WxH",
                    help="measure at this frame size, e.g. 1280x720 (the input is scaled to cover it and cropped "
                         "to its aspect); default: the paper's 856x480 pixel count at the input's aspect")
+    p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,...",
+                   help="the graph's edit also turns the head by this pose offset (README \"New views\")")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)
@@ -512,6 +514,7 @@ def table(result: dict) -> str:
 
 def cmd_bench(args) -> int:
     from facesculpt.app.pipeline import load_face_model, read_preset
+    from facesculpt.geometry.pose_offset import parse_pose_offset
     from facesculpt.nodes.deformer.preset_format import merge_presets
     from facesculpt.runtime.process_limits import limit_threads
 
@@ -532,6 +535,9 @@ def cmd_bench(args) -> int:
     source, description = bench_source(args.video)
     paths = preset_paths()
     preset = merge_presets([read_preset(p) for p in paths])
+    if args.pose:  # the graph's deformer loads it with the edit; the in-process stages ignore it
+        pose = parse_pose_offset(args.pose)
+        preset["pose"] = {k: v for k, v in zip(("yaw", "pitch", "roll", "x", "y", "z"), pose.as_list()) if v}
     preset_file = Path(tempfile.mkdtemp(prefix="fs-bench-preset-")) / "fig6e.json"
     preset_file.write_text(json.dumps(preset))
     wanted = parse_size(args.size)
@@ -541,7 +547,8 @@ def cmd_bench(args) -> int:
           f"{os.cpu_count()} CPUs, load average {load_start[0]:.2f}", file=sys.stderr, flush=True)
     result = {
         "input": description, "size": list(size), "frames": len(frames),
-        "edit": [p.stem for p in paths], "camera_fps": args.camera_fps, "pairing": "sync",
+        "edit": [p.stem for p in paths], "pose": preset.get("pose", {}), "camera_fps": args.camera_fps,
+        "pairing": "sync",
         "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,

@@ -137,7 +137,8 @@ class Pipeline:
     compositing work at the frame's own resolution; pose: a :class:`PoseOffset` every fitted head is
     turned and moved by (issue 18; the face's motion is carried over the head around it); face_camera:
     0-1, each frame turns every face that share of the way toward looking into the camera (at most
-    ``face_camera_limit_deg`` in yaw and pitch; smoothed over ``FACE_CAMERA_SMOOTHING_S``), on top of
+    ``face_camera_limit_deg`` in yaw and pitch; the direction to the camera smoothed over
+    ``face_camera_smoothing_s``), on top of
     ``pose``; keyframes: "on" keeps views of each face at the poses it shows and renders turned
     surface from the closest one where it sees it better than the frame (image-based rendering,
     :mod:`facesculpt.nodes.renderer.keyframe_views`), "auto" (the default) does so when a pose edit
@@ -150,7 +151,8 @@ class Pipeline:
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic",
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
-                 face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG):
+                 face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
+                 face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -178,7 +180,10 @@ class Pipeline:
         if not 0.0 < face_camera_limit_deg <= 45.0:
             raise ValueError(f"face_camera_limit_deg must be over 0 and at most 45, got {face_camera_limit_deg}")
         self.pose = pose if pose is not None else PoseOffset()
+        if face_camera_smoothing_s < 0:
+            raise ValueError(f"face_camera_smoothing_s must be >= 0, got {face_camera_smoothing_s}")
         self.face_camera, self.face_camera_limit_deg = float(face_camera), float(face_camera_limit_deg)
+        self.face_camera_smoothing_s = float(face_camera_smoothing_s)
         self._pose_edits = None   # the renderer's PoseEdits (made with the compositor's package, on first use)
         self._uv = None
         self.faces: FaceFitters | None = None
@@ -263,7 +268,7 @@ class Pipeline:
 
     def _pose_edit(self, key: int, fit, stamp_s: float) -> tuple[PoseOffset, np.ndarray] | None:
         """Face ``key``'s pose edit on the frame at ``stamp_s`` (s): (``pose``, plus the ``pose`` of
-        the presets that edit it, plus, with ``face_camera``, the smoothed turn toward the camera;
+        the presets that edit it, plus, with ``face_camera``, the turn toward the camera;
         the head's pivot (3,) model mm, from its neutral now: compose may run while the next
         frame's fit updates it); None when zero."""
         offset = self.pose
@@ -273,7 +278,7 @@ class Pipeline:
         if self._pose_edits is None:
             from facesculpt.nodes.renderer.pose_edit import PoseEdits
 
-            self._pose_edits = PoseEdits(self.face_camera, self.face_camera_limit_deg, FACE_CAMERA_SMOOTHING_S)
+            self._pose_edits = PoseEdits(self.face_camera, self.face_camera_limit_deg, self.face_camera_smoothing_s)
         return self._pose_edits.edit(fit, offset, self.neutral_of(key), int(round(stamp_s * 1e9)), face=key)
 
     def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict,

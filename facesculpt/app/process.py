@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG
+from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_SMOOTHING_S
 
 LOSSLESS_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
 
@@ -38,11 +38,14 @@ def _add_pose_arguments(p) -> None:
                    help="turn (degrees, added to the head's own angles) and move (mm, camera axes) every fitted head, "
                         "e.g. yaw=10,pitch=-5 (README: New views, for the angles results hold to)")
     p.add_argument("--face-camera", type=float, default=0.0, metavar="F",
-                   help="turn each face F (0-1) of the way toward looking into the camera, every frame, smoothed "
+                   help="turn each face F (0-1) of the way toward looking into the camera, every frame "
                         "(at most --face-camera-limit degrees; on top of --pose)")
     p.add_argument("--face-camera-limit", type=float, default=FACE_CAMERA_LIMIT_DEG, metavar="DEG",
                    help=f"the largest turn --face-camera applies, yaw and pitch each (default {FACE_CAMERA_LIMIT_DEG:g}, "
                         "the largest the README's figures hold for; at most 45)")
+    p.add_argument("--face-camera-smoothing", type=float, default=FACE_CAMERA_SMOOTHING_S, metavar="S",
+                   help="time constant (s) smoothing the direction to the camera over the frames (default 0: none, "
+                        "which follows the head best; README \"New views\")")
     p.add_argument("--keyframes", choices=("auto", "on", "off"), default="auto",
                    help="render a turned head's surface from the stored view of the video closest to it where that "
                         "sees it better than the frame (image-based rendering); auto (default): with a pose edit")
@@ -327,7 +330,7 @@ def _atlas_options(args) -> tuple[str, str]:
 
 
 def _pose_options(args) -> dict:
-    """The Pipeline's pose options from --pose, --face-camera and --face-camera-limit (ValueError
+    """The Pipeline's pose options from --pose, --face-camera, its limit and smoothing, --keyframes (ValueError
     in one sentence on a bad value)."""
     from facesculpt.geometry.pose_offset import parse_pose_offset
 
@@ -337,8 +340,12 @@ def _pose_options(args) -> dict:
         raise ValueError(f"--face-camera must be 0 to 1, got {face_camera}")
     if not 0.0 < limit <= 45.0:
         raise ValueError(f"--face-camera-limit must be over 0 and at most 45 degrees, got {limit}")
+    smoothing = getattr(args, "face_camera_smoothing", FACE_CAMERA_SMOOTHING_S)
+    if not 0.0 <= smoothing <= 60.0:
+        raise ValueError(f"--face-camera-smoothing must be 0 to 60 s, got {smoothing}")
     return {"pose": parse_pose_offset(getattr(args, "pose", "")), "face_camera": face_camera,
-            "face_camera_limit_deg": limit, "keyframes": getattr(args, "keyframes", "auto")}
+            "face_camera_limit_deg": limit, "face_camera_smoothing_s": smoothing,
+            "keyframes": getattr(args, "keyframes", "auto")}
 
 
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:

@@ -3,7 +3,9 @@
 The offset's angles add to the head's own yaw, pitch and roll (:mod:`.head_angles`: a head at yaw
 20° with ``yaw=10`` is drawn at yaw 30°); the head turns about a point ``HEAD_PIVOT_DEPTH_MM``
 behind the nose tip, as a neck turns it. Its translation is in camera axes (mm: x right, y down,
-z away from the camera). ``face_camera_offset`` is the offset that turns a face toward the camera.
+z away from the camera). ``face_camera_offset`` is the offset that turns a face toward the camera: along :func:`camera_direction`, which only the
+head's position moves (smooth that, not the turn: the head's own jitter then cancels in the turned
+pose).
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ MAX_OFFSET_MM = 200.0
 FACE_CAMERA_LIMIT_DEG = 20.0
 #: Face-the-camera: the range of that limit, degrees.
 FACE_CAMERA_LIMIT_RANGE = (1.0, 45.0)
-#: Face-the-camera: time constant of the smoothing of its turn over the frames, s.
-FACE_CAMERA_SMOOTHING_S = 0.3
+#: Face-the-camera: default time constant of the smoothing of the direction to the camera, s. None:
+#: turned all the way each frame, the tracker's pose jitter cancels in the turned head, and any
+#: smoothing of the fitted position only adds lag (README "New views").
+FACE_CAMERA_SMOOTHING_S = 0.0
 
 
 @dataclass(frozen=True)
@@ -119,29 +123,53 @@ def apply_pose_offset(vertices: np.ndarray, R: np.ndarray, t: np.ndarray, scale:
     return out.astype(X.dtype if np.issubdtype(X.dtype, np.floating) else np.float64)
 
 
-def face_camera_offset(R: np.ndarray, t: np.ndarray, scale: float, pivot: np.ndarray, fraction: float,
-                       limit_deg: float, perspective: bool = True) -> PoseOffset:
-    """The yaw and pitch offset that turns a head (pose R, t, scale as in :func:`apply_pose_offset`)
-    ``fraction`` (0-1) of the way toward looking into the camera (its facing direction onto the
-    ray from its pivot to the camera; in orthographic, onto the view axis), each angle clamped
-    to ``limit_deg``. Roll is left as it is."""
-    R = np.asarray(R, np.float64)
-    yaw, pitch, roll = euler_from_rotation(R)
-    if perspective:
-        centre = float(scale) * R @ np.asarray(pivot, np.float64) + np.asarray(t, np.float64)
-        to_camera = -centre / max(np.linalg.norm(centre), 1e-9)
-    else:
-        to_camera = np.array([0.0, 0.0, -1.0])
+def camera_direction(R: np.ndarray, t: np.ndarray, scale: float, pivot: np.ndarray,
+                     perspective: bool = True) -> np.ndarray:
+    """(3,) unit vector, camera space: from the pivot (3,) model mm of a head (pose R, t, scale as in
+    :func:`apply_pose_offset`) to the camera (in orthographic, against the view axis)."""
+    if not perspective:
+        return np.array([0.0, 0.0, -1.0])
+    centre = float(scale) * np.asarray(R, np.float64) @ np.asarray(pivot, np.float64) + np.asarray(t, np.float64)
+    return -centre / max(np.linalg.norm(centre), 1e-9)
+
+
+def facing_angles(R: np.ndarray, to_camera: np.ndarray) -> tuple[float, float]:
+    """(yaw, pitch) degrees (:mod:`.head_angles`) at which a head of rotation ``R`` looks along
+    ``to_camera`` (3,) camera space (:func:`camera_direction`), its roll kept."""
+    roll = euler_from_rotation(R)[2]
     # the model's facing axis (+z) in camera space is R[:, 2] = FRONTAL · Rz Rx Ry · z; with roll
     # kept, solve Rx(pitch) Ry(yaw) z = (sin yaw, -sin pitch cos yaw, cos pitch cos yaw) = d
     Rz = FRONTAL @ rotation_from_euler(0.0, 0.0, roll)
-    d = Rz.T @ FRONTAL @ to_camera
-    target_pitch = np.degrees(np.arctan2(-d[1], d[2]))
-    target_yaw = np.degrees(np.arctan2(d[0], np.hypot(d[1], d[2])))
+    d = Rz.T @ FRONTAL @ (np.asarray(to_camera, np.float64) / max(np.linalg.norm(to_camera), 1e-12))
+    return float(np.degrees(np.arctan2(d[0], np.hypot(d[1], d[2])))), float(np.degrees(np.arctan2(-d[1], d[2])))
+
+
+def face_camera_offset(R: np.ndarray, t: np.ndarray, scale: float, pivot: np.ndarray, fraction: float,
+                       limit_deg: float, perspective: bool = True, to_camera: np.ndarray | None = None) -> PoseOffset:
+    """The yaw and pitch offset that turns a head (pose R, t, scale as in :func:`apply_pose_offset`)
+    ``fraction`` (0-1) of the way from its own yaw and pitch to looking along ``to_camera`` (3,)
+    (default :func:`camera_direction`: into the camera; :func:`facing_angles`), each clamped to
+    ``limit_deg``. Roll is left as it is."""
+    if to_camera is None:
+        to_camera = camera_direction(R, t, scale, pivot, perspective)
+    target_yaw, target_pitch = facing_angles(R, to_camera)
+    yaw, pitch, _ = euler_from_rotation(R)
     f = float(np.clip(fraction, 0.0, 1.0))
     lim = abs(float(limit_deg))
     return PoseOffset(yaw=float(np.clip(f * (target_yaw - yaw), -lim, lim)),
                       pitch=float(np.clip(f * (target_pitch - pitch), -lim, lim)))
+
+
+def smooth_values(previous: np.ndarray | None, target: np.ndarray, dt_s: float, time_constant_s: float) -> np.ndarray:
+    """``previous`` (N,) moved toward ``target`` (N,) by an exponential filter with
+    ``time_constant_s`` (s) over ``dt_s`` (s) of video; ``target`` itself when there is no previous
+    or no smoothing. Returns a new (N,) float64 array."""
+    target = np.asarray(target, np.float64)
+    if previous is None or time_constant_s <= 0:
+        return target.copy()
+    k = 1.0 - float(np.exp(-max(dt_s, 0.0) / time_constant_s))
+    previous = np.asarray(previous, np.float64)
+    return previous + k * (target - previous)
 
 
 def smooth_offset(previous: PoseOffset | None, target: PoseOffset, dt_s: float, time_constant_s: float) -> PoseOffset:
@@ -149,5 +177,4 @@ def smooth_offset(previous: PoseOffset | None, target: PoseOffset, dt_s: float, 
     over ``dt_s`` (s) of video; ``target`` itself when there is no previous or no smoothing."""
     if previous is None or time_constant_s <= 0:
         return target
-    k = 1.0 - float(np.exp(-max(dt_s, 0.0) / time_constant_s))
-    return PoseOffset(*(p + k * (q - p) for p, q in zip(previous.as_list(), target.as_list())))
+    return PoseOffset(*smooth_values(previous.as_list(), target.as_list(), dt_s, time_constant_s))

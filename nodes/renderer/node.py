@@ -20,7 +20,7 @@ atlas ("on" | "off": the face's texture memory, ``texture_atlas.py``), atlas_siz
 texture_size and texture_period_s (face/texture: FaceTexture, latched, the atlas downscaled, with
 atlas on; the UV layout is a frontal projection of the first face/model's neutral per face),
 face_camera and face_camera_limit (pose edits, ``pose_edit.py``: each face is turned by its
-Deformation ``pose`` plus, with face_camera above 0, a smoothed turn toward the camera; the head
+Deformation ``pose`` plus, with face_camera above 0, a turn toward the camera; the head
 around the face moves with it).
 """
 
@@ -45,7 +45,13 @@ from .inpaint import INPAINT_METHODS
 from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
 from .pinch_markers import PinchMarkers, draw_pinch_markers
-from .pose_edit import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_LIMIT_RANGE, PoseEdits, pose_from_values
+from .pose_edit import (
+    FACE_CAMERA_LIMIT_DEG,
+    FACE_CAMERA_LIMIT_RANGE,
+    FACE_CAMERA_SMOOTHING_S,
+    PoseEdits,
+    pose_from_values,
+)
 from .texture_atlas import uv_layout
 
 
@@ -100,8 +106,10 @@ class RendererNode(Node):
         "texture_size": Param(128, "face/texture: the atlas downscaled to this many texels a side", range=(16, 2048)),
         "texture_period_s": Param(1.0, "face/texture: published at most this often, s", range=(0.0, 3600.0)),
         "face_camera": Param(0.0, "turn each face this share of the way toward looking into the camera (0: off, "
-                                  "1: all the way, up to face_camera_limit), smoothed over 0.3 s, on top of the "
-                                  "deformer's pose edit; the head around the face moves with it", range=(0.0, 1.0)),
+                                  "1: all the way, up to face_camera_limit), on top of the deformer's pose edit; the "
+                                  "head around the face moves with it", range=(0.0, 1.0)),
+        "face_camera_smoothing_s": Param(FACE_CAMERA_SMOOTHING_S, "face_camera: time constant smoothing the direction "
+                                         "to the camera over the frames, s (0: none)", range=(0.0, 60.0)),
         "face_camera_limit": Param(FACE_CAMERA_LIMIT_DEG, "face_camera: the largest turn, degrees of yaw and of "
                                                           "pitch", range=FACE_CAMERA_LIMIT_RANGE),
         "keyframes": Param("off", "keep views of each face at the poses it shows and render a turned head's surface "
@@ -147,7 +155,7 @@ class RendererNode(Node):
         self._shown_at: list[float] = []
         self._overlay_px: np.ndarray | None = None  # (V, 2) the edited face's deformed pixels this frame
         self.correction = CorrectionMode()  # the window's landmark correction mode (L)
-        self.poses = PoseEdits(p.face_camera, p.face_camera_limit)
+        self.poses = PoseEdits(p.face_camera, p.face_camera_limit, p.face_camera_smoothing_s)
         if p.window:
             self.timer(1.0 / 120.0, self.on_tick)
 

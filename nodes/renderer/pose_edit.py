@@ -3,9 +3,11 @@ the renderer's own face-the-camera turn, applied to that face's deformed mesh.
 
 A head turns about :func:`facesculpt.geometry.pose_offset.head_pivot` of its neutral. With
 ``face_camera`` above 0, each frame adds :func:`~facesculpt.geometry.pose_offset.face_camera_offset`
-(that share of the way toward looking into the camera, at most ``limit_deg`` in yaw and pitch),
-smoothed per face over the frames' stamps (:func:`~facesculpt.geometry.pose_offset.smooth_offset`,
-time constant ``FACE_CAMERA_SMOOTHING_S``) so the tracker's jitter does not shake the head. The
+(that share of the way toward looking into the camera, at most ``limit_deg`` in yaw and pitch);
+the direction to the camera (:func:`~facesculpt.geometry.pose_offset.camera_direction`, moved only
+by the head's position) is smoothed per face over the frames' stamps (time constant
+``FACE_CAMERA_SMOOTHING_S``), the head's own pose is not: its jitter then cancels in the turned
+pose instead of passing through late. The
 offline ``Pipeline`` does the same (``Pipeline._pose_edit``).
 """
 
@@ -21,9 +23,10 @@ from facesculpt.geometry.pose_offset import (
     MAX_OFFSET_MM,
     PoseOffset,
     apply_pose_offset,
+    camera_direction,
     face_camera_offset,
     head_pivot,
-    smooth_offset,
+    smooth_values,
 )
 from facesculpt.msgs import FaceState
 
@@ -48,26 +51,27 @@ class PoseEdits:
         self.face_camera = float(face_camera)
         self.limit_deg = float(limit_deg)
         self.time_constant_s = float(time_constant_s)
-        self._turns: dict[int, tuple[int, PoseOffset]] = {}  # face -> (frame stamp ns, smoothed turn)
+        self._turns: dict[int, tuple[int, np.ndarray]] = {}  # face -> (frame stamp ns, smoothed direction to the camera)
 
     def edit(self, state: FaceState, pose: PoseOffset, neutral: np.ndarray, stamp_ns: int,
              face: int | None = None) -> tuple[PoseOffset, np.ndarray] | None:
         """The pose edit of ``state``'s face (``face``, default its ``face_id``) on the frame stamped
-        ``stamp_ns``: (``pose`` plus the smoothed face-the-camera turn, the head's pivot (3,) model
+        ``stamp_ns``: (``pose`` plus the face-the-camera turn, the head's pivot (3,) model
         mm from ``neutral`` (V, 3) model mm); None when it is zero. ``state``: anything with the
         pose fields R, t, scale and projection (a FaceState, a fitter's FitResult)."""
         pivot = head_pivot(neutral)
         face = state.face_id if face is None else face
         if self.face_camera > 0:
-            target = face_camera_offset(state.R, state.t, state.scale, pivot, self.face_camera, self.limit_deg,
-                                        perspective=state.projection == "perspective")
+            # the direction to the camera is smoothed, not the turn: the turned head then keeps none of
+            # the tracked pose's jitter (all the way) or less of it, and does not lag behind the head
+            perspective = state.projection == "perspective"
+            direction = camera_direction(state.R, state.t, state.scale, pivot, perspective)
             last = self._turns.get(face)
-            if last is None:
-                turn = target
-            else:
-                turn = smooth_offset(last[1], target, (stamp_ns - last[0]) * 1e-9, self.time_constant_s)
-            self._turns[face] = (int(stamp_ns), turn)
-            pose = pose + turn
+            direction = smooth_values(None if last is None else last[1], direction,
+                                      0.0 if last is None else (stamp_ns - last[0]) * 1e-9, self.time_constant_s)
+            self._turns[face] = (int(stamp_ns), direction)
+            pose = pose + face_camera_offset(state.R, state.t, state.scale, pivot, self.face_camera, self.limit_deg,
+                                             to_camera=direction)
         return None if pose.is_zero else (pose, pivot)
 
     @staticmethod
