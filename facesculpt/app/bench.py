@@ -535,7 +535,7 @@ def cmd_bench(args) -> int:
     source, description = bench_source(args.video)
     paths = preset_paths()
     preset = merge_presets([read_preset(p) for p in paths])
-    if args.pose:  # the graph's deformer loads it with the edit; the in-process stages ignore it
+    if args.pose:  # the graph's deformer loads it with the edit; the in-process stages turn the head too
         pose = parse_pose_offset(args.pose)
         preset["pose"] = {k: v for k, v in zip(("yaw", "pitch", "roll", "x", "y", "z"), pose.as_list()) if v}
     preset_file = Path(tempfile.mkdtemp(prefix="fs-bench-preset-")) / "fig6e.json"

@@ -23,6 +23,9 @@ from .source_map import UNCOVERED
 #: How far the head region reaches past the face's box: shares of its width (each side) and of its
 #: height (up, down).
 HEAD_GROWTH = {"side": 0.22, "up": 0.55, "down": 0.30}
+#: The extension is interpolated on a grid this many pixels a cell, then resampled.
+FIELD_STEP = 2
+_SHIFT = 4
 
 
 def head_box(pixels: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
@@ -47,50 +50,56 @@ def head_region(shape: tuple[int, int], origin: tuple[int, int], pixels: np.ndar
     w, h = hi - lo
     left, right = lo[0] - HEAD_GROWTH["side"] * w, hi[0] + HEAD_GROWTH["side"] * w
     top, bottom = lo[1] - HEAD_GROWTH["up"] * h, hi[1] + HEAD_GROWTH["down"] * h
-    cx, cy = 0.5 * (left + right) - origin[0], 0.5 * (top + bottom) - origin[1]
-    ax, ay = max(0.5 * (right - left), 1.0), max(0.5 * (bottom - top), 1.0)
-    ys, xs = np.ogrid[: shape[0], : shape[1]]
-    inside = ((xs - cx) / ax) ** 2 + ((ys - cy) / ay) ** 2 <= 1.0
-    return inside.astype(np.uint8)
+    centre = (0.5 * (left + right) - origin[0], 0.5 * (top + bottom) - origin[1])
+    axes = (max(0.5 * (right - left), 1.0), max(0.5 * (bottom - top), 1.0))
+    region = np.zeros(shape, np.uint8)
+    f = 1 << _SHIFT  # cv2.ellipse takes sub-pixel coordinates as fixed point
+    cv2.ellipse(region, (round(centre[0] * f), round(centre[1] * f)), (round(axes[0] * f), round(axes[1] * f)),
+                0.0, 0.0, 360.0, 1, thickness=-1, lineType=cv2.LINE_8, shift=_SHIFT)
+    return region
 
 
-def pull_push(values: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """(h, w, C) float32: ``values`` (h, w, C) float32 where ``known`` (h, w) bool, elsewhere a
-    smooth interpolation of them (pull: masked averages down an image pyramid; push: each level's
-    gaps filled from the coarser one). Known pixels keep their values exactly."""
-    w0 = known.astype(np.float32)
-    levels = [(values * w0[..., None], w0)]
+def pull_push(values: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(h, w, C) float32: a smooth interpolation of ``values`` (h, w, C) float32 known with
+    ``weight`` (h, w) float32 in [0, 1] (0: unknown; pull: weighted averages down an image pyramid;
+    push: each level's gaps filled from the coarser one). Pixels of weight 1 keep their values."""
+    levels = [(values * weight[..., None], weight)]
     while min(levels[-1][1].shape) > 4:
         v, w = levels[-1]
         levels.append((cv2.pyrDown(v), cv2.pyrDown(w)))
     v, w = levels[-1]
-    estimate = np.where(w[..., None] > 1e-6, v / np.maximum(w, 1e-6)[..., None], 0.0).astype(np.float32)
+    estimate = (v / np.maximum(w, 1e-6)[..., None]).astype(np.float32)
     for v, w in reversed(levels[:-1]):
         up = cv2.pyrUp(estimate, dstsize=(w.shape[1], w.shape[0]))
         if up.ndim == 2:
             up = up[..., None]
-        own = np.where(w[..., None] > 1e-6, v / np.maximum(w, 1e-6)[..., None], 0.0)
+        own = v / np.maximum(w, 1e-6)[..., None]
         trust = np.minimum(w * 4.0, 1.0)[..., None]
         estimate = (trust * own + (1.0 - trust) * up).astype(np.float32)
-    estimate[known] = values[known]
+    np.copyto(estimate, values, where=(weight >= 1.0)[..., None])
     return estimate
 
 
 def extend_motion(offsets: np.ndarray, head: np.ndarray) -> np.ndarray:
     """The source map ``offsets`` (h, w, 2) float32 with the face's motion carried over the
     ``head`` (h, w) uint8 0/1 region (:func:`head_region`): its uncovered pixels get the
-    interpolated offsets of the face (:func:`pull_push`), faded from full at the face's outline
-    to zero at the region's border. Covered pixels are unchanged, pixels outside both stay
-    UNCOVERED. Returns a new (h, w, 2) float32 array."""
+    interpolated offsets of the face (:func:`pull_push` on a grid ``FIELD_STEP`` times coarser: the
+    motion of a turned head is smooth), faded from full at the face's outline to zero at the
+    region's border. Covered pixels are unchanged, pixels outside both stay UNCOVERED. Returns a
+    new (h, w, 2) float32 array."""
     covered = offsets[..., 0] < 0.5 * UNCOVERED
     if not covered.any():
         return offsets.copy()
-    field = pull_push(np.where(covered[..., None], offsets, 0.0).astype(np.float32), covered)
+    h, w = covered.shape
+    small = (max(1, -(-w // FIELD_STEP)), max(1, -(-h // FIELD_STEP)))
+    weight = cv2.resize(covered.astype(np.float32), small, interpolation=cv2.INTER_AREA)
+    summed = cv2.resize(np.where(covered[..., None], offsets, 0.0).astype(np.float32), small,
+                        interpolation=cv2.INTER_AREA)
+    mean = summed / np.maximum(weight, 1e-6)[..., None]   # each cell: the mean offset of its covered pixels
+    field = cv2.resize(pull_push(mean, weight), (w, h), interpolation=cv2.INTER_LINEAR)
     to_face = cv2.distanceTransform((~covered).view(np.uint8), cv2.DIST_L2, 3)
     to_edge = cv2.distanceTransform(head, cv2.DIST_L2, 3)
     u = to_face / np.maximum(to_face + to_edge, 1e-6)
     fade = 1.0 - u * u * (3.0 - 2.0 * u)        # smoothstep: 1 at the face, 0 at the border
-    out = offsets.copy()
     around = (head != 0) & ~covered
-    out[around] = field[around] * fade[around][:, None]
-    return out
+    return np.where(around[..., None], field * fade[..., None], offsets).astype(np.float32)
