@@ -44,7 +44,6 @@ import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -53,12 +52,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from realism.metrics import Pooled, changed, psnr_from_mse, squared_error, ssim_map  # noqa: E402
-from realism.raster import project, render_textured, visible_vertices  # noqa: E402
+from realism.posed import render_all  # noqa: E402
 from realism.report import side_by_side  # noqa: E402
-from realism.scene import FACING, PIVOT, Scene, head_pose, make_scene, rotation  # noqa: E402
+from realism.scene import head_pose, make_scene  # noqa: E402
 from realism.sequences import run_process, write_lossless  # noqa: E402
 
-from facesculpt.geometry.head_angles import euler_from_rotation, rotation_from_euler  # noqa: E402
 from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
@@ -66,44 +64,6 @@ from facesculpt.paths import shared_data_dir  # noqa: E402
 REGION_DILATE_PX = 4
 #: Width of the 2D baseline's fade around the head, as a share of the head's size.
 FADE_FRACTION = 0.3
-
-_SCENE: Scene | None = None
-
-
-def _init(scene: Scene) -> None:
-    global _SCENE
-    _SCENE = scene
-
-
-def posed_vertices(scene: Scene, i: int, d_yaw: float = 0.0, d_pitch: float = 0.0) -> np.ndarray:
-    """(V, 3) camera mm: frame ``i``'s head with its own yaw and pitch increased by the deltas."""
-    yaw, pitch, t = head_pose(i)
-    y, p, r = euler_from_rotation(rotation(yaw, pitch) @ FACING)
-    R = rotation_from_euler(y + d_yaw, p + d_pitch, r)
-    return (scene.rest - PIVOT) @ R.T + t
-
-
-def render_frame(job: tuple[int, float, float]) -> dict:
-    """Frame ``i`` at the offset (d_yaw, d_pitch): the image, its vertices' pixels and visibility."""
-    i, d_yaw, d_pitch = job
-    s = _SCENE
-    X = posed_vertices(s, i, d_yaw, d_pitch)
-    size = (s.background.shape[1], s.background.shape[0])
-    img = render_textured(s.K, X, s.triangles, s.texcoords, s.alpha, s.texture, s.background)
-    return {"image": np.clip(np.rint(img), 0, 255).astype(np.uint8), "px": project(s.K, X)[0],
-            "visible": visible_vertices(s.K, X, s.triangles, size, tolerance_mm=3.0)}
-
-
-def render_all(scene: Scene, offsets: list[tuple[float, float]], workers: int) -> dict:
-    """(d_yaw, d_pitch) -> list of :func:`render_frame` results for every frame."""
-    jobs = [(i, dy, dp) for dy, dp in offsets for i in range(scene.frames)]
-    with ProcessPoolExecutor(workers, initializer=_init, initargs=(scene,)) as pool:
-        done = list(pool.map(render_frame, jobs, chunksize=4))
-    out = {}
-    for (_, dy, dp), frame in zip(jobs, done):
-        out.setdefault((dy, dp), []).append(frame)
-    return out
-
 
 def head_mask(img: np.ndarray, background: np.ndarray) -> np.ndarray:
     """(H, W) bool: where the head covers the background, holes filled."""

@@ -152,7 +152,7 @@ class Pipeline:
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic",
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
-                 face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S):
+                 face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -163,7 +163,7 @@ class Pipeline:
         self.analysis_pixels = int(analysis_pixels)
         self.fov_deg = float(fov_deg)
         self.neutral_frames = int(neutral_frames)
-        self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames)
+        self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames, refine=refine)
         self.min_score = float(min_score)
         if plate not in ("off", "on"):
             raise ValueError(f"plate must be off or on, got {plate!r}")
@@ -235,7 +235,7 @@ class Pipeline:
         t0 = time.perf_counter()
         fits = {}
         for face in self.faces.fit([f.points for f in found], [f.score for f in found],
-                                   [f.track_id for f in found], stamp_s, self.min_score):
+                                   [f.track_id for f in found], stamp_s, self.min_score, image=frame_bgr):
             if face.outcome.fit is not None:
                 fit = face.outcome.fit
                 fitter = self.faces.fitters[face.key]

@@ -116,6 +116,9 @@ def register(sub) -> None:
     p.add_argument("--plate", choices=("on", "off"), default="off",
                    help="keep a background plate (the background seen behind the face in other frames, registered "
                         "when the camera moves) and take what an edit uncovers from it where known (default off)")
+    p.add_argument("--refine", choices=("off", "appearance"), default="off",
+                   help="refine each frame's landmark fit on its pixels against the person's learned appearance "
+                        "(issue 20; README: Appearance refinement)")
     p.add_argument("--interpolation", choices=("cubic", "lanczos"), default="cubic",
                    help="kernel the frame is resampled with where the face moved: cubic (default) or lanczos "
                         "(Lanczos-4: sharper, about 6 times the sampling time)")
@@ -382,7 +385,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "pushpull"),
                         plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "cubic"),
-                        **pose_options)
+                        refine=None if getattr(args, "refine", "off") == "off" else args.refine, **pose_options)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

@@ -50,6 +50,9 @@ class FitterConfig:
     it) starts cold: no warm start, filters reset.
     correction_weight (> 0): weight of a user-corrected landmark relative to a detected one
     (``Fitter.fit(..., corrections=...)``).
+    refine: None, or "appearance": after the landmark fit of a frame given with its ``image``, the
+    pose is refined photometrically against the person's appearance learned from the earlier
+    frames (:mod:`.appearance`, issue 20); ``refine_after`` (>= 1): frames learned first.
     """
 
     projection: str = "auto"
@@ -73,11 +76,16 @@ class FitterConfig:
     neutral_frames: int = 30
     warm_start_gap_s: float = 0.5
     correction_weight: float = 20.0
+    refine: str | None = None
+    refine_after: int = 10
 
     def __post_init__(self) -> None:
         _choice("projection", self.projection, PROJECTIONS)
         _choice("outline", self.outline, OUTLINE_MODES)
         _choice("coefficients", self.coefficients, COEFFICIENT_SOLVES)
+        if self.refine not in (None, "appearance"):
+            raise FitError(f"refine must be None or 'appearance', got {self.refine!r}")
+        _at_least("refine_after", self.refine_after, 1)
         for name in ("iterations", "inner_steps", "neutral_frames"):
             _at_least(name, getattr(self, name), 1)
         _at_least("min_landmarks", self.min_landmarks, 4)

@@ -12,8 +12,12 @@ frame long after the previous one, or before it, starts cold); turning numerical
 
 from __future__ import annotations
 
+import dataclasses
+
+import cv2
 import numpy as np
 
+from facesculpt.geometry.projection import project
 from facesculpt.nodes.fitter import pose
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.fit_camera import FitCamera
@@ -76,7 +80,7 @@ class Fitter:
 
     # ------------------------------------------------------------------ API
     def fit(self, points2d: np.ndarray, ids=None, weights: np.ndarray | None = None, stamp: float | None = None,
-            corrections: dict | None = None) -> FitResult:
+            corrections: dict | None = None, image: np.ndarray | None = None) -> FitResult:
         """Fit one frame. points2d (N, 2) px (or (N, 3) with relative depth, used in dense mode);
         ids: the model landmark each point belongs to (iBUG numbers 1..68 for the SFM, vertex
         numbers 0..467 for facemesh; None for those two defaults); weights (N,) optional confidence;
@@ -85,7 +89,8 @@ class Fitter:
         when too few usable ones remain or they are degenerate. corrections: landmark id -> (x, y)
         px a person placed by hand (seed 002's interactive correction): that landmark is moved
         there and weighs ``config.correction_weight`` times a detected one, so a shape model moves
-        the other points with it."""
+        the other points with it. image: the frame (H, W, 3) uint8 BGR or (H, W) grey; with
+        ``config.refine="appearance"`` the fit is then refined on its pixels (:mod:`.appearance`)."""
         pts, ids, w, finite = self._parse(points2d, ids, weights)
         if corrections:
             pts, ids, w, finite = self._corrected(pts, ids, w, finite, corrections)
@@ -101,6 +106,37 @@ class Fitter:
             raise FitError(f"the fit is numerically degenerate: {exc}") from None
         self._last_time = now
         self._frame += 1
+        if image is not None and self.config.refine == "appearance":
+            result = self._refine(result, image)
+        return result
+
+    def _refine(self, result: FitResult, image: np.ndarray) -> FitResult:
+        """``result`` with its pose refined against the person's appearance (once it has been learned
+        over ``config.refine_after`` frames), which the refined fit then updates."""
+        from . import appearance
+
+        grey = np.asarray(image, np.float32) if image.ndim == 2 else \
+            cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY).astype(np.float32)
+        X = np.asarray(result.vertices, np.float64)
+        template = getattr(self, "_appearance", None)
+        if template is None or len(template.sum) != len(X):
+            template = self._appearance = appearance.AppearanceTemplate(len(X))
+            self._appearance_frames = 0
+        perspective = self.camera.perspective
+        normals = appearance.vertex_normals(X, self.model.triangles)
+        if self._appearance_frames >= self.config.refine_after:
+            front = appearance.frontality(X, normals, perspective)
+            w = template.confidence * np.clip((front - appearance.MIN_FRONTALITY) / (1 - appearance.MIN_FRONTALITY), 0, 1)
+            Rd, td = appearance.refine_pose(grey, X, w, template.grey, self.K if perspective else None,
+                                            np.asarray(self.model.landmark_vertices, np.int64))
+            c = X.mean(axis=0)
+            X = appearance.apply_motion(X, Rd, td)
+            normals = normals @ Rd.T
+            proj = project(X, self.K, self.projection)
+            result = dataclasses.replace(result, vertices=X.astype(np.float32), projected=proj.astype(np.float32),
+                                         R=Rd @ np.asarray(result.R), t=Rd @ (np.asarray(result.t) - c) + c + td)
+        template.update(grey, np.asarray(result.projected, np.float64), appearance.frontality(X, normals, perspective))
+        self._appearance_frames += 1
         return result
 
     def _fit(self, pts: np.ndarray, ids: list[str], w: np.ndarray, finite: np.ndarray, now: float) -> FitResult:

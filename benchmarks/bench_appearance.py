@@ -1,0 +1,156 @@
+"""Appearance-fitting benchmark (issue 20): how well the landmark fit registers the whole face, on
+synthetic video with exact ground truth, by yaw bin; the baseline a photometric refinement must beat.
+
+The realism benchmark's synthetic scene (``benchmarks/realism/``: the Surrey Face Model with a
+random identity, textured from a real face, over a real background, turning smoothly: yaw ±25°,
+pitch ±10°; true pose and shape known) is run through the project's own landmarks and SFM fitter
+in perspective (``Pipeline.fit_frame``, as ``facesculpt process`` fits: 60° field of view, the
+scene's). Per fitted frame, against the truth:
+
+* pose error: the angle (degrees) of the rotation between the fitted and the true head rotation;
+* vertex reprojection error (px): mean image distance between each fitted vertex and the same
+  vertex of the true head, over the vertices the truth shows, and over those at the face's outline
+  (the visible vertices within ``OUTLINE_PX`` of the true head's silhouette: where the issue says
+  registration errors show);
+* shape SNR (dB, seed 002): 10 log10 of the true neutral shape's energy about its centroid over the
+  squared error of the fitted identity (the fitter's learned neutral, model space) after a
+  similarity alignment.
+
+Writes ``results.md`` and ``results.json`` to ``--out`` (default: a new temporary folder) and
+prints the table.
+
+Run: ``python benchmarks/bench_appearance.py [--out DIR] [--frames 90]``. Needs the shared data
+(../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from realism.metrics import changed  # noqa: E402
+from realism.posed import render_all  # noqa: E402
+from realism.scene import FACING, FOV_DEG, head_pose, make_scene, rotation  # noqa: E402
+from realism.scoring import YAW_BINS  # noqa: E402
+
+from facesculpt.paths import shared_data_dir  # noqa: E402
+
+#: A visible vertex within this distance (px) of the true silhouette is an outline vertex.
+OUTLINE_PX = 3.0
+
+
+def silhouette_distance(image: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """(H, W) float32: each pixel's distance (px) to the true head's outline (where the rendered
+    head meets the background)."""
+    head = changed(image, background).astype(np.uint8)
+    head = cv2.morphologyEx(head, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+    edge = cv2.morphologyEx(head, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
+    return cv2.distanceTransform((edge == 0).astype(np.uint8), cv2.DIST_L2, 3)
+
+
+def similarity_error(fitted: np.ndarray, true: np.ndarray) -> float:
+    """Squared error (mm², summed) of ``fitted`` (V, 3) after the similarity that best maps it onto
+    ``true`` (V, 3)."""
+    A, B = fitted - fitted.mean(0), true - true.mean(0)
+    U, S, Vt = np.linalg.svd(A.T @ B)
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.diag([1.0, 1.0, d])
+    R = U @ D @ Vt
+    scale = (S * np.diag(D)).sum() / (A * A).sum()
+    return float(((scale * A @ R - B) ** 2).sum())
+
+
+def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def score_frame(fit, truth: dict, i: int, image_size, background: np.ndarray) -> dict:
+    """One fitted frame's pose error (deg), mean reprojection error over the visible vertices and over
+    the outline ones (px)."""
+    V = len(fit.projected)
+    vis = truth["visible"][:V]
+    err = np.linalg.norm(np.asarray(fit.projected, np.float64) - truth["px"][:V], axis=1)
+    dist = silhouette_distance(truth["image"], background)
+    px = np.clip(np.rint(truth["px"][:V]).astype(int), 0, [image_size[0] - 1, image_size[1] - 1])
+    outline = vis & (dist[px[:, 1], px[:, 0]] <= OUTLINE_PX)
+    yaw, pitch, _ = head_pose(i)
+    return {"yaw": yaw, "pose_deg": rotation_angle(np.asarray(fit.R, np.float64), rotation(yaw, pitch) @ FACING),
+            "all_px": float(err[vis].mean()), "outline_px": float(err[outline].mean()) if outline.any() else np.nan,
+            "outline_vertices": int(outline.sum())}
+
+
+def by_yaw(rows: list[dict]) -> dict:
+    out = {}
+    for lo, hi in YAW_BINS:
+        sel = [r for r in rows if lo <= r["yaw"] < hi]
+        if sel:
+            out[f"{lo:+.0f}..{hi:+.0f}"] = {k: float(np.nanmean([r[k] for r in sel]))
+                                            for k in ("pose_deg", "all_px", "outline_px")} | {"frames": len(sel)}
+    return out
+
+
+def run(frames: list, truths: list, background: np.ndarray, scene, fitter_options: dict) -> tuple[dict, float, float]:
+    """The landmark fit (SFM, perspective) over ``frames``: (figures by yaw bin, shape SNR dB, ms a fit)."""
+    from facesculpt.app.pipeline import Pipeline
+
+    rows, took = [], []
+    size = (frames[0].shape[1], frames[0].shape[0])
+    with Pipeline("sfm", fov_deg=FOV_DEG, **fitter_options) as pipe:
+        for i, frame in enumerate(frames):
+            t0 = time.perf_counter()
+            fit = pipe.fit_frame(frame, i / 25.0)
+            took.append((time.perf_counter() - t0) * 1e3)
+            if fit is not None:
+                rows.append(score_frame(fit, truths[i], i, size, background))
+        neutral = np.asarray(pipe.neutral, np.float64)
+    true = scene.rest[: len(neutral)]
+    snr = 10 * np.log10(((true - true.mean(0)) ** 2).sum() / similarity_error(neutral, true))
+    return by_yaw(rows), float(snr), float(np.median(took))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
+    p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
+    p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
+    args = p.parse_args(argv)
+    data = shared_data_dir()
+    if data is None:
+        print("bench_appearance: the shared data folder is missing (../shared/data or FACESCULPT_DATA)", file=sys.stderr)
+        return 2
+    out = args.out or Path(tempfile.mkdtemp(prefix="bench_appearance_"))
+    out.mkdir(parents=True, exist_ok=True)
+    scene = make_scene(data, frames=args.frames)
+    truths = render_all(scene, [(0.0, 0.0)], args.workers or max(1, min(4, len(os.sched_getaffinity(0)))))[(0.0, 0.0)]
+    frames = [t["image"] for t in truths]
+    results = {}
+    for name, options in (("landmarks only", {}), ("refined by appearance", {"refine": "appearance"})):
+        bins, snr, ms = run(frames, truths, scene.background, scene, options)
+        results[name] = {"by_yaw": bins, "shape_snr_db": snr, "fit_ms_median": ms}
+    lines = ["| method | yaw bin | frames | pose error (deg) | all vertices (px) | outline vertices (px) |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for name, r in results.items():
+        for b, v in r["by_yaw"].items():
+            lines.append(f"| {name} | {b} | {v['frames']} | {v['pose_deg']:.2f} | {v['all_px']:.2f} | {v['outline_px']:.2f} |")
+    lines += ["", "| method | shape SNR (dB) | fit ms (median, landmarks included) |", "| --- | --- | --- |"]
+    lines += [f"| {name} | {r['shape_snr_db']:.2f} | {r['fit_ms_median']:.1f} |" for name, r in results.items()]
+    table = "\n".join(lines)
+    (out / "results.md").write_text(table + "\n")
+    (out / "results.json").write_text(json.dumps(results, indent=1))
+    print(table)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

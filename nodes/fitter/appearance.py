@@ -1,0 +1,182 @@
+"""Photometric refinement of a landmark fit (issue 20, seeds 003 and 004): analysis by synthesis.
+
+The landmark fit uses 68 (or 468) points; this step uses the face's pixels. An appearance
+template (:class:`AppearanceTemplate`: per vertex, the grey level of the person's skin there, learned
+from earlier frames where the frame saw that vertex frontally: a 3D AAM's mean texture in the
+model's vertex space) is compared with the frame at the projected vertices, and the head's pose
+(a small rotation about the mesh's centroid and a translation, camera space) is moved to reduce
+the difference by Gauss-Newton (:func:`refine_pose`): image gradients at the projected vertices
+times the projection's Jacobian (the optical-flow constraint of seed 003), on a coarse-to-fine
+pyramid of the frame, with the lighting's gain and bias solved each step, Huber weights (a hand,
+hair or a highlight that does not match the template weighs less) and a prior that keeps the
+landmark vertices near where the landmark fit put them, so it cannot drift.
+
+Arrays in, arrays out: the fitter (:meth:`.fitter.Fitter.fit` with ``image``) keeps the template.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from facesculpt.geometry.projection import project
+
+from .pose import rodrigues
+
+#: Image scales of the pyramid, coarse to fine, and Gauss-Newton steps at each.
+LEVELS = (0.5, 1.0)
+STEPS = 3
+#: The prior (the landmark vertices staying where the landmark fit put them): moving every landmark
+#: vertex by 1 px costs as much as a photometric residual of sqrt(PRIOR_WEIGHT) grey levels at every
+#: compared vertex.
+PRIOR_WEIGHT = 0.1
+#: Huber threshold of the photometric residual, grey levels.
+HUBER = 12.0
+#: Vertices the frame sees less frontally than this (cosine) are neither learned nor compared.
+MIN_FRONTALITY = 0.35
+#: The template's confidence (summed weight) at which a vertex counts fully.
+FULL_CONFIDENCE = 3.0
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(V, 3) float64 unit area-weighted vertex normals of a (V, 3) mesh with (T, 3) triangles."""
+    X = np.asarray(vertices, np.float64)
+    tri = np.asarray(triangles, np.int64)
+    fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
+    n = np.zeros_like(X)
+    for k in range(3):
+        np.add.at(n, tri[:, k], fn)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def frontality(vertices: np.ndarray, normals: np.ndarray, perspective: bool) -> np.ndarray:
+    """(V,) cosine between each vertex normal and its ray to the camera (at the origin in
+    perspective, along -z in orthographic), the sign chosen so the face is seen from its front."""
+    X = np.asarray(vertices, np.float64)
+    to_cam = -X / np.maximum(np.linalg.norm(X, axis=1, keepdims=True), 1e-9) if perspective else \
+        np.broadcast_to([0.0, 0.0, -1.0], X.shape)
+    cos = np.einsum("ij,ij->i", normals, to_cam)
+    return -cos if cos.sum() < 0 else cos
+
+
+class AppearanceTemplate:
+    """AppearanceTemplate(n_vertices): the per-vertex grey level (:attr:`grey`) and confidence
+    (:attr:`confidence`, summed weights, capped) of one person, learned by :meth:`update`."""
+
+    def __init__(self, n_vertices: int, max_weight: float = 30.0):
+        self.sum = np.zeros(int(n_vertices))
+        self.weight = np.zeros(int(n_vertices))
+        self.max_weight = float(max_weight)
+
+    @property
+    def grey(self) -> np.ndarray:
+        return self.sum / np.maximum(self.weight, 1e-9)
+
+    @property
+    def confidence(self) -> np.ndarray:
+        """(V,) in [0, 1]: how much each vertex's grey level is to be trusted."""
+        return np.minimum(self.weight / FULL_CONFIDENCE, 1.0)
+
+    def update(self, grey: np.ndarray, pixels: np.ndarray, front: np.ndarray) -> None:
+        """Take the frame ``grey`` (H, W) float32 at the vertices' ``pixels`` (V, 2) with weight
+        ``front`` (V,) frontality (nothing below MIN_FRONTALITY); the oldest samples fade once a
+        vertex holds ``max_weight``."""
+        values, inside = sample(grey, pixels)
+        w = np.where(inside & (front >= MIN_FRONTALITY), front * front, 0.0)
+        keep = np.minimum(1.0, self.max_weight / np.maximum(self.weight + w, 1e-9))
+        self.sum = (self.sum + w * values) * keep
+        self.weight = (self.weight + w) * keep
+
+
+def sample(image: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear values (N,) float64 of ``image`` (H, W) float32 at ``pixels`` (N, 2) and which of
+    them lie inside it (N,) bool."""
+    h, w = image.shape[:2]
+    p = np.asarray(pixels, np.float32).reshape(1, -1, 2)
+    values = cv2.remap(image, p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inside = (p[0, :, 0] >= 1) & (p[0, :, 1] >= 1) & (p[0, :, 0] < w - 2) & (p[0, :, 1] < h - 2)
+    return values.reshape(-1).astype(np.float64), inside
+
+
+def _projection_jacobian(X: np.ndarray, K: np.ndarray | None) -> np.ndarray:
+    """(N, 2, 3) d pixel / d camera point."""
+    J = np.zeros((len(X), 2, 3))
+    if K is None:
+        J[:, 0, 0] = J[:, 1, 1] = 1.0
+        return J
+    z = X[:, 2]
+    J[:, 0, 0] = K[0, 0] / z
+    J[:, 0, 2] = -K[0, 0] * X[:, 0] / z ** 2
+    J[:, 1, 1] = K[1, 1] / z
+    J[:, 1, 2] = -K[1, 1] * X[:, 1] / z ** 2
+    return J
+
+
+def _moved(X: np.ndarray, centre: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    return (X - centre) @ rodrigues(theta[:3]).T + centre + theta[3:]
+
+
+def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
+                K: np.ndarray | None, anchors: np.ndarray,
+                prior_weight: float = PRIOR_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid motion that best matches the frame to the template.
+
+    grey: (H, W) float32 the frame's grey levels; vertices: (V, 3) float64 the landmark fit's
+    camera-space mesh (mm with ``K`` (3, 3), else orthographic pixel units); weights: (V,) each
+    vertex's weight (template confidence x frontality in this frame; 0: not compared); template:
+    (V,) grey levels; anchors: (L,) int the vertices of the landmarks (the prior keeps them where
+    they are, with ``prior_weight``: PRIOR_WEIGHT's meaning). Returns (R (3, 3), t (3,)) with the refined vertices ``(vertices - c) @ R.T + c + t``
+    where c is the vertices' centroid: apply with :func:`apply_motion`."""
+    X = np.asarray(vertices, np.float64)
+    centre = X.mean(axis=0)
+    theta = np.zeros(6)
+    use = np.flatnonzero(weights > 0)
+    if len(use) < 20:
+        return np.eye(3), np.zeros(3)
+    anchor_px = project(X[anchors], K, "perspective" if K is not None else "orthographic")
+    for scale in LEVELS:
+        small = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        small = cv2.GaussianBlur(small, (0, 0), 1.0)
+        gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+        gy = cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        for _ in range(STEPS):
+            Xm = _moved(X[use], centre, theta)
+            px = project(Xm, K, "perspective" if K is not None else "orthographic")
+            values, inside = sample(small, px * scale)
+            w = weights[use] * inside
+            # lighting: the frame's grey = gain * template + bias, solved for this step
+            A = np.column_stack([template[use], np.ones(len(use))])
+            gain_bias = np.linalg.lstsq(A * np.sqrt(w)[:, None], values * np.sqrt(w), rcond=None)[0]
+            r = values - A @ gain_bias
+            huber = np.where(np.abs(r) <= HUBER, 1.0, HUBER / np.maximum(np.abs(r), 1e-9))
+            w = w * huber
+            grad = np.column_stack([sample(gx, px * scale)[0], sample(gy, px * scale)[0]]) * scale
+            dX = np.concatenate([-_skew_rows(Xm - centre), np.broadcast_to(np.eye(3), (len(use), 3, 3))], axis=2)
+            J = np.einsum("nk,nkj,nji->ni", grad, _projection_jacobian(Xm, K), dX)
+            H = J.T @ (J * w[:, None])
+            g = J.T @ (w * r)
+            # the prior: the landmark vertices' pixels stay where the landmark fit put them
+            Xa = _moved(X[anchors], centre, theta)
+            pa = project(Xa, K, "perspective" if K is not None else "orthographic")
+            dXa = np.concatenate([-_skew_rows(Xa - centre), np.broadcast_to(np.eye(3), (len(anchors), 3, 3))], axis=2)
+            Ja = np.einsum("nkj,nji->nki", _projection_jacobian(Xa, K), dXa).reshape(-1, 6)
+            lam = prior_weight * float(w.sum()) / max(len(anchors), 1)
+            H += lam * Ja.T @ Ja
+            g += lam * Ja.T @ (pa - anchor_px).reshape(-1)
+            theta -= np.linalg.solve(H + 1e-6 * np.eye(6), g)
+    return rodrigues(theta[:3]), theta[3:].copy()
+
+
+def _skew_rows(v: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cross-product matrices of (N, 3) vectors."""
+    z = np.zeros(len(v))
+    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], -1),
+                     np.stack([v[:, 2], z, -v[:, 0]], -1),
+                     np.stack([-v[:, 1], v[:, 0], z], -1)], -2)
+
+
+def apply_motion(vertices: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(V, 3) ``vertices`` moved by :func:`refine_pose`'s (R, t) about their centroid."""
+    X = np.asarray(vertices, np.float64)
+    c = X.mean(axis=0)
+    return (X - c) @ np.asarray(R).T + c + np.asarray(t)

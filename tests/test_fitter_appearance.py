@@ -1,0 +1,85 @@
+"""Appearance refinement (issue 20): the photometric Gauss-Newton step recovers a known pose error on
+an image whose grey levels the template describes, its landmark prior holds it back, and the
+fitter's option refines real frames (the benchmark, benchmarks/bench_appearance.py, measures how much)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from facesculpt.geometry.projection import project
+from facesculpt.nodes.fitter import FitError, FitterConfig, make_fitter
+from facesculpt.nodes.fitter.appearance import (
+    AppearanceTemplate,
+    apply_motion,
+    frontality,
+    refine_pose,
+    vertex_normals,
+)
+from facesculpt.nodes.fitter.pose import rodrigues
+
+K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
+
+
+def _scene():
+    """A bumpy surface 500 mm away, an image whose grey levels are a smooth pattern, and the
+    template: that pattern at the surface's true pixels."""
+    ys, xs = np.mgrid[-60:61:6, -50:51:6].astype(float)
+    X = np.column_stack([xs.ravel(), ys.ravel(), 500.0 - 8 * np.exp(-(xs ** 2 + ys ** 2).ravel() / 900.0)])
+    gy, gx = np.mgrid[0:480, 0:640].astype(np.float32)
+    image = (128 + 50 * np.sin(gx / 11.0) * np.cos(gy / 13.0) + 30 * np.sin((gx + gy) / 23.0)).astype(np.float32)
+    image = cv2.GaussianBlur(image, (0, 0), 1.5)
+    template = cv2.remap(image, *[project(X, K)[:, k].astype(np.float32).reshape(1, -1) for k in (0, 1)],
+                         cv2.INTER_LINEAR).ravel().astype(np.float64)
+    return X, image, template
+
+
+def test_the_photometric_step_recovers_a_small_pose_error():
+    X, image, template = _scene()
+    off = apply_motion(X, rodrigues(np.radians([1.0, -1.5, 0.5])), np.array([2.0, -1.5, 0.0]))
+    before = np.linalg.norm(project(off, K) - project(X, K), axis=1).mean()
+    R, t = refine_pose(image, off, np.ones(len(X)), 0.8 * template + 20.0, K, np.zeros(0, np.int64))
+    after = np.linalg.norm(project(apply_motion(off, R, t), K) - project(X, K), axis=1).mean()
+    assert before > 2.5 and after < 0.2 * before      # the gain and bias of the lighting are solved too
+
+
+def test_the_landmark_prior_holds_the_pose_where_the_landmarks_put_it():
+    X, image, template = _scene()
+    off = apply_motion(X, rodrigues(np.radians([1.0, -1.5, 0.5])), np.array([2.0, -1.5, 0.0]))
+    free = refine_pose(image, off, np.ones(len(X)), template, K, np.zeros(0, np.int64))
+    held = refine_pose(image, off, np.ones(len(X)), template, K, np.arange(len(X)), prior_weight=100.0)
+    moved = [np.linalg.norm(project(apply_motion(off, *m), K) - project(off, K), axis=1).mean() for m in (free, held)]
+    assert moved[1] < 0.5 * moved[0]
+
+
+def test_the_template_learns_what_the_frame_sees_frontally():
+    X, image, template = _scene()
+    normals = vertex_normals(X, np.array([[0, 1, 18], [1, 19, 18]]))
+    front = frontality(X, normals, perspective=True)
+    assert front[[0, 1, 18, 19]].min() > 0.9 and front[5] == 0.0    # a vertex in no triangle has no normal
+    learned = AppearanceTemplate(len(X))
+    for _ in range(3):
+        learned.update(image, project(X, K), np.ones(len(X)))
+    assert np.allclose(learned.grey, template, atol=1e-3) and learned.confidence.min() == 1.0
+    learned.update(image, project(X, K) + 50, np.zeros(len(X)))      # seen edge-on: nothing learned
+    assert np.allclose(learned.grey, template, atol=1e-3)
+
+
+def test_the_fitter_option_is_checked_and_refines_real_frames(data_dir, models_dir):
+    from facesculpt.app.pipeline import Pipeline
+
+    with pytest.raises(FitError, match="refine must be None or 'appearance'"):
+        FitterConfig(refine="pixels")
+    cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
+    frames = [cap.read()[1] for _ in range(14)]
+    cap.release()
+    fits = {}
+    for refine in (None, "appearance"):
+        with Pipeline("facemesh", refine=refine) as pipe:
+            fits[refine] = [pipe.fit_frame(f, i / 25.0) for i, f in enumerate(frames)]
+            assert pipe.fitter.config.refine == refine
+    moved = [np.abs(a.projected - b.projected).max() for a, b in zip(fits[None], fits["appearance"])]
+    assert max(moved[:10]) == 0.0          # the first refine_after frames only learn the appearance
+    assert 0.0 < max(moved[10:]) < 10.0    # then the pose moves, a little
+    make_fitter("facemesh", FitterConfig(refine="appearance"))  # without an image nothing changes
