@@ -16,6 +16,8 @@ Arrays in, arrays out: the fitter (:meth:`.fitter.Fitter.fit` with ``image``) ke
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -30,6 +32,11 @@ STEPS = 3
 #: vertex by 1 px costs as much as a photometric residual of sqrt(PRIOR_WEIGHT) grey levels at every
 #: compared vertex.
 PRIOR_WEIGHT = 0.1
+#: A shape component's change by one standard deviation costs as much as a photometric residual of
+#: sqrt(SHAPE_WEIGHT) grey levels at every compared vertex.
+SHAPE_WEIGHT = 1.0
+#: Shape components the refinement may change (the leading ones; 0: pose only).
+SHAPE_COMPONENTS = 20
 #: Huber threshold of the photometric residual, grey levels.
 HUBER = 12.0
 #: Vertices the frame sees less frontally than this (cosine) are neither learned nor compared.
@@ -112,59 +119,96 @@ def _projection_jacobian(X: np.ndarray, K: np.ndarray | None) -> np.ndarray:
     return J
 
 
-def _moved(X: np.ndarray, centre: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    return (X - centre) @ rodrigues(theta[:3]).T + centre + theta[3:]
+@dataclass
+class Refinement:
+    """What :func:`refine_pose` found: the refined vertices are ``((vertices + basis @ shape) - c)
+    @ R.T + c + t`` with c the given vertices' centroid (:meth:`apply`). R (3, 3); t (3,) camera
+    units; shape (k,) the change of the shape coefficients (standard deviations; empty without a
+    basis)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    shape: np.ndarray
+
+    def apply(self, vertices: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
+        """(V, 3) float64: ``vertices`` refined (``basis`` (V, 3, k) as given to :func:`refine_pose`)."""
+        X = np.asarray(vertices, np.float64)
+        c = X.mean(axis=0)
+        if basis is not None and len(self.shape):
+            X = X + np.asarray(basis, np.float64) @ self.shape
+        return (X - c) @ self.R.T + c + self.t
+
+
+def _moved(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarray | None) -> np.ndarray:
+    if basis is not None and len(theta) > 6:
+        X = X + basis @ theta[6:]
+    return (X - centre) @ rodrigues(theta[:3]).T + centre + theta[3:6]
+
+
+def _jacobian(Xm: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarray | None,
+              K: np.ndarray | None) -> np.ndarray:
+    """(N, 2, 6 + k) d pixel / d (rotation, translation, shape) at the moved points ``Xm`` (N, 3)."""
+    dX = [-_skew_rows(Xm - centre), np.broadcast_to(np.eye(3), (len(Xm), 3, 3))]
+    if basis is not None:
+        dX.append(np.einsum("ij,njk->nik", rodrigues(theta[:3]), basis))
+    return np.einsum("nkj,nji->nki", _projection_jacobian(Xm, K), np.concatenate(dX, axis=2))
 
 
 def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
-                K: np.ndarray | None, anchors: np.ndarray,
-                prior_weight: float = PRIOR_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
-    """The rigid motion that best matches the frame to the template.
+                K: np.ndarray | None, anchors: np.ndarray, prior_weight: float | None = None,
+                basis: np.ndarray | None = None, shape_weight: float | None = None) -> Refinement:
+    """The rigid motion (and, with a ``basis``, shape change) that best matches the frame to the template.
 
     grey: (H, W) float32 the frame's grey levels; vertices: (V, 3) float64 the landmark fit's
     camera-space mesh (mm with ``K`` (3, 3), else orthographic pixel units); weights: (V,) each
     vertex's weight (template confidence x frontality in this frame; 0: not compared); template:
     (V,) grey levels; anchors: (L,) int the vertices of the landmarks (the prior keeps them where
-    they are, with ``prior_weight``: PRIOR_WEIGHT's meaning). Returns (R (3, 3), t (3,)) with the refined vertices ``(vertices - c) @ R.T + c + t``
-    where c is the vertices' centroid: apply with :func:`apply_motion`."""
+    they are, with ``prior_weight``: PRIOR_WEIGHT's meaning); basis: (V, 3, k) camera-space
+    displacement of each vertex per standard deviation of k shape components (None: pose only),
+    whose change costs ``shape_weight`` (SHAPE_WEIGHT's meaning). The weights default to the
+    module's constants."""
+    prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
+    shape_weight = SHAPE_WEIGHT if shape_weight is None else shape_weight
     X = np.asarray(vertices, np.float64)
     centre = X.mean(axis=0)
-    theta = np.zeros(6)
+    k = 0 if basis is None else basis.shape[2]
+    theta = np.zeros(6 + k)
     use = np.flatnonzero(weights > 0)
     if len(use) < 20:
-        return np.eye(3), np.zeros(3)
-    anchor_px = project(X[anchors], K, "perspective" if K is not None else "orthographic")
+        return Refinement(np.eye(3), np.zeros(3), np.zeros(k))
+    kind = "perspective" if K is not None else "orthographic"
+    anchor_px = project(X[anchors], K, kind)
+    B_use = None if basis is None else basis[use]
+    B_anchor = None if basis is None else basis[anchors]
     for scale in LEVELS:
-        small = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        small = cv2.GaussianBlur(small, (0, 0), 1.0)
+        small = cv2.GaussianBlur(cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), (0, 0), 1.0)
         gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         gy = cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0
         for _ in range(STEPS):
-            Xm = _moved(X[use], centre, theta)
-            px = project(Xm, K, "perspective" if K is not None else "orthographic")
+            Xm = _moved(X[use], centre, theta, B_use)
+            px = project(Xm, K, kind)
             values, inside = sample(small, px * scale)
             w = weights[use] * inside
             # lighting: the frame's grey = gain * template + bias, solved for this step
             A = np.column_stack([template[use], np.ones(len(use))])
             gain_bias = np.linalg.lstsq(A * np.sqrt(w)[:, None], values * np.sqrt(w), rcond=None)[0]
             r = values - A @ gain_bias
-            huber = np.where(np.abs(r) <= HUBER, 1.0, HUBER / np.maximum(np.abs(r), 1e-9))
-            w = w * huber
+            w = w * np.where(np.abs(r) <= HUBER, 1.0, HUBER / np.maximum(np.abs(r), 1e-9))
             grad = np.column_stack([sample(gx, px * scale)[0], sample(gy, px * scale)[0]]) * scale
-            dX = np.concatenate([-_skew_rows(Xm - centre), np.broadcast_to(np.eye(3), (len(use), 3, 3))], axis=2)
-            J = np.einsum("nk,nkj,nji->ni", grad, _projection_jacobian(Xm, K), dX)
+            J = np.einsum("nk,nki->ni", grad, _jacobian(Xm, centre, theta, B_use, K))
             H = J.T @ (J * w[:, None])
             g = J.T @ (w * r)
             # the prior: the landmark vertices' pixels stay where the landmark fit put them
-            Xa = _moved(X[anchors], centre, theta)
-            pa = project(Xa, K, "perspective" if K is not None else "orthographic")
-            dXa = np.concatenate([-_skew_rows(Xa - centre), np.broadcast_to(np.eye(3), (len(anchors), 3, 3))], axis=2)
-            Ja = np.einsum("nkj,nji->nki", _projection_jacobian(Xa, K), dXa).reshape(-1, 6)
+            Xa = _moved(X[anchors], centre, theta, B_anchor)
+            Ja = _jacobian(Xa, centre, theta, B_anchor, K).reshape(-1, 6 + k)
             lam = prior_weight * float(w.sum()) / max(len(anchors), 1)
             H += lam * Ja.T @ Ja
-            g += lam * Ja.T @ (pa - anchor_px).reshape(-1)
-            theta -= np.linalg.solve(H + 1e-6 * np.eye(6), g)
-    return rodrigues(theta[:3]), theta[3:].copy()
+            g += lam * Ja.T @ (project(Xa, K, kind) - anchor_px).reshape(-1)
+            if k:
+                H[6:, 6:] += shape_weight * float(w.sum()) * np.eye(k)
+                g[6:] += shape_weight * float(w.sum()) * theta[6:]
+            theta -= np.linalg.solve(H + 1e-6 * np.eye(6 + k), g)
+    return Refinement(rodrigues(theta[:3]), theta[3:6].copy(), theta[6:].copy())
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:
@@ -173,10 +217,3 @@ def _skew_rows(v: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([z, -v[:, 2], v[:, 1]], -1),
                      np.stack([v[:, 2], z, -v[:, 0]], -1),
                      np.stack([-v[:, 1], v[:, 0], z], -1)], -2)
-
-
-def apply_motion(vertices: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(V, 3) ``vertices`` moved by :func:`refine_pose`'s (R, t) about their centroid."""
-    X = np.asarray(vertices, np.float64)
-    c = X.mean(axis=0)
-    return (X - c) @ np.asarray(R).T + c + np.asarray(t)

@@ -111,8 +111,9 @@ class Fitter:
         return result
 
     def _refine(self, result: FitResult, image: np.ndarray) -> FitResult:
-        """``result`` with its pose refined against the person's appearance (once it has been learned
-        over ``config.refine_after`` frames), which the refined fit then updates."""
+        """``result`` with its pose and leading shape components refined against the person's
+        appearance (once it has been learned over ``config.refine_after`` frames), which the
+        refined fit then updates."""
         from . import appearance
 
         grey = np.asarray(image, np.float32) if image.ndim == 2 else \
@@ -127,14 +128,20 @@ class Fitter:
         if self._appearance_frames >= self.config.refine_after:
             front = appearance.frontality(X, normals, perspective)
             w = template.confidence * np.clip((front - appearance.MIN_FRONTALITY) / (1 - appearance.MIN_FRONTALITY), 0, 1)
-            Rd, td = appearance.refine_pose(grey, X, w, template.grey, self.K if perspective else None,
-                                            np.asarray(self.model.landmark_vertices, np.int64))
+            k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), self.model.num_shape)
+            model_basis = self.model.shape_basis[:, :, :k].astype(np.float64) * self.model.shape_std[:k]
+            basis = np.einsum("ij,vjk->vik", result.scale * np.asarray(result.R, np.float64), model_basis) if k else None
+            found = appearance.refine_pose(grey, X, w, template.grey, self.K if perspective else None,
+                                           np.asarray(self.model.landmark_vertices, np.int64), basis=basis)
             c = X.mean(axis=0)
-            X = appearance.apply_motion(X, Rd, td)
-            normals = normals @ Rd.T
-            proj = project(X, self.K, self.projection)
-            result = dataclasses.replace(result, vertices=X.astype(np.float32), projected=proj.astype(np.float32),
-                                         R=Rd @ np.asarray(result.R), t=Rd @ (np.asarray(result.t) - c) + c + td)
+            X = found.apply(X, basis)
+            normals = appearance.vertex_normals(X, self.model.triangles)
+            alpha = np.asarray(result.alpha, np.float32).copy()
+            alpha[:k] += found.shape.astype(np.float32)
+            result = dataclasses.replace(
+                result, vertices=X.astype(np.float32), projected=project(X, self.K, self.projection).astype(np.float32),
+                R=found.R @ np.asarray(result.R), t=found.R @ (np.asarray(result.t) - c) + c + found.t, alpha=alpha,
+                model_vertices=(result.model_vertices + (model_basis @ found.shape if k else 0)).astype(np.float32))
         template.update(grey, np.asarray(result.projected, np.float64), appearance.frontality(X, normals, perspective))
         self._appearance_frames += 1
         return result
