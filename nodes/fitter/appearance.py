@@ -37,6 +37,10 @@ PRIOR_WEIGHT = 0.1
 SHAPE_WEIGHT = 1.0
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
+#: At most this many vertices are compared (every n-th of those with a weight).
+MAX_VERTICES = 1000
+#: The frame is cropped to the face's box grown by this share of its sides.
+CROP_MARGIN = 0.15
 #: Huber threshold of the photometric residual, grey levels.
 HUBER = 12.0
 #: Vertices the frame sees less frontally than this (cosine) are neither learned nor compared.
@@ -50,9 +54,8 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     X = np.asarray(vertices, np.float64)
     tri = np.asarray(triangles, np.int64)
     fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
-    n = np.zeros_like(X)
-    for k in range(3):
-        np.add.at(n, tri[:, k], fn)
+    corners = tri.T.ravel()
+    n = np.column_stack([np.bincount(corners, np.tile(fn[:, j], 3), minlength=len(X)) for j in range(3)])
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
@@ -154,6 +157,18 @@ def _jacobian(Xm: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.n
     return np.einsum("nkj,nji->nki", _projection_jacobian(Xm, K), np.concatenate(dX, axis=2))
 
 
+def _image_jacobian(grad: np.ndarray, Xm: np.ndarray, centre: np.ndarray, theta: np.ndarray,
+                    basis: np.ndarray | None, K: np.ndarray | None) -> np.ndarray:
+    """(N, 6 + k) d grey level / d (rotation, translation, shape): the image gradients ``grad``
+    (N, 2) through :func:`_jacobian`, contracted first (a row times a cross-product matrix is a
+    cross product) so no (N, 2, 6 + k) array is formed."""
+    g = np.einsum("nk,nkj->nj", grad, _projection_jacobian(Xm, K))      # (N, 3): d grey / d point
+    parts = [np.cross(Xm - centre, g), g]
+    if basis is not None:
+        parts.append(np.einsum("nj,njk->nk", g @ rodrigues(theta[:3]), basis))
+    return np.concatenate(parts, axis=1)
+
+
 def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
                 K: np.ndarray | None, anchors: np.ndarray, prior_weight: float | None = None,
                 basis: np.ndarray | None = None, shape_weight: float | None = None) -> Refinement:
@@ -174,10 +189,18 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     k = 0 if basis is None else basis.shape[2]
     theta = np.zeros(6 + k)
     use = np.flatnonzero(weights > 0)
+    use = use[:: max(1, -(-len(use) // MAX_VERTICES))]   # evenly over the mesh: neighbours say much the same
     if len(use) < 20:
         return Refinement(np.eye(3), np.zeros(3), np.zeros(k))
     kind = "perspective" if K is not None else "orthographic"
     anchor_px = project(X[anchors], K, kind)
+    # the face's box (grown by a margin the motion stays within) is all the pyramid needs
+    px0 = project(X[use], K, kind)
+    lo = np.floor(px0.min(axis=0) - CROP_MARGIN * np.ptp(px0, axis=0) - 8).astype(int).clip(0, None)
+    hi = np.ceil(px0.max(axis=0) + CROP_MARGIN * np.ptp(px0, axis=0) + 8).astype(int)
+    grey = grey[lo[1]:hi[1], lo[0]:hi[0]]
+    if min(grey.shape) < 8:
+        return Refinement(np.eye(3), np.zeros(3), np.zeros(k))
     B_use = None if basis is None else basis[use]
     B_anchor = None if basis is None else basis[anchors]
     for scale in LEVELS:
@@ -186,16 +209,16 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
         gy = cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0
         for _ in range(STEPS):
             Xm = _moved(X[use], centre, theta, B_use)
-            px = project(Xm, K, kind)
-            values, inside = sample(small, px * scale)
+            px = (project(Xm, K, kind) - lo) * scale     # pixels of the cropped level
+            values, inside = sample(small, px)
             w = weights[use] * inside
             # lighting: the frame's grey = gain * template + bias, solved for this step
             A = np.column_stack([template[use], np.ones(len(use))])
             gain_bias = np.linalg.lstsq(A * np.sqrt(w)[:, None], values * np.sqrt(w), rcond=None)[0]
             r = values - A @ gain_bias
             w = w * np.where(np.abs(r) <= HUBER, 1.0, HUBER / np.maximum(np.abs(r), 1e-9))
-            grad = np.column_stack([sample(gx, px * scale)[0], sample(gy, px * scale)[0]]) * scale
-            J = np.einsum("nk,nki->ni", grad, _jacobian(Xm, centre, theta, B_use, K))
+            grad = np.column_stack([sample(gx, px)[0], sample(gy, px)[0]]) * scale
+            J = _image_jacobian(grad, Xm, centre, theta, B_use, K)
             H = J.T @ (J * w[:, None])
             g = J.T @ (w * r)
             # the prior: the landmark vertices' pixels stay where the landmark fit put them
