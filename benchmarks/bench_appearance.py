@@ -12,6 +12,9 @@ scene's). Per fitted frame, against the truth:
   vertex of the true head, over the vertices the truth shows, and over those at the face's outline
   (the visible vertices within ``OUTLINE_PX`` of the true head's silhouette: where the issue says
   registration errors show);
+* jitter on real video (``--real-videos``): per shared video and model, the median frame-to-frame
+  displacement of the fitted mesh's vertices (px) once its smooth motion is removed, over the
+  frames where that motion is slow (:func:`jitter`), with and without the refinement;
 * shape SNR (dB, seed 002): 10 log10 of the true shape's energy about its centroid over the squared
   error of a fitted shape after a similarity alignment: each frame's fitted model-space shape, and
   the fitter's learned identity (its neutral) at the end.
@@ -47,6 +50,8 @@ from facesculpt.paths import shared_data_dir  # noqa: E402
 
 #: A visible vertex within this distance (px) of the true silhouette is an outline vertex.
 OUTLINE_PX = 3.0
+#: A frame is still when the fitted mesh's smooth motion moves its median vertex less than this (px).
+STILL_PX = 1.0
 
 
 def silhouette_distance(image: np.ndarray, background: np.ndarray) -> np.ndarray:
@@ -122,11 +127,44 @@ def run(frames: list, truths: list, background: np.ndarray, scene, fitter_option
     return by_yaw(rows), shape_snr(neutral, scene.rest), float(np.median(took))
 
 
+def jitter(tracks: np.ndarray, still_px: float = STILL_PX) -> tuple[float, int]:
+    """(median jitter px, frames it is taken over) of a fitted mesh's pixels ``tracks`` (F, V, 2) over
+    consecutive frames: the smooth motion (a Gaussian over ±3 frames) removed, the median vertex
+    displacement of what remains from one frame to the next, on still frames (the smooth motion's
+    median vertex speed under ``still_px`` px a frame)."""
+    smooth = cv2.GaussianBlur(tracks.reshape(len(tracks), -1), (1, 7), 0, sigmaY=1.5).reshape(tracks.shape)
+    rest = tracks - smooth
+    step = np.median(np.linalg.norm(np.diff(rest, axis=0), axis=2), axis=1)
+    speed = np.median(np.linalg.norm(np.diff(smooth, axis=0), axis=2), axis=1)
+    still = speed < still_px
+    still[:3] = still[-3:] = False   # the filter's ends
+    return (float(np.median(step[still])) if still.any() else float("nan")), int(still.sum())
+
+
+def real_jitter(data: Path, name: str, count: int, model: str, options: dict) -> tuple[float, int]:
+    """:func:`jitter` of ``model``'s fit over the first ``count`` frames of the shared video ``name``
+    (frames without a fit end the run there)."""
+    from realism.sequences import read_video
+
+    from facesculpt.app.pipeline import Pipeline
+
+    tracks = []
+    with Pipeline(model, **options) as pipe:
+        for i, frame in enumerate(read_video(data / "video" / f"{name}.mp4", count)):
+            fit = pipe.fit_frame(frame, i / 25.0)
+            if fit is None:
+                break
+            tracks.append(np.asarray(fit.projected, np.float64))
+    return jitter(np.array(tracks))
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
+    p.add_argument("--real-videos", default="d0,d3,d12,s18", help="shared videos for the jitter figure ('' for none)")
+    p.add_argument("--real-frames", type=int, default=150, help="frames of each real video (default 150)")
     args = p.parse_args(argv)
     data = shared_data_dir()
     if data is None:
@@ -150,6 +188,14 @@ def main(argv=None) -> int:
     lines += ["", "| method | identity SNR (dB, the learned neutral) | fit ms (median, landmarks included) |",
               "| --- | --- | --- |"]
     lines += [f"| {name} | {r['shape_snr_db']:.2f} | {r['fit_ms_median']:.1f} |" for name, r in results.items()]
+    videos = [v for v in args.real_videos.split(",") if v]
+    if videos:
+        lines += ["", "| video | model | jitter, landmarks only (px) | refined (px) | still frames |", "| --- | --- | --- | --- | --- |"]
+    for video in videos:
+        for model in ("facemesh", "sfm"):
+            (plain, n), (refined, _) = (real_jitter(data, video, args.real_frames, model, o) for o in ({}, {"refine": "appearance"}))
+            results.setdefault("jitter", {})[f"{video} {model}"] = {"landmarks only": plain, "refined": refined, "still_frames": n}
+            lines.append(f"| {video} | {model} | {plain:.3f} | {refined:.3f} | {n} |")
     table = "\n".join(lines)
     (out / "results.md").write_text(table + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=1))

@@ -35,6 +35,9 @@ PRIOR_WEIGHT = 0.1
 #: A shape component's change by one standard deviation costs as much as a photometric residual of
 #: sqrt(SHAPE_WEIGHT) grey levels at every compared vertex.
 SHAPE_WEIGHT = 1.0
+#: Moving every landmark vertex 1 px from where the last frame's refinement would put it costs as
+#: much as a photometric residual of sqrt(TEMPORAL_WEIGHT) grey levels at every compared vertex.
+TEMPORAL_WEIGHT = 1.0
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
 #: At most this many vertices are compared (every n-th of those with a weight).
@@ -132,6 +135,7 @@ class Refinement:
     R: np.ndarray
     t: np.ndarray
     shape: np.ndarray
+    theta: np.ndarray = None   # (6 + k,) rotation vector, translation, shape: the next frame's start
 
     def apply(self, vertices: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
         """(V, 3) float64: ``vertices`` refined (``basis`` (V, 3, k) as given to :func:`refine_pose`)."""
@@ -171,7 +175,8 @@ def _image_jacobian(grad: np.ndarray, Xm: np.ndarray, centre: np.ndarray, theta:
 
 def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
                 K: np.ndarray | None, anchors: np.ndarray, prior_weight: float | None = None,
-                basis: np.ndarray | None = None, shape_weight: float | None = None) -> Refinement:
+                basis: np.ndarray | None = None, shape_weight: float | None = None,
+                start: np.ndarray | None = None, temporal_weight: float | None = None) -> Refinement:
     """The rigid motion (and, with a ``basis``, shape change) that best matches the frame to the template.
 
     grey: (H, W) float32 the frame's grey levels; vertices: (V, 3) float64 the landmark fit's
@@ -180,18 +185,21 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     (V,) grey levels; anchors: (L,) int the vertices of the landmarks (the prior keeps them where
     they are, with ``prior_weight``: PRIOR_WEIGHT's meaning); basis: (V, 3, k) camera-space
     displacement of each vertex per standard deviation of k shape components (None: pose only),
-    whose change costs ``shape_weight`` (SHAPE_WEIGHT's meaning). The weights default to the
-    module's constants."""
+    whose change costs ``shape_weight`` (SHAPE_WEIGHT's meaning); start: (6 + k,) the last frame's
+    ``theta``, where the search starts and which the landmark vertices' pixels are held near with
+    ``temporal_weight`` (TEMPORAL_WEIGHT's meaning), so the refinement does not add jitter. The
+    weights default to the module's constants."""
     prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
+    temporal_weight = TEMPORAL_WEIGHT if temporal_weight is None else temporal_weight
     shape_weight = SHAPE_WEIGHT if shape_weight is None else shape_weight
     X = np.asarray(vertices, np.float64)
     centre = X.mean(axis=0)
     k = 0 if basis is None else basis.shape[2]
-    theta = np.zeros(6 + k)
+    theta = np.zeros(6 + k) if start is None or len(start) != 6 + k else np.asarray(start, np.float64).copy()
     use = np.flatnonzero(weights > 0)
     use = use[:: max(1, -(-len(use) // MAX_VERTICES))]   # evenly over the mesh: neighbours say much the same
     if len(use) < 20:
-        return Refinement(np.eye(3), np.zeros(3), np.zeros(k))
+        return Refinement(np.eye(3), np.zeros(3), np.zeros(k), np.zeros(6 + k))
     kind = "perspective" if K is not None else "orthographic"
     anchor_px = project(X[anchors], K, kind)
     # the face's box (grown by a margin the motion stays within) is all the pyramid needs
@@ -200,9 +208,10 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     hi = np.ceil(px0.max(axis=0) + CROP_MARGIN * np.ptp(px0, axis=0) + 8).astype(int)
     grey = grey[lo[1]:hi[1], lo[0]:hi[0]]
     if min(grey.shape) < 8:
-        return Refinement(np.eye(3), np.zeros(3), np.zeros(k))
+        return Refinement(np.eye(3), np.zeros(3), np.zeros(k), np.zeros(6 + k))
     B_use = None if basis is None else basis[use]
     B_anchor = None if basis is None else basis[anchors]
+    held_px = None if start is None else project(_moved(X[anchors], centre, theta, B_anchor), K, kind)
     for scale in LEVELS:
         small = cv2.GaussianBlur(cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), (0, 0), 1.0)
         gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0
@@ -225,13 +234,18 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
             Xa = _moved(X[anchors], centre, theta, B_anchor)
             Ja = _jacobian(Xa, centre, theta, B_anchor, K).reshape(-1, 6 + k)
             lam = prior_weight * float(w.sum()) / max(len(anchors), 1)
+            pa = project(Xa, K, kind)
             H += lam * Ja.T @ Ja
-            g += lam * Ja.T @ (project(Xa, K, kind) - anchor_px).reshape(-1)
+            g += lam * Ja.T @ (pa - anchor_px).reshape(-1)
+            if held_px is not None:   # and near where the last frame's refinement put them
+                lam_t = temporal_weight * float(w.sum()) / max(len(anchors), 1)
+                H += lam_t * Ja.T @ Ja
+                g += lam_t * Ja.T @ (pa - held_px).reshape(-1)
             if k:
                 H[6:, 6:] += shape_weight * float(w.sum()) * np.eye(k)
                 g[6:] += shape_weight * float(w.sum()) * theta[6:]
             theta -= np.linalg.solve(H + 1e-6 * np.eye(6 + k), g)
-    return Refinement(rodrigues(theta[:3]), theta[3:6].copy(), theta[6:].copy())
+    return Refinement(rodrigues(theta[:3]), theta[3:6].copy(), theta[6:].copy(), theta.copy())
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:

@@ -47,6 +47,7 @@ class Fitter:
         """Forget everything learned from earlier frames: warm start, filters (and the
         subclasses': identity, neutral)."""
         self._pose = None  # (R, t, s) of the previous frame
+        self._refined = None  # the previous frame's appearance refinement (config.refine)
         self._last_time = None
         self._frame = 0
         self.smoother.reset()
@@ -123,6 +124,7 @@ class Fitter:
         if template is None or len(template.sum) != len(X):
             template = self._appearance = appearance.AppearanceTemplate(len(X))
             self._appearance_frames = 0
+            self._refined = None   # the last frame's Refinement: where the next one starts
         perspective = self.camera.perspective
         normals = appearance.vertex_normals(X, self.model.triangles)
         if self._appearance_frames >= self.config.refine_after:
@@ -132,7 +134,9 @@ class Fitter:
             model_basis = self.model.shape_basis[:, :, :k].astype(np.float64) * self.model.shape_std[:k]
             basis = np.einsum("ij,vjk->vik", result.scale * np.asarray(result.R, np.float64), model_basis) if k else None
             found = appearance.refine_pose(grey, X, w, template.grey, self.K if perspective else None,
-                                           np.asarray(self.model.landmark_vertices, np.int64), basis=basis)
+                                           np.asarray(self.model.landmark_vertices, np.int64), basis=basis,
+                                           start=None if self._refined is None else self._refined.theta)
+            self._refined = found
             c = X.mean(axis=0)
             X = found.apply(X, basis)
             normals = appearance.vertex_normals(X, self.model.triangles)
