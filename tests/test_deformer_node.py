@@ -257,40 +257,63 @@ def test_bad_input_is_counted_and_last_good_deformation_stays(node, sfm, tmp_pat
     assert node.errors == 0  # nothing escaped into the base class's error handler
 
 
+class DeformerClient:
+    """A node facing a `facesculpt run deformer` process: publishers of face/model (latched),
+    face/state and input/events, and every face/deformation in ``got``. Subscribe more on
+    ``node`` before :meth:`start`."""
+
+    def __init__(self, name: str):
+        from facesculpt.runtime.node import Node
+        from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
+
+        self.node = Node(name=name)
+        self.got: list[Deformation] = []
+        self.model = self.node.advertise("face/model", FaceModel, qos=LATCHED)
+        self.state = self.node.advertise("face/state", FaceState)
+        self.events = self.node.advertise("input/events", InputEvent)
+        self.node.subscribe("face/deformation", Deformation, self.got.append, qos=EVERY_MESSAGE)
+
+    def start(self) -> None:
+        self.node.start()
+
+    def first_deformation(self, model, deadline: float) -> None:
+        """Publish ``model``'s face/model, then its face/state until the deformer answers (it
+        answers the model with an empty edit) or the monotonic ``deadline`` passes."""
+        self.model.publish(face_model(model))
+        while not self.got and time.monotonic() < deadline:
+            self.state.publish(face_state(model))
+            self.node.spin_once(0.2)
+
+    def spin_until(self, done, deadline: float) -> None:
+        while time.monotonic() < deadline and not done():
+            self.node.spin_once(0.1)
+
+
 def test_real_process_receives_every_event_and_publishes(graph, sfm):
     """`facesculpt run deformer` in its own process: latched model, state, 40 queued moves."""
-    from facesculpt.runtime.node import Node
-    from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
+    from facesculpt.msgs import Diagnostics
+    from facesculpt.runtime.qos import EVERY_MESSAGE
 
     proc = graph.spawn("run", "deformer", "round_s=0.02")
-    client = Node(name="deformer_test_client")
-    got: list[Deformation] = []
-    model_pub = client.advertise("face/model", FaceModel, qos=LATCHED)
-    state_pub = client.advertise("face/state", FaceState)
-    events = client.advertise("input/events", InputEvent)
-    client.subscribe("face/deformation", Deformation, got.append, qos=EVERY_MESSAGE)
-    from facesculpt.msgs import Diagnostics
+    client = DeformerClient("deformer_test_client")
+    got = client.got
     diags = []
-    client.subscribe("diagnostics", Diagnostics, lambda m: diags.append((m.node, m.values)), qos=EVERY_MESSAGE)
+    client.node.subscribe("diagnostics", Diagnostics, lambda m: diags.append((m.node, m.values)), qos=EVERY_MESSAGE)
     client.start()
     try:
         deadline = time.monotonic() + 30
-        model_pub.publish(face_model(sfm))
-        while not got and time.monotonic() < deadline:  # the node answers the model with an empty edit
-            state_pub.publish(face_state(sfm))
-            client.spin_once(0.2)
-        assert got, f"no face/deformation from the deformer process: {client.diagnostics()} {[d for d in diags if d[0]=='deformer'][-1:]}"
-        events.publish(ev("press", landmark="nose_tip"))
+        client.first_deformation(sfm, deadline)
+        assert got, f"no face/deformation from the deformer process: {client.node.diagnostics()} {[d for d in diags if d[0]=='deformer'][-1:]}"
+        client.events.publish(ev("press", landmark="nose_tip"))
         for k in range(40):
-            events.publish(ev("move", vector=np.array([0.0, 0.0, 0.25], np.float32), stamp=1000 + k))
+            client.events.publish(ev("move", vector=np.array([0.0, 0.0, 0.25], np.float32), stamp=1000 + k))
         nose = sfm.landmark_index()["nose_tip"]
-        while time.monotonic() < deadline and not (got[-1].displacement[nose][2] >= 10.0 - 1e-4):
-            client.spin_once(0.1)
+        client.spin_until(lambda: got[-1].displacement[nose][2] >= 10.0 - 1e-4, deadline)
         assert np.isclose(got[-1].displacement[nose][2], 10.0, atol=1e-4)  # no move lost
         assert got[-1].stamp == 1039
         assert len(got) < 1 + 41  # moves were coalesced into fewer solves
     finally:
-        client.close()
+        client.node.close()
         proc.terminate()
         assert proc.wait(10) == 0
 

@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 import pytest
-from test_deformer_node import ev, face_model, face_state, make_node
+from test_deformer_node import DeformerClient, ev, face_model, face_state, make_node
 
-from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent, decode, encode
+from facesculpt.msgs import Deformation, InputEvent, decode, encode
 from facesculpt.nodes.deformer.errors import DeformerError
 from facesculpt.nodes.deformer.preset_format import find_preset, merge_presets, preset_pose, scale_preset
 
@@ -145,31 +145,20 @@ def test_presets_carry_a_pose_applied_on_load_and_saved_back(monkeypatch, tmp_pa
 
 def test_deformer_process_publishes_pose_events(graph, sfm):
     """`facesculpt run deformer` in its own process: a pose event comes back as Deformation.pose."""
-    from facesculpt.runtime.node import Node
-    from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
-
     proc = graph.spawn("run", "deformer", "round_s=0.02")
-    client = Node(name="pose_test_client")
-    got: list[Deformation] = []
-    model_pub = client.advertise("face/model", FaceModel, qos=LATCHED)
-    state_pub = client.advertise("face/state", FaceState)
-    events = client.advertise("input/events", InputEvent)
-    client.subscribe("face/deformation", Deformation, got.append, qos=EVERY_MESSAGE)
+    client = DeformerClient("pose_test_client")
+    got = client.got
     client.start()
     try:
         deadline = time.monotonic() + 30
-        model_pub.publish(face_model(sfm))
-        while not got and time.monotonic() < deadline:
-            state_pub.publish(face_state(sfm))
-            client.spin_once(0.2)
+        client.first_deformation(sfm, deadline)
         assert got and got[-1].pose is None
         for k in range(5):
-            events.publish(ev("pose", pose=np.array([2, 0, -1, 0, 0, 0], np.float32), stamp=1000 + k))
-        while time.monotonic() < deadline and not (got[-1].pose is not None and got[-1].pose[0] >= 10 - 1e-4):
-            client.spin_once(0.1)
+            client.events.publish(ev("pose", pose=np.array([2, 0, -1, 0, 0, 0], np.float32), stamp=1000 + k))
+        client.spin_until(lambda: got[-1].pose is not None and got[-1].pose[0] >= 10 - 1e-4, deadline)
         assert np.allclose(got[-1].pose, [10, 0, -5, 0, 0, 0]) and got[-1].stamp == 1004
         assert not np.any(got[-1].displacement)
     finally:
-        client.close()
+        client.node.close()
         proc.terminate()
         assert proc.wait(10) == 0
