@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from facesculpt.geometry.projection import project
+from facesculpt.geometry.vertex_normals import vertex_normals
 from facesculpt.nodes.fitter import FitError, FitterConfig, make_fitter
 from facesculpt.nodes.fitter.appearance import (
     AppearanceTemplate,
     Refinement,
     frontality,
     refine_pose,
-    vertex_normals,
 )
 from facesculpt.nodes.fitter.pose import rodrigues
 

@@ -52,16 +52,6 @@ MIN_FRONTALITY = 0.35
 FULL_CONFIDENCE = 3.0
 
 
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(V, 3) float64 unit area-weighted vertex normals of a (V, 3) mesh with (T, 3) triangles."""
-    X = np.asarray(vertices, np.float64)
-    tri = np.asarray(triangles, np.int64)
-    fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
-    corners = tri.T.ravel()
-    n = np.column_stack([np.bincount(corners, np.tile(fn[:, j], 3), minlength=len(X)) for j in range(3)])
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-
-
 def frontality(vertices: np.ndarray, normals: np.ndarray, perspective: bool) -> np.ndarray:
     """(V,) cosine between each vertex normal and its ray to the camera (at the origin in
     perspective, along -z in orthographic), the sign chosen so the face is seen from its front."""

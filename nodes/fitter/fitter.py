@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from facesculpt.geometry.projection import project
+from facesculpt.geometry.vertex_normals import vertex_normals
 from facesculpt.nodes.fitter import pose
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.fit_camera import FitCamera
@@ -126,7 +127,7 @@ class Fitter:
             self._appearance_frames = 0
             self._refined = None   # the last frame's Refinement: where the next one starts
         perspective = self.camera.perspective
-        normals = appearance.vertex_normals(X, self.model.triangles)
+        normals = vertex_normals(X, self.model.triangles)
         if self._appearance_frames >= self.config.refine_after:
             front = appearance.frontality(X, normals, perspective)
             w = template.confidence * np.clip((front - appearance.MIN_FRONTALITY) / (1 - appearance.MIN_FRONTALITY), 0, 1)
@@ -139,7 +140,7 @@ class Fitter:
             self._refined = found
             c = X.mean(axis=0)
             X = found.apply(X, basis)
-            normals = appearance.vertex_normals(X, self.model.triangles)
+            normals = vertex_normals(X, self.model.triangles)
             alpha = np.asarray(result.alpha, np.float32).copy()
             alpha[:k] += found.shape.astype(np.float32)
             result = dataclasses.replace(

@@ -27,6 +27,8 @@ import cv2
 import moderngl
 import numpy as np
 
+from facesculpt.geometry.vertex_normals import face_normals, vertex_normals
+
 from .camera import project
 
 _VIEW_VS = """
@@ -90,10 +92,8 @@ def vertex_frontality(vertices: np.ndarray, triangles: np.ndarray, P: np.ndarray
     (T, 3) int."""
     X = np.asarray(vertices, np.float64)
     tri = np.asarray(triangles, np.int64)
-    fn = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
-    corners = tri.T.ravel()
-    n = np.column_stack([np.bincount(corners, np.tile(fn[:, j], 3), minlength=len(X)) for j in range(3)])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    fn = face_normals(X, tri)
+    n = vertex_normals(X, tri, fn)
     c = camera_centre(P)
     if c is None:
         to_cam = np.broadcast_to(-np.asarray(P, np.float64)[2, :3], X.shape)
