@@ -515,7 +515,7 @@ def table(result: dict) -> str:
 def cmd_bench(args) -> int:
     from facesculpt.app.pipeline import load_face_model, read_preset
     from facesculpt.geometry.pose_offset import parse_pose_offset
-    from facesculpt.nodes.deformer.preset_format import merge_presets
+    from facesculpt.nodes.deformer.preset_format import merge_presets, pose_to_preset
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(args.threads)  # also in the environment the graph's processes inherit
@@ -536,8 +536,7 @@ def cmd_bench(args) -> int:
     paths = preset_paths()
     preset = merge_presets([read_preset(p) for p in paths])
     if args.pose:  # the graph's deformer loads it with the edit; the in-process stages turn the head too
-        pose = parse_pose_offset(args.pose)
-        preset["pose"] = {k: v for k, v in zip(("yaw", "pitch", "roll", "x", "y", "z"), pose.as_list()) if v}
+        preset["pose"] = pose_to_preset(parse_pose_offset(args.pose))
     preset_file = Path(tempfile.mkdtemp(prefix="fs-bench-preset-")) / "fig6e.json"
     preset_file.write_text(json.dumps(preset))
     wanted = parse_size(args.size)

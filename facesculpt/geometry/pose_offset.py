@@ -10,7 +10,7 @@ pose).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -22,6 +22,9 @@ HEAD_PIVOT_DEPTH_MM = 95.0
 MAX_OFFSET_DEG = 45.0
 #: Largest translation (mm, each axis) a pose offset may have.
 MAX_OFFSET_MM = 200.0
+#: The components of a pose offset, in the order messages carry them, and the limit of each.
+OFFSET_NAMES = ("yaw", "pitch", "roll", "x", "y", "z")
+OFFSET_LIMITS = (MAX_OFFSET_DEG,) * 3 + (MAX_OFFSET_MM,) * 3
 #: Face-the-camera: its default largest turn (degrees, yaw and pitch each): the largest offset the
 #: new-views benchmark measures (benchmarks/bench_new_views.py; README "New views").
 FACE_CAMERA_LIMIT_DEG = 20.0
@@ -45,12 +48,11 @@ class PoseOffset:
     z: float = 0.0
 
     def __post_init__(self):
-        for f in fields(self):
-            value = getattr(self, f.name)
-            limit = MAX_OFFSET_DEG if f.name in ("yaw", "pitch", "roll") else MAX_OFFSET_MM
+        for name, limit in zip(OFFSET_NAMES, OFFSET_LIMITS):
+            value = getattr(self, name)
             if not (np.isfinite(value) and abs(value) <= limit):
                 unit = "degrees" if limit == MAX_OFFSET_DEG else "mm"
-                raise ValueError(f"pose {f.name} must be a number within ±{limit:g} {unit}, got {value}")
+                raise ValueError(f"pose {name} must be a number within ±{limit:g} {unit}, got {value}")
 
     @property
     def is_zero(self) -> bool:
@@ -67,16 +69,24 @@ class PoseOffset:
             raise ValueError(f"a pose offset has 6 values (yaw, pitch, roll, x, y, z), got {len(values)}")
         return cls(*values)
 
+    @classmethod
+    def clamped(cls, values) -> PoseOffset:
+        """A PoseOffset from [yaw, pitch, roll, x, y, z] (degrees, mm), each clamped to its limit
+        (OFFSET_LIMITS); ValueError when they are not 6 finite numbers."""
+        v = np.asarray(values, np.float64).ravel()
+        if v.shape != (6,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"a pose offset is 6 finite numbers, got {v.tolist()}")
+        limits = np.array(OFFSET_LIMITS)
+        return cls.from_list(np.clip(v, -limits, limits))
+
     def __add__(self, other: PoseOffset) -> PoseOffset:
-        a, b = self.as_list(), other.as_list()
-        return PoseOffset(*(np.clip(u + v, -lim, lim) for u, v, lim in
-                            zip(a, b, (MAX_OFFSET_DEG,) * 3 + (MAX_OFFSET_MM,) * 3)))
+        return PoseOffset.clamped(np.add(self.as_list(), other.as_list()))
 
 
 def parse_pose_offset(text: str) -> PoseOffset:
     """``"yaw=10,pitch=-5"`` (any of yaw, pitch, roll in degrees, x, y, z in mm) -> PoseOffset.
     ValueError with one sentence on anything else."""
-    names = [f.name for f in fields(PoseOffset)]
+    names = list(OFFSET_NAMES)
     values = {}
     for part in str(text).split(","):
         if not part.strip():

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from facesculpt.geometry import axes_velocity, merge_deformation, project
-from facesculpt.geometry.pose_offset import MAX_OFFSET_DEG, MAX_OFFSET_MM, PoseOffset, parse_pose_offset
+from facesculpt.geometry.pose_offset import PoseOffset, parse_pose_offset
 from facesculpt.msgs import FaceModel, FaceState, InputEvent
 
 from .dragging import depth_delta, drag_delta
@@ -33,7 +33,6 @@ from .picking import pick_vertex
 from .preset_format import find_preset, pose_to_preset, preset_pose, read_preset_file, scale_preset
 
 MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
-POSE_LIMITS = np.array([MAX_OFFSET_DEG] * 3 + [MAX_OFFSET_MM] * 3)  # yaw, pitch, roll deg; x, y, z mm
 
 
 class FaceEditor:
@@ -322,10 +321,7 @@ class FaceEditor:
         "yaw=2") added to the pose offset, each component (and the sum) clamped to its limit."""
         try:
             if ev.pose is not None:
-                values = np.asarray(ev.pose, np.float64).ravel()
-                if not np.all(np.isfinite(values)):
-                    raise ValueError(f"a pose event's pose must be finite, got {values.tolist()}")
-                change = PoseOffset.from_list(np.clip(values, -POSE_LIMITS, POSE_LIMITS))
+                change = PoseOffset.clamped(ev.pose)
             elif ev.argument:
                 change = parse_pose_offset(ev.argument)
             else:

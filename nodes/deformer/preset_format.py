@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facesculpt.geometry.pose_offset import MAX_OFFSET_DEG, MAX_OFFSET_MM, PoseOffset
+from facesculpt.geometry.pose_offset import MAX_OFFSET_MM, OFFSET_LIMITS, OFFSET_NAMES, PoseOffset
 
 from .anchors import METRICS
 from .errors import DeformerError
@@ -132,7 +132,7 @@ def preset_pose(preset: dict) -> PoseOffset | None:
 
 def pose_to_preset(offset: PoseOffset) -> dict:
     """The preset's ``pose`` object of ``offset``: its non-zero components by name."""
-    return {k: v for k, v in zip(("yaw", "pitch", "roll", "x", "y", "z"), offset.as_list()) if v}
+    return {k: v for k, v in zip(OFFSET_NAMES, offset.as_list()) if v}
 
 
 def validate_preset(preset) -> None:
@@ -170,7 +170,7 @@ def scale_preset(preset: dict, strength: float = 1.0) -> dict:
         for h in item["handles"]:
             h["offset"] = [float(x) * s for x in h["offset"]]
     if out.get("pose") is not None:
-        limits = {"yaw": MAX_OFFSET_DEG, "pitch": MAX_OFFSET_DEG, "roll": MAX_OFFSET_DEG}
+        limits = dict(zip(OFFSET_NAMES, OFFSET_LIMITS))
         out["pose"] = {k: float(np.clip(float(v) * s, -limits.get(k, MAX_OFFSET_MM), limits.get(k, MAX_OFFSET_MM)))
                        for k, v in out["pose"].items()}
     return out

@@ -33,6 +33,7 @@ import numpy as np
 
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.hand_regions import hand_region_mask
+from facesculpt.geometry.pose_offset import PoseOffset
 from facesculpt.msgs import Deformation, FaceModel, FaceState, FaceTexture, FrameDone, HandLandmarks, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
@@ -50,7 +51,6 @@ from .pose_edit import (
     FACE_CAMERA_LIMIT_RANGE,
     FACE_CAMERA_SMOOTHING_S,
     PoseEdits,
-    pose_from_values,
 )
 from .texture_atlas import uv_layout
 
@@ -224,7 +224,7 @@ class RendererNode(Node):
         """The deformer's pose offset of ``state``'s face (a PoseOffset; zero without one)."""
         d = self.deformation
         values = np.zeros(6) if d is None or d.model_id != state.model_id else d.pose_of(state.face_id)
-        return pose_from_values(values)
+        return PoseOffset.clamped(values)
 
     def _render_face(self, out: np.ndarray, state: FaceState, keep, stamp: int) -> np.ndarray:
         """``out`` with ``state``'s face composited: its edit merged (Eq. 5), then its pose edit

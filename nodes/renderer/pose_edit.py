@@ -19,8 +19,6 @@ from facesculpt.geometry.pose_offset import (
     FACE_CAMERA_LIMIT_DEG,
     FACE_CAMERA_LIMIT_RANGE,  # noqa: F401 (the renderer node's parameter range)
     FACE_CAMERA_SMOOTHING_S,
-    MAX_OFFSET_DEG,
-    MAX_OFFSET_MM,
     PoseOffset,
     apply_pose_offset,
     camera_direction,
@@ -29,17 +27,6 @@ from facesculpt.geometry.pose_offset import (
     smooth_values,
 )
 from facesculpt.msgs import FaceState
-
-_LIMITS = np.array([MAX_OFFSET_DEG] * 3 + [MAX_OFFSET_MM] * 3)
-
-
-def pose_from_values(values) -> PoseOffset:
-    """A PoseOffset from (6,) [yaw, pitch, roll deg, x, y, z mm] (a Deformation's ``pose_of``),
-    each clamped to its limit; ValueError when they are not 6 finite numbers."""
-    v = np.asarray(values, np.float64).ravel()
-    if v.shape != (6,) or not np.all(np.isfinite(v)):
-        raise ValueError(f"a pose offset is 6 finite numbers, got {v.tolist()}")
-    return PoseOffset.from_list(np.clip(v, -_LIMITS, _LIMITS))
 
 
 class PoseEdits:
