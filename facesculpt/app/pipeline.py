@@ -34,6 +34,7 @@ from facesculpt.geometry.pose_offset import (
     FACE_CAMERA_LIMIT_DEG,
     FACE_CAMERA_SMOOTHING_S,
     PoseOffset,
+    check_face_camera,
 )
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
 from facesculpt.nodes.deformer import EditStack
@@ -175,13 +176,8 @@ class Pipeline:
                                    "atlas": atlas != "off", "atlas_blend": atlas == "on", "plate": plate == "on",
                                    "interpolation": interpolation}
         self.keyframes = keyframes
-        if not 0.0 <= face_camera <= 1.0:
-            raise ValueError(f"face_camera must be 0 to 1, got {face_camera}")
-        if not 0.0 < face_camera_limit_deg <= 45.0:
-            raise ValueError(f"face_camera_limit_deg must be over 0 and at most 45, got {face_camera_limit_deg}")
+        check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()
-        if face_camera_smoothing_s < 0:
-            raise ValueError(f"face_camera_smoothing_s must be >= 0, got {face_camera_smoothing_s}")
         self.face_camera, self.face_camera_limit_deg = float(face_camera), float(face_camera_limit_deg)
         self.face_camera_smoothing_s = float(face_camera_smoothing_s)
         self._pose_edits = None   # the renderer's PoseEdits (made with the compositor's package, on first use)

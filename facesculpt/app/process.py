@@ -335,17 +335,12 @@ def _atlas_options(args) -> tuple[str, str]:
 def _pose_options(args) -> dict:
     """The Pipeline's pose options from --pose, --face-camera, its limit and smoothing, --keyframes (ValueError
     in one sentence on a bad value)."""
-    from facesculpt.geometry.pose_offset import parse_pose_offset
+    from facesculpt.geometry.pose_offset import check_face_camera, parse_pose_offset
 
     face_camera = getattr(args, "face_camera", 0.0)
     limit = getattr(args, "face_camera_limit", FACE_CAMERA_LIMIT_DEG)
-    if not 0.0 <= face_camera <= 1.0:
-        raise ValueError(f"--face-camera must be 0 to 1, got {face_camera}")
-    if not 0.0 < limit <= 45.0:
-        raise ValueError(f"--face-camera-limit must be over 0 and at most 45 degrees, got {limit}")
     smoothing = getattr(args, "face_camera_smoothing", FACE_CAMERA_SMOOTHING_S)
-    if not 0.0 <= smoothing <= 60.0:
-        raise ValueError(f"--face-camera-smoothing must be 0 to 60 s, got {smoothing}")
+    check_face_camera(face_camera, limit, smoothing, ("--face-camera", "--face-camera-limit", "--face-camera-smoothing"))
     return {"pose": parse_pose_offset(getattr(args, "pose", "")), "face_camera": face_camera,
             "face_camera_limit_deg": limit, "face_camera_smoothing_s": smoothing,
             "keyframes": getattr(args, "keyframes", "auto")}

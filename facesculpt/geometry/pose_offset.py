@@ -34,6 +34,7 @@ FACE_CAMERA_LIMIT_RANGE = (1.0, 45.0)
 #: turned all the way each frame, the tracker's pose jitter cancels in the turned head, and any
 #: smoothing of the fitted position only adds lag (README "New views").
 FACE_CAMERA_SMOOTHING_S = 0.0
+FACE_CAMERA_SMOOTHING_MAX_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,19 @@ def parse_pose_offset(text: str) -> PoseOffset:
         except ValueError:
             raise ValueError(f"pose {name} must be a number, got {value.strip()!r}") from None
     return PoseOffset(**values)
+
+
+def check_face_camera(fraction: float, limit_deg: float, smoothing_s: float,
+                      names: tuple[str, str, str] = ("face_camera", "face_camera_limit_deg", "face_camera_smoothing_s")) -> None:
+    """ValueError in one sentence, naming the option by ``names``, unless the face-the-camera
+    ``fraction`` is 0 to 1, ``limit_deg`` over 0 and at most MAX_OFFSET_DEG, and ``smoothing_s``
+    0 to FACE_CAMERA_SMOOTHING_MAX_S."""
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"{names[0]} must be 0 to 1, got {fraction}")
+    if not 0.0 < limit_deg <= MAX_OFFSET_DEG:
+        raise ValueError(f"{names[1]} must be over 0 and at most {MAX_OFFSET_DEG:g} degrees, got {limit_deg}")
+    if not 0.0 <= smoothing_s <= FACE_CAMERA_SMOOTHING_MAX_S:
+        raise ValueError(f"{names[2]} must be 0 to {FACE_CAMERA_SMOOTHING_MAX_S:g} s, got {smoothing_s}")
 
 
 def head_pivot(model_vertices: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ import numpy as np
 
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.hand_regions import hand_region_mask
-from facesculpt.geometry.pose_offset import PoseOffset
+from facesculpt.geometry.pose_offset import FACE_CAMERA_SMOOTHING_MAX_S, PoseOffset
 from facesculpt.msgs import Deformation, FaceModel, FaceState, FaceTexture, FrameDone, HandLandmarks, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
@@ -109,7 +109,8 @@ class RendererNode(Node):
                                   "1: all the way, up to face_camera_limit), on top of the deformer's pose edit; the "
                                   "head around the face moves with it", range=(0.0, 1.0)),
         "face_camera_smoothing_s": Param(FACE_CAMERA_SMOOTHING_S, "face_camera: time constant smoothing the direction "
-                                         "to the camera over the frames, s (0: none)", range=(0.0, 60.0)),
+                                         "to the camera over the frames, s (0: none)",
+                                         range=(0.0, FACE_CAMERA_SMOOTHING_MAX_S)),
         "face_camera_limit": Param(FACE_CAMERA_LIMIT_DEG, "face_camera: the largest turn, degrees of yaw and of "
                                                           "pitch", range=FACE_CAMERA_LIMIT_RANGE),
         "keyframes": Param("off", "keep views of each face at the poses it shows and render a turned head's surface "
