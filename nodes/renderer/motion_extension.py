@@ -28,17 +28,22 @@ FIELD_STEP = 2
 _SHIFT = 4
 
 
+def _head_extent(pixels: np.ndarray) -> tuple[float, float, float, float]:
+    """(left, top, right, bottom) frame px of the head region around the face at ``pixels`` (N, 2):
+    their box grown by HEAD_GROWTH."""
+    lo, hi = pixels.min(axis=0), pixels.max(axis=0)
+    w, h = hi - lo
+    return (lo[0] - HEAD_GROWTH["side"] * w, lo[1] - HEAD_GROWTH["up"] * h,
+            hi[0] + HEAD_GROWTH["side"] * w, hi[1] + HEAD_GROWTH["down"] * h)
+
+
 def head_box(pixels: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
     """The frame rectangle (x0, y0, x1, y1) of the head region around the face at ``pixels``
     (N, 2) px (its vertices before and after the edit), cut to the ``width`` x ``height`` frame;
     None when less than 2 x 2 pixels of it are in the frame."""
-    lo, hi = pixels.min(axis=0), pixels.max(axis=0)
-    w, h = hi - lo
-    x0 = int(np.floor(lo[0] - HEAD_GROWTH["side"] * w))
-    x1 = int(np.ceil(hi[0] + HEAD_GROWTH["side"] * w)) + 1
-    y0 = int(np.floor(lo[1] - HEAD_GROWTH["up"] * h))
-    y1 = int(np.ceil(hi[1] + HEAD_GROWTH["down"] * h)) + 1
-    box = (max(0, x0), max(0, y0), min(width, x1), min(height, y1))
+    left, top, right, bottom = _head_extent(pixels)
+    box = (max(0, int(np.floor(left))), max(0, int(np.floor(top))),
+           min(width, int(np.ceil(right)) + 1), min(height, int(np.ceil(bottom)) + 1))
     return box if box[2] - box[0] >= 2 and box[3] - box[1] >= 2 else None
 
 
@@ -46,10 +51,7 @@ def head_region(shape: tuple[int, int], origin: tuple[int, int], pixels: np.ndar
     """(h, w) uint8 0/1 the head region's ellipse on a crop of ``shape`` (h, w) whose top-left
     pixel is the frame pixel ``origin`` (x, y); ``pixels`` as in :func:`head_box` (not cut to the
     frame: the ellipse is the same whatever part of it the crop holds)."""
-    lo, hi = pixels.min(axis=0), pixels.max(axis=0)
-    w, h = hi - lo
-    left, right = lo[0] - HEAD_GROWTH["side"] * w, hi[0] + HEAD_GROWTH["side"] * w
-    top, bottom = lo[1] - HEAD_GROWTH["up"] * h, hi[1] + HEAD_GROWTH["down"] * h
+    left, top, right, bottom = _head_extent(pixels)
     centre = (0.5 * (left + right) - origin[0], 0.5 * (top + bottom) - origin[1])
     axes = (max(0.5 * (right - left), 1.0), max(0.5 * (bottom - top), 1.0))
     region = np.zeros(shape, np.uint8)
