@@ -4,12 +4,13 @@ The landmark fit uses 68 (or 468) points; this step uses the face's pixels. An a
 template (:class:`AppearanceTemplate`: per vertex, the grey level of the person's skin there, learned
 from earlier frames where the frame saw that vertex frontally: a 3D AAM's mean texture in the
 model's vertex space) is compared with the frame at the projected vertices, and the head's pose
-(a small rotation about the mesh's centroid and a translation, camera space) is moved to reduce
-the difference by Gauss-Newton (:func:`refine_pose`): image gradients at the projected vertices
+(a small rotation about the mesh's centroid and a translation, camera space) and, given a shape
+basis, the leading shape components are moved to reduce the difference by Gauss-Newton (:func:`refine_pose`): image gradients at the projected vertices
 times the projection's Jacobian (the optical-flow constraint of seed 003), on a coarse-to-fine
 pyramid of the frame, with the lighting's gain and bias solved each step, Huber weights (a hand,
 hair or a highlight that does not match the template weighs less) and a prior that keeps the
-landmark vertices near where the landmark fit put them, so it cannot drift.
+landmark vertices near where the landmark fit put them, so it cannot drift; each frame starts
+from the last frame's correction and is held near it.
 
 Arrays in, arrays out: the fitter (:meth:`.fitter.Fitter.fit` with ``image``) keeps the template.
 """
@@ -23,7 +24,7 @@ import numpy as np
 
 from facesculpt.geometry.projection import project
 
-from .pose import rodrigues
+from .pose import projection_jacobian, rodrigues
 
 #: Image scales of the pyramid, coarse to fine, and Gauss-Newton steps at each.
 LEVELS = (0.5, 1.0)
@@ -102,16 +103,12 @@ def sample(image: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def _projection_jacobian(X: np.ndarray, K: np.ndarray | None) -> np.ndarray:
-    """(N, 2, 3) d pixel / d camera point."""
+    """(N, 2, 3) d pixel / d camera point: :func:`.pose.projection_jacobian`, or in orthographic
+    (``K`` None) the first two coordinates."""
+    if K is not None:
+        return projection_jacobian(X, K)
     J = np.zeros((len(X), 2, 3))
-    if K is None:
-        J[:, 0, 0] = J[:, 1, 1] = 1.0
-        return J
-    z = X[:, 2]
-    J[:, 0, 0] = K[0, 0] / z
-    J[:, 0, 2] = -K[0, 0] * X[:, 0] / z ** 2
-    J[:, 1, 1] = K[1, 1] / z
-    J[:, 1, 2] = -K[1, 1] * X[:, 1] / z ** 2
+    J[:, 0, 0] = J[:, 1, 1] = 1.0
     return J
 
 
