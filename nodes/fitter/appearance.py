@@ -24,7 +24,7 @@ import numpy as np
 
 from facesculpt.geometry.projection import project
 
-from .pose import projection_jacobian, rodrigues
+from .pose import projection_jacobian, rodrigues, skew
 
 #: Image scales of the pyramid, coarse to fine, and Gauss-Newton steps at each.
 LEVELS = (0.5, 1.0)
@@ -142,7 +142,7 @@ def _moved(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarr
 def _jacobian(Xm: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarray | None,
               K: np.ndarray | None) -> np.ndarray:
     """(N, 2, 6 + k) d pixel / d (rotation, translation, shape) at the moved points ``Xm`` (N, 3)."""
-    dX = [-_skew_rows(Xm - centre), np.broadcast_to(np.eye(3), (len(Xm), 3, 3))]
+    dX = [-skew(Xm - centre), np.broadcast_to(np.eye(3), (len(Xm), 3, 3))]
     if basis is not None:
         dX.append(np.einsum("ij,njk->nik", rodrigues(theta[:3]), basis))
     return np.einsum("nkj,nji->nki", _projection_jacobian(Xm, K), np.concatenate(dX, axis=2))
@@ -233,11 +233,3 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
                 g[6:] += shape_weight * float(w.sum()) * theta[6:]
             theta -= np.linalg.solve(H + 1e-6 * np.eye(6 + k), g)
     return Refinement(rodrigues(theta[:3]), theta[3:6].copy(), theta[6:].copy(), theta.copy())
-
-
-def _skew_rows(v: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) cross-product matrices of (N, 3) vectors."""
-    z = np.zeros(len(v))
-    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], -1),
-                     np.stack([v[:, 2], z, -v[:, 0]], -1),
-                     np.stack([-v[:, 1], v[:, 0], z], -1)], -2)
