@@ -17,7 +17,6 @@ from facesculpt.nodes.fitter.appearance import (
     frontality,
     refine_pose,
 )
-from facesculpt.nodes.fitter.pose import rodrigues
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
 
@@ -37,7 +36,7 @@ def _scene():
 
 def test_the_photometric_step_recovers_a_small_pose_error():
     X, image, template = _scene()
-    off = Refinement(rodrigues(np.radians([1.0, -1.5, 0.5])), np.array([2.0, -1.5, 0.0]), np.zeros(0)).apply(X)
+    off = Refinement(np.r_[np.radians([1.0, -1.5, 0.5]), 2.0, -1.5, 0.0]).apply(X)
     before = np.linalg.norm(project(off, K) - project(X, K), axis=1).mean()
     found = refine_pose(image, off, np.ones(len(X)), 0.8 * template + 20.0, K, np.zeros(0, np.int64))
     after = np.linalg.norm(project(found.apply(off), K) - project(X, K), axis=1).mean()
@@ -46,7 +45,7 @@ def test_the_photometric_step_recovers_a_small_pose_error():
 
 def test_the_landmark_prior_holds_the_pose_where_the_landmarks_put_it():
     X, image, template = _scene()
-    off = Refinement(rodrigues(np.radians([1.0, -1.5, 0.5])), np.array([2.0, -1.5, 0.0]), np.zeros(0)).apply(X)
+    off = Refinement(np.r_[np.radians([1.0, -1.5, 0.5]), 2.0, -1.5, 0.0]).apply(X)
     free = refine_pose(image, off, np.ones(len(X)), template, K, np.zeros(0, np.int64))
     held = refine_pose(image, off, np.ones(len(X)), template, K, np.arange(len(X)), prior_weight=100.0)
     moved = [np.linalg.norm(project(m.apply(off), K) - project(off, K), axis=1).mean() for m in (free, held)]
@@ -59,7 +58,7 @@ def test_a_shape_component_is_recovered_with_the_pose():
     X, image, template = _scene()
     basis = np.zeros((len(X), 3, 1))
     basis[:, 0, 0] = (X[:, 0] - X[:, 0].mean()) * 0.05           # one std: 5 % wider
-    wrong = Refinement(rodrigues(np.radians([0.0, 0.5, 0.0])), np.array([1.0, 0.0, 0.0]), np.array([-1.5])).apply(X, basis)
+    wrong = Refinement(np.r_[np.radians([0.0, 0.5, 0.0]), 1.0, 0.0, 0.0, -1.5]).apply(X, basis)
     found = refine_pose(image, wrong, np.ones(len(X)), template, K, np.zeros(0, np.int64), basis=basis,
                         shape_weight=1e-3)
     error = [np.linalg.norm(project(Y, K) - project(X, K), axis=1).mean() for Y in (wrong, found.apply(wrong, basis))]

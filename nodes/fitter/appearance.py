@@ -114,23 +114,29 @@ def _projection_jacobian(X: np.ndarray, K: np.ndarray | None) -> np.ndarray:
 
 @dataclass
 class Refinement:
-    """What :func:`refine_pose` found: the refined vertices are ``((vertices + basis @ shape) - c)
-    @ R.T + c + t`` with c the given vertices' centroid (:meth:`apply`). R (3, 3); t (3,) camera
-    units; shape (k,) the change of the shape coefficients (standard deviations; empty without a
-    basis)."""
+    """What :func:`refine_pose` found, ``theta`` (6 + k,): a rotation vector (rad), a translation
+    (camera units) and the change of k shape coefficients (standard deviations; none without a
+    basis). The refined vertices are ``((vertices + basis @ shape) - c) @ R.T + c + t`` with c the
+    given vertices' centroid (:meth:`apply`); ``theta`` is also where the next frame starts."""
 
-    R: np.ndarray
-    t: np.ndarray
-    shape: np.ndarray
-    theta: np.ndarray = None   # (6 + k,) rotation vector, translation, shape: the next frame's start
+    theta: np.ndarray
+
+    @property
+    def R(self) -> np.ndarray:
+        return rodrigues(self.theta[:3])
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.theta[3:6]
+
+    @property
+    def shape(self) -> np.ndarray:
+        return self.theta[6:]
 
     def apply(self, vertices: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
         """(V, 3) float64: ``vertices`` refined (``basis`` (V, 3, k) as given to :func:`refine_pose`)."""
         X = np.asarray(vertices, np.float64)
-        c = X.mean(axis=0)
-        if basis is not None and len(self.shape):
-            X = X + np.asarray(basis, np.float64) @ self.shape
-        return (X - c) @ self.R.T + c + self.t
+        return _moved(X, X.mean(axis=0), self.theta, None if basis is None else np.asarray(basis, np.float64))
 
 
 def _moved(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarray | None) -> np.ndarray:
@@ -186,7 +192,7 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     use = np.flatnonzero(weights > 0)
     use = use[:: max(1, -(-len(use) // MAX_VERTICES))]   # evenly over the mesh: neighbours say much the same
     if len(use) < 20:
-        return Refinement(np.eye(3), np.zeros(3), np.zeros(k), np.zeros(6 + k))
+        return Refinement(np.zeros(6 + k))
     kind = "perspective" if K is not None else "orthographic"
     anchor_px = project(X[anchors], K, kind)
     # the face's box (grown by a margin the motion stays within) is all the pyramid needs
@@ -195,7 +201,7 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     hi = np.ceil(px0.max(axis=0) + CROP_MARGIN * np.ptp(px0, axis=0) + 8).astype(int)
     grey = grey[lo[1]:hi[1], lo[0]:hi[0]]
     if min(grey.shape) < 8:
-        return Refinement(np.eye(3), np.zeros(3), np.zeros(k), np.zeros(6 + k))
+        return Refinement(np.zeros(6 + k))
     B_use = None if basis is None else basis[use]
     B_anchor = None if basis is None else basis[anchors]
     held_px = None if start is None else project(_moved(X[anchors], centre, theta, B_anchor), K, kind)
@@ -232,4 +238,4 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
                 H[6:, 6:] += shape_weight * float(w.sum()) * np.eye(k)
                 g[6:] += shape_weight * float(w.sum()) * theta[6:]
             theta -= np.linalg.solve(H + 1e-6 * np.eye(6 + k), g)
-    return Refinement(rodrigues(theta[:3]), theta[3:6].copy(), theta[6:].copy(), theta.copy())
+    return Refinement(theta.copy())
