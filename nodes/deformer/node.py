@@ -242,8 +242,9 @@ class DeformerNode(Node):
         own = self._displacement_of(editor.face_id)
         several = len(self.editors) > 1
         # faces with a solve or a pose (a face turned before its first solve is listed with zeros)
-        faces = sorted(k for k, e in self.editors.items() if (k in self.displacements or not e.pose.is_zero)
-                       and self._displacement_of(k) is not None and len(self._displacement_of(k)) == len(own))
+        shown = {k: self._displacement_of(k) for k, e in self.editors.items()
+                 if k in self.displacements or not e.pose.is_zero}
+        faces = sorted(k for k, d in shown.items() if d is not None and len(d) == len(own))
         poses = {k: self.editors[k].pose.as_list() for k in faces}
         posed = any(any(p) for p in poses.values()) or not editor.pose.is_zero
         self.last = Deformation(
@@ -256,8 +257,7 @@ class DeformerNode(Node):
             version=sum(e.stack.version for e in self.editors.values() if e.stack is not None),
             face_id=editor.face_id,
             face_ids=np.array(faces, np.int32) if several else None,
-            displacements=(np.stack([self._displacement_of(k) for k in faces]).astype(np.float32)
-                           if several else None),
+            displacements=np.stack([shown[k] for k in faces]).astype(np.float32) if several else None,
             pose=np.array(editor.pose.as_list(), np.float32) if posed else None,
             poses=np.array([poses[k] for k in faces], np.float32).reshape(-1, 6) if several and posed else None,
         )
