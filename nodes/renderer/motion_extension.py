@@ -95,13 +95,16 @@ def extend_motion(offsets: np.ndarray, head: np.ndarray) -> np.ndarray:
     h, w = covered.shape
     small = (max(1, -(-w // FIELD_STEP)), max(1, -(-h // FIELD_STEP)))
     weight = cv2.resize(covered.astype(np.float32), small, interpolation=cv2.INTER_AREA)
-    summed = cv2.resize(np.where(covered[..., None], offsets, 0.0).astype(np.float32), small,
+    # (cv2.copyTo with a one-channel mask: numpy's broadcast where takes ten times as long)
+    summed = cv2.resize(cv2.copyTo(offsets, covered.view(np.uint8), np.zeros_like(offsets)), small,
                         interpolation=cv2.INTER_AREA)
     mean = summed / np.maximum(weight, 1e-6)[..., None]   # each cell: the mean offset of its covered pixels
-    field = cv2.resize(pull_push(mean, weight), (w, h), interpolation=cv2.INTER_LINEAR)
-    to_face = cv2.distanceTransform((~covered).view(np.uint8), cv2.DIST_L2, 3)
-    to_edge = cv2.distanceTransform(head, cv2.DIST_L2, 3)
+    # The fade is smooth too: distances and smoothstep on the grid, one resampling of the faded field.
+    step = float(max(w, h)) / float(max(small))
+    to_face = cv2.distanceTransform((weight < 0.5).view(np.uint8), cv2.DIST_L2, 3) * step
+    to_edge = cv2.distanceTransform(cv2.resize(head, small, interpolation=cv2.INTER_NEAREST), cv2.DIST_L2, 3)
+    to_edge = np.maximum(to_edge - 1.0, 0.0) * step  # zero a cell inside: resampled, it is zero at the border
     u = to_face / np.maximum(to_face + to_edge, 1e-6)
     fade = 1.0 - u * u * (3.0 - 2.0 * u)        # smoothstep: 1 at the face, 0 at the border
-    around = (head != 0) & ~covered
-    return np.where(around[..., None], field * fade[..., None], offsets).astype(np.float32)
+    field = cv2.resize(pull_push(mean, weight) * fade[..., None], (w, h), interpolation=cv2.INTER_LINEAR)
+    return cv2.copyTo(field, ((head != 0) & ~covered).view(np.uint8), offsets.copy())
