@@ -2,6 +2,7 @@
 
     python benchmarks/bench_talking_heads.py reenact [--drivers d0,d3,d12] [--sources astronaut,d12]
     python benchmarks/bench_talking_heads.py coding [--videos d0,d3,d12] [--components 12]
+    python benchmarks/bench_talking_heads.py graph [--videos d3,s18] [--fps 30]
 
 reenact: each source (``astronaut``: the embedded photo, mouth open showing teeth; a video name:
 its first frame) is driven by each video; the output is fitted again (its own neutral learned
@@ -15,6 +16,13 @@ file's; face-region PSNR/SSIM (the convex hull of the original frame's fit) of t
 the input, next to H.264 (libx264 through PyAV, medium preset, one pass at a target bitrate; the
 bitrate it really spent is reported) on the same frames at a ladder of bitrates, and the bitrate
 H.264 needs for the model stream's PSNR (interpolated on the ladder, log bitrate).
+
+graph: launch/coding.yaml on a video at ``--fps``, scaled to the paper's pixel count (856x480)
+at its own aspect as `facesculpt bench` does (camera, landmarks, fitter and encoder; the
+coded topics on tcp loopback to the decoder node): decoded frames out per second over the coded
+part, latency from capture to the decoded frame (p50/p99), coding/frame's bytes on the wire (the
+record and the graph's framing) per second, the key's size, the bases sent (the first and the ones
+learnt again) and all coded payload (records, key, bases) per second over the coded part.
 """
 
 from __future__ import annotations
@@ -164,6 +172,67 @@ def bench_coding(args) -> None:
             print(f"    the model stream's {psnr:.2f} dB lies outside H.264's ladder ({psnrs.min():.2f}..{psnrs.max():.2f})")
 
 
+def bench_graph(args) -> None:
+    import os
+    import subprocess
+    import time
+
+    from facesculpt.app.bench import bench_size
+    from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, Image, encode
+    from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
+
+    print(f"decoder head_motion={args.head_motion}")
+    print("| video | camera fps | decoded frames/s | latency p50 / p99 ms | coding/frame on the wire | record | key bytes "
+          "| bases sent: bytes | all coding/ payload |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for name in args.videos.split(","):
+        with tempfile.TemporaryDirectory() as tmp:
+            import socket
+
+            with socket.socket() as sock:
+                sock.bind(("127.0.0.1", 0))
+                port = sock.getsockname()[1]
+            address = f"tcp://127.0.0.1:{port}"
+            env = dict(os.environ, FACESCULPT_MASTER=address, FACESCULPT_RUN_DIR=tmp, PYTHONUNBUFFERED="1")
+            log = open(Path(tmp) / "launch.log", "w")
+            cap = cv2.VideoCapture(str(_video(name)))
+            width, _ = bench_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+            cap.release()
+            proc = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", "launch", "coding",
+                                     f"camera.source={_video(name)}", f"camera.fps={args.fps}", f"camera.width={width}",
+                                     "decoder.window=false", f"decoder.head_motion={args.head_motion}"], env=env, stdout=log, stderr=subprocess.STDOUT)
+            out, frames, keys, bases = [], [], [], []
+            listener = Node(name=f"_bench_coding_{os.getpid()}", master=address)
+            listener.subscribe("render/image", Image, lambda m: out.append((time.time_ns(), m.stamp)), qos=EVERY_MESSAGE)
+            listener.subscribe("coding/frame", CodedFrame,
+                               lambda m: frames.append((time.time_ns(), sum(len(bytes(f)) for f in encode(m, "coding/frame")),
+                                                        m.record.size)), qos=EVERY_MESSAGE)
+            listener.subscribe("coding/key", CodedKey, lambda m: keys.append(len(m.header) + m.keyframe.size + m.arrays.size
+                                                                             + m.triangles.nbytes), qos=LATCHED)
+            listener.subscribe("coding/basis", CodedBasis, lambda m: bases.append(m.arrays.size + m.record.size
+                                                                                  + 16 * m.coeff_steps.size),
+                               qos=EVERY_MESSAGE)
+            listener.start()
+            while proc.poll() is None:
+                listener.spin_once(0.02)
+            listener.close()
+        if len(out) < 10:
+            print(f"| {name} | {args.fps} | no output (see the launch log) | | | | | | |")
+            continue
+        # the coded part: from the first decoded frame to the last, without the learning frames
+        arrivals = np.array([a for a, _ in out], np.float64)
+        rate = (len(out) - 1) / ((arrivals[-1] - arrivals[0]) / 1e9)
+        latency = np.array([(a - st) / 1e6 for a, st in out])
+        sent = np.array([(a, n) for a, n, _ in frames], np.float64)
+        span = (sent[-1, 0] - sent[0, 0]) / 1e9
+        wire = sent[:, 1].sum() * 8 / span / 1000
+        payload = (sum(n for _, _, n in frames) + sum(keys) + sum(bases)) * 8 / span / 1000
+        print(f"| {name} | {args.fps} | {rate:.1f} ({len(out)} of {len(frames)} coded) | {np.percentile(latency, 50):.0f} / "
+              f"{np.percentile(latency, 99):.0f} | {wire:.1f} kbit/s ({sent[:, 1].mean():.0f} B a frame) | "
+              f"{frames[0][2]} B | {keys[0] if keys else 0} | {len(bases)}: {sum(bases)} | {payload:.1f} kbit/s over {span:.1f} s |")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="what", required=True)
@@ -174,7 +243,13 @@ def main() -> None:
     c = sub.add_parser("coding")
     c.add_argument("--videos", default="d0,d3,d12")
     c.add_argument("--components", type=int, default=12)
+    g = sub.add_parser("graph")
+    g.add_argument("--videos", default="d3,s18")
+    g.add_argument("--fps", type=float, default=30.0)
+    g.add_argument("--head-motion", default="true", choices=("true", "false"), help="the decoder's head_motion")
     args = p.parse_args()
+    if args.what == "graph":
+        return bench_graph(args)
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)

@@ -4,6 +4,9 @@ from .codec import REGISTRY, DecodeError, Message, decode, encode, summarize
 from .types import (
     INPUT_COMMANDS,
     INPUT_KINDS,
+    CodedBasis,
+    CodedFrame,
+    CodedKey,
     Deformation,
     Diagnostics,
     FaceExpression,
@@ -20,6 +23,6 @@ from .types import (
 __all__ = [
     "REGISTRY", "DecodeError", "Message", "decode", "encode", "summarize",
     "Image", "FaceExpression", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
-    "HandLandmarks", "FaceTexture",
+    "HandLandmarks", "FaceTexture", "CodedKey", "CodedBasis", "CodedFrame",
     "INPUT_KINDS", "INPUT_COMMANDS",
 ]

@@ -300,3 +300,57 @@ class FaceTexture(Message):
     confidence: np.ndarray = array("u1", "S", "S")
     texcoords: np.ndarray = array("f4", "V", 2)
     updates: int = 0
+
+
+@register
+@dataclass
+class CodedKey(Message):
+    """The keyframe of model-based coding (latched on `coding/key`), sent once per keyframe
+    (:mod:`facesculpt.msgs.fsc`).
+
+    header: JSON text (fps, width, height, K, vertices, model); keyframe: (J,) uint8 the keyframe's
+    JPEG bytes; arrays: (Z,) uint8 zlib of its fit and the person's neutral
+    (:func:`~facesculpt.msgs.fsc.pack_key_arrays`); triangles: (T, 3) int32 the model's mesh (the
+    receiver loads no model); version: this keyframe's number.
+    """
+
+    TYPE = "CodedKey"
+    header: str = ""
+    keyframe: np.ndarray = array("u1", "J")
+    arrays: np.ndarray = array("u1", "Z")
+    triangles: np.ndarray = array("i4", "T", 3)
+    version: int = 0
+
+
+@register
+@dataclass
+class CodedBasis(Message):
+    """The expression basis of model-based coding (latched on `coding/basis`), sent after its key
+    and again whenever the coder learns it anew.
+
+    key_version: the key it belongs to; version: this basis's number; arrays: (Z,) uint8 zlib of
+    the mean and the int8 basis (:func:`~facesculpt.msgs.fsc.pack_basis`); basis_steps (C,) and
+    coeff_steps (C,) float64 their quantisation steps; record: (R,) uint8 the keyframe's own
+    per-frame record in this basis (the pose and expression the keyframe is rendered from).
+    """
+
+    TYPE = "CodedBasis"
+    key_version: int = 0
+    version: int = 0
+    arrays: np.ndarray = array("u1", "Z")
+    basis_steps: np.ndarray = array("f8", "C")
+    coeff_steps: np.ndarray = array("f8", "C")
+    record: np.ndarray = array("u1", "R")
+
+
+@register
+@dataclass
+class CodedFrame(Message):
+    """One frame of model-based coding (`coding/frame`): record (R,) uint8, the `.fsc` per-frame
+    record (a face flag, the quantised pose and expression coefficients) in basis
+    ``basis_version`` of key ``key_version``."""
+
+    TYPE = "CodedFrame"
+    record: np.ndarray = array("u1", "R")
+    key_version: int = 0
+    basis_version: int = 0

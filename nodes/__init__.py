@@ -16,4 +16,6 @@ BUILTIN_NODES = {
     "pinch": "facesculpt.nodes.input.pinch:PinchNode",
     "foxglove": "facesculpt.nodes.foxglove.node:FoxgloveNode",
     "reenact": "facesculpt.nodes.reenact.node:ReenactNode",
+    "encoder": "facesculpt.nodes.reenact.encoder_node:EncoderNode",
+    "decoder": "facesculpt.nodes.renderer.decoder_node:DecoderNode",
 }

@@ -31,7 +31,7 @@ def coded(data_dir, models_dir, tmp_path_factory):
 
 
 def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
-    from facesculpt.app.coding_format import LOG_SCALE_STEP, ROT_STEP, TRANS_STEP, read_stream
+    from facesculpt.msgs.fsc import LOG_SCALE_STEP, ROT_STEP, TRANS_STEP, read_stream
 
     frames, fps, analysis, path, sizes = coded
     stream = read_stream(path)
@@ -49,7 +49,7 @@ def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
 
 
 def test_per_frame_stream_is_within_the_target_bitrate(coded):
-    from facesculpt.app.coding_format import record_bytes
+    from facesculpt.msgs.fsc import record_bytes
 
     frames, fps, analysis, path, sizes = coded
     assert sizes["records"] == FRAMES * record_bytes(12) == FRAMES * 27

@@ -8,13 +8,11 @@ displacement from the neutral (V, 3) mm. The displacements of the whole video ar
 ``components`` principal components (their mean and basis, int8 per row, go in the header, once); each frame
 sends its coefficients. The header also holds the keyframe (the first frame with a face, whole,
 as a JPEG: the face's texture and the background as a still; the background is never updated),
-its fit and the neutral. Stream layout: :mod:`facesculpt.app.coding_format`.
+its fit and the neutral. Stream layout: :mod:`facesculpt.msgs.fsc`; the same parts travel on the
+graph's ``coding/key`` and ``coding/frame`` (the encoder and decoder nodes).
 
-Decoding. Frame t's shape is neutral + mean + basis · c_t, posed by its similarity; the keyframe's
-fitted mesh is moved by the difference between that and the first coded frame's posed shape (so
-the keyframe renders as itself), and the keyframe is composited onto it (:class:`Compositor`:
-uncovered background inpainted). A mouth that opens wider than the keyframe's closed one gets
-the painted interior of :mod:`facesculpt.nodes.renderer.mouth_interior` (as reenactment does).
+Decoding: :class:`facesculpt.nodes.renderer.coded_face.CodedFace` renders each frame from the
+keyframe (the face posed and deformed by the frame's parameters, the mouth painted where it opens).
 """
 
 from __future__ import annotations
@@ -24,26 +22,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from facesculpt.app.coding_format import CodedStream, coefficient_steps, read_stream, write_stream
 from facesculpt.app.reenactment import inner_lip_ids
-from facesculpt.geometry.projection import project
-from facesculpt.nodes.renderer.mouth_interior import CLOSED_MOUTH_PX, opening_px, paint_mouth_interior
-
-
-def fit_pose(model_vertices: np.ndarray, camera_vertices: np.ndarray) -> np.ndarray:
-    """(7,) the similarity mapping a fitted shape (V, 3) model mm onto its camera-space mesh
-    (V, 3): rotation vector (rad), translation (camera units), log scale."""
-    from facesculpt.nodes.fitter.pose import similarity_procrustes
-
-    s, R, t = similarity_procrustes(model_vertices, camera_vertices)
-    rvec, _ = cv2.Rodrigues(np.asarray(R, np.float64))
-    return np.concatenate([rvec.ravel(), np.asarray(t, np.float64), [np.log(s)]])
-
-
-def apply_pose(pose: np.ndarray, shape: np.ndarray) -> np.ndarray:
-    """(V, 3) ``shape`` (model mm) under the similarity of :func:`fit_pose`'s vector."""
-    R, _ = cv2.Rodrigues(np.asarray(pose[:3], np.float64))
-    return np.exp(pose[6]) * np.asarray(shape, np.float64) @ R.T + pose[3:6]
+from facesculpt.geometry.similarity import similarity_vector
+from facesculpt.msgs.fsc import CodedStream, coefficient_steps, read_stream, write_stream
+from facesculpt.nodes.reenact.expression_basis import expression_basis, expression_coefficients
 
 
 @dataclass
@@ -88,7 +70,7 @@ def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0,
             if progress is not None:
                 progress(1)
             present.append(fit is not None)
-            pose.append(np.zeros(7) if fit is None else fit_pose(fit.model_vertices, fit.vertices))
+            pose.append(np.zeros(7) if fit is None else similarity_vector(fit.model_vertices, fit.vertices))
             expression.append(np.zeros_like(neutral, np.float32) if fit is None
                               else (fit.model_vertices - neutral).astype(np.float32))
             projected.append(np.full((len(neutral), 2), np.nan, np.float32) if fit is None else fit.projected)
@@ -103,12 +85,9 @@ def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0,
 def encode(analysis: Analysis, path, components: int = 12, jpeg_quality: int = 80) -> dict:
     """Write ``analysis`` as a `.fsc` stream at ``path``; returns its part sizes (bytes)."""
     a = analysis
-    E = a.expression[a.present].reshape(int(a.present.sum()), -1).astype(np.float64)
-    mean = E.mean(0)
-    _, _, Vt = np.linalg.svd(E - mean, full_matrices=False)
-    basis = Vt[:components]
+    mean, basis = expression_basis(a.expression[a.present], components)
     coeffs = np.zeros((len(a.present), len(basis)))
-    coeffs[a.present] = (E - mean) @ basis.T
+    coeffs[a.present] = expression_coefficients(a.expression[a.present], mean, basis)
     ok, jpeg = cv2.imencode(".jpg", a.key_image, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
     if not ok:
         raise RuntimeError("cannot encode the keyframe as JPEG")
@@ -126,44 +105,22 @@ class Decoder:
 
     def __init__(self, stream: CodedStream):
         from facesculpt.app.pipeline import load_face_model
-        from facesculpt.nodes.renderer import Compositor
+        from facesculpt.nodes.renderer.coded_face import CodedFace
 
         self.stream = stream
         h = stream.header
-        self.image = cv2.imdecode(np.frombuffer(stream.keyframe_jpeg, np.uint8), cv2.IMREAD_COLOR)
-        self.model = load_face_model(h["model"])
-        self.K = None if h["K"] is None else np.asarray(h["K"], np.float64)
-        self.compositor = Compositor(int(h["width"]), int(h["height"]))
-        self.lips = inner_lip_ids(self.model)
-        self.key_opening = opening_px(stream.arrays["key_projected"][self.lips])
-        self.anchor = self.posed(int(h["key"]))
-        self.last = int(h["key"])
-
-    def shape(self, i: int) -> np.ndarray:
-        """(V, 3) model mm: frame ``i``'s decoded shape (neutral + mean + basis · c)."""
-        a = self.stream.arrays
-        return a["neutral"] + (a["mean"] + self.stream.coeffs[i] @ a["basis"]).reshape(-1, 3)
-
-    def posed(self, i: int) -> np.ndarray:
-        return apply_pose(self.stream.pose[i], self.shape(i))
+        model = load_face_model(h["model"])
+        key = int(h["key"])
+        self.face = CodedFace(h, stream.keyframe_jpeg, stream.arrays, model.triangles, stream.pose[key],
+                              stream.coeffs[key], lips=inner_lip_ids(model))
 
     def frame(self, i: int) -> np.ndarray:
         """(H, W, 3) uint8 BGR: frame ``i`` rendered (a frame without a face holds the last one's
         parameters; frames before the keyframe render it with its own)."""
-        if self.stream.present[i]:
-            self.last = i
-        a = self.stream.arrays
-        deformed = (a["key_vertices"] + self.posed(self.last) - self.anchor).astype(np.float32)
-        out = self.compositor.render(self.image, a["key_vertices"], a["key_projected"], self.model.triangles,
-                                     deformed)
-        if self.key_opening < CLOSED_MOUTH_PX:
-            lips = deformed[self.lips].astype(np.float64)
-            out = paint_mouth_interior(out, project(lips, self.K) if self.K is not None else lips[:, :2],
-                                       self.key_opening)
-        return out
+        return self.face.render(bool(self.stream.present[i]), self.stream.pose[i], self.stream.coeffs[i])
 
     def close(self) -> None:
-        self.compositor.release()
+        self.face.release()
 
 
 def decode_file(path) -> tuple[CodedStream, Decoder]:

@@ -4,7 +4,7 @@
     facesculpt decode talk.fsc -o talk_decoded.mp4
 
 See :mod:`facesculpt.app.coding` for what is sent and how it is rendered back, and
-:mod:`facesculpt.app.coding_format` for the stream's layout. ``encode`` prints the bitrate: the
+:mod:`facesculpt.msgs.fsc` for the stream's layout. ``encode`` prints the bitrate: the
 per-frame stream (what a live link spends) and the whole file with its one-time header.
 """
 

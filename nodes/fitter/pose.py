@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facesculpt.geometry import similarity
 from facesculpt.geometry.head_angles import FRONTAL, euler_from_rotation, rotation_from_euler  # noqa: F401 (this module's API)
 from facesculpt.geometry.projection import project
 
@@ -234,25 +235,9 @@ def perspective(
 def similarity_procrustes(
     source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None, allow_scale: bool = True
 ) -> tuple[float, np.ndarray, np.ndarray]:
-    """Weighted similarity (Umeyama) aligning ``source`` to ``target``: ``target ≈ s · R · source + t``.
-
-    source, target (N, 3); weights (N,). Returns s, R (3, 3) proper rotation, t (3,)."""
-    A = np.asarray(source, np.float64)
-    B = np.asarray(target, np.float64)
-    if A.shape != B.shape or A.ndim != 2 or A.shape[1] != 3 or len(A) < 3:
-        raise PoseError(f"need two (N>=3, 3) point sets of the same shape, got {A.shape} and {B.shape}")
-    w = np.ones(len(A)) if weights is None else np.asarray(weights, np.float64).reshape(-1)
-    W = w / w.sum()
-    ma, mb = W @ A, W @ B
-    Ac, Bc = A - ma, B - mb
-    cov = (Bc * W[:, None]).T @ Ac
-    U, S, Vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    D = np.diag([1.0, 1.0, d])
-    R = U @ D @ Vt
-    var_a = float(W @ (Ac**2).sum(1))
-    if var_a <= 0:
-        raise PoseError("source points coincide: no similarity transform")
-    s = float((S * np.diag(D)).sum() / var_a) if allow_scale else 1.0
-    t = mb - s * R @ ma
-    return s, R, t
+    """:func:`facesculpt.geometry.similarity.similarity_procrustes` (``target ≈ s · R · source + t``;
+    returns s, R (3, 3), t (3,)) raising :class:`PoseError` for point sets it cannot align."""
+    try:
+        return similarity.similarity_procrustes(source, target, weights, allow_scale)
+    except ValueError as exc:
+        raise PoseError(str(exc)) from None
