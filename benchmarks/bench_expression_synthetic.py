@@ -44,6 +44,8 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--neutral-frames", type=int, default=30)
     p.add_argument("--strip", default="", metavar="FILE.png")
+    p.add_argument("--model", default="sfm", choices=("sfm", "facemesh"),
+                   help="the model fitted to the frames (default sfm, whose blendshapes made them)")
     args = p.parse_args()
     import cv2
 
@@ -67,7 +69,7 @@ def main() -> None:
     names, lv = model.landmark_names, model.landmark_vertices
     rest_pts = expression_points(scene.rest[:Vm], False, names, lv)
     truth, fitted, snr, frames_out, weights, betas = [], [], [], [], [], []
-    with Pipeline("sfm", neutral_frames=args.neutral_frames) as pipe:
+    with Pipeline(args.model, neutral_frames=args.neutral_frames) as pipe:
         for i in range(args.frames):
             w = activation(i, args.neutral_frames)
             shape = scene.rest.copy()
@@ -81,8 +83,9 @@ def main() -> None:
             truth.append(expression_parameters(expression_points(shape[:Vm], False, names, lv), rest_pts))
             fitted.append(np.full(len(NAMES), np.nan) if fit is None else fit.expression)
             weights.append(w)
-            betas.append(np.full(len(w), np.nan) if fit is None else np.asarray(fit.beta, np.float64))
-            if fit is not None:
+            betas.append(np.full(len(w), np.nan) if fit is None or args.model != "sfm"
+                         else np.asarray(fit.beta, np.float64))
+            if fit is not None and args.model == "sfm":
                 a = shape[:Vm] - shape[:Vm].mean(0)
                 b = np.asarray(fit.model_vertices, np.float64)
                 s, R, t = similarity_procrustes(b, a)
@@ -92,8 +95,9 @@ def main() -> None:
                 frames_out.append(frame)
     truth, fitted = np.array(truth), np.array(fitted)
     ok = np.isfinite(fitted).all(1)
-    print(f"{ok.sum()} of {len(ok)} frames fitted (after {args.neutral_frames} neutral frames); "
-          f"shape SNR median {np.median(snr):.1f} dB (min {np.min(snr):.1f})")
+    print(f"{ok.sum()} of {len(ok)} frames fitted with {args.model} (after {args.neutral_frames} neutral frames)")
+    if snr:
+        print(f"shape SNR median {np.median(snr):.1f} dB (min {np.min(snr):.1f})")
     rows = []
     for k, name in enumerate(NAMES):
         t = truth[ok, k]
@@ -105,6 +109,8 @@ def main() -> None:
     r = np.array([x[1] for x in rows])
     print(f"{len(rows)} components the truth moves: mean r {r.mean():.3f}, {int((r >= 0.9).sum())} >= 0.9")
     weights, betas = np.array(weights), np.array(betas)
+    if args.model != "sfm":
+        return
     blend = [np.corrcoef(weights[ok, k], betas[ok, k])[0, 1] for k in range(weights.shape[1])]
     print("blendshape weights (anger, disgust, fear, happiness, sadness, surprise): fitted beta vs truth r = "
           + " ".join(f"{r:.2f}" for r in blend))

@@ -3,15 +3,17 @@ frames out on render/image and in a video file, per-stage times in diagnostics."
 
 from __future__ import annotations
 
+import time
+
 import cv2
 import numpy as np
 from renderer_scene import issue_edit, place_marked, read_frames
 
 from facesculpt.geometry import merge_deformation
-from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, Image
+from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, FrameDone, Image
 from facesculpt.nodes.renderer import Compositor
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
 
 MS = 1_000_000
 
@@ -110,3 +112,57 @@ def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_pa
     assert len(written) == len(frames)
     mse = np.mean((written[no_face].astype(float) - frames[no_face]) ** 2)
     assert 10 * np.log10(255 ** 2 / mse) > 28
+
+
+class BurstFeeder(Node):
+    """Sends every frame it is given (no frame dropped on the way) and records what comes back."""
+
+    NAME = "renderer_burst_feeder"
+
+    def setup(self):
+        self.image_pub = self.advertise("camera/image", Image, qos=EVENTS)  # reliable: blocks, never drops
+        self.state_pub = self.advertise("face/state", FaceState, qos=EVENTS)
+        self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
+        self.rendered: list[int] = []
+        self.done: list = []
+        self.subscribe("render/image", Image, lambda m: self.rendered.append(m.stamp), qos=EVERY_MESSAGE)
+        self.subscribe("render/done", FrameDone, self.done.append, qos=EVERY_MESSAGE)
+
+
+def test_a_renderer_that_falls_behind_renders_only_the_newest_frame_unless_told_to_keep_all(graph, data_dir):
+    from facesculpt.nodes.fitter import load_model
+
+    model = load_model("sfm")
+    pose = place_marked(model, "s18")
+    frame = read_frames(data_dir, "s18", count=1)[0]
+    H, W = frame.shape[:2]
+    feeder = graph.node(BurstFeeder())
+    feeder.model_pub.publish(FaceModel(stamp=1, model_id=model.model_id, vertices=model.mean.astype(np.float32),
+                                       triangles=model.triangles.astype(np.int32)))
+    rendered = {}
+    for run, backlog in enumerate(("auto", "all")):
+        renderer = graph.spawn("run", "renderer", "pairing=sync", f"backlog={backlog}", "--name", f"renderer{run}")
+        for pub in (feeder.image_pub, feeder.state_pub):
+            assert pub.wait_for_subscribers(1, 30.0), f"the renderer never subscribed to {pub.topic}"
+        graph.spin_until(feeder, lambda: False, 1.0)
+        feeder.rendered.clear()
+        feeder.done.clear()
+        stamps = [(run * 100 + i + 1) * 40 * MS for i in range(12)]
+        for stamp in stamps:  # the states first (a fitter ahead of the frames' delivery), then a burst of frames
+            feeder.state_pub.publish(FaceState(stamp=stamp, model_id=model.model_id, R=pose.R, t=np.zeros(3), K=pose.K,
+                                               vertices=pose.fitted.astype(np.float32),
+                                               projected=pose.projected.astype(np.float32), image_size=[W, H]))
+        graph.spin_until(feeder, lambda: False, 0.5)
+        for i, stamp in enumerate(stamps):  # a 300 frames/s camera: faster than the renderer draws
+            feeder.image_pub.publish(Image(stamp=stamp, seq=i, image=frame, K=pose.K))
+            time.sleep(0.0033)
+        assert graph.spin_until(feeder, lambda: len(feeder.done) == len(stamps) and len(feeder.rendered)
+                                == sum(d.rendered for d in feeder.done), 30.0), (backlog, len(feeder.done))
+        rendered[backlog] = list(feeder.rendered)
+        assert sorted(d.stamp for d in feeder.done) == stamps  # every frame acknowledged, rendered or not
+        assert sum(not d.rendered for d in feeder.done) == len(stamps) - len(feeder.rendered)
+        renderer.terminate()
+        renderer.wait(10)
+    # Live (no video file): the frames that queued up while it rendered are skipped, the newest drawn.
+    assert 1 <= len(rendered["auto"]) < 12 and rendered["auto"][-1] == (0 * 100 + 12) * 40 * MS
+    assert rendered["all"] == [(100 + i + 1) * 40 * MS for i in range(12)]  # backlog=all: every one, in order

@@ -94,6 +94,9 @@ def register(sub) -> None:
                         "to its aspect); default: the paper's 856x480 pixel count at the input's aspect")
     p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,...",
                    help="the graph's edit also turns the head by this pose offset (README \"New views\")")
+    p.add_argument("--load", type=int, default=0, metavar="N",
+                   help="run N busy loops (one core's demand each) beside the measurement, as a browser or a video "
+                        "call would (default 0)")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)
@@ -513,14 +516,15 @@ def table(result: dict) -> str:
 
 
 def cmd_bench(args) -> int:
+    from facesculpt.app.busy_load import competing_load
     from facesculpt.app.pipeline import load_face_model, read_preset
     from facesculpt.geometry.pose_offset import parse_pose_offset
     from facesculpt.nodes.deformer.preset_format import merge_presets, pose_to_preset
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(args.threads)  # also in the environment the graph's processes inherit
-    if args.frames < 5 or args.drags < 1 or args.window <= 0:
-        raise ValueError("--frames must be >= 5, --drags >= 1 and --window > 0")
+    if args.frames < 5 or args.drags < 1 or args.window <= 0 or not 0 <= args.load <= 64:
+        raise ValueError("--frames must be >= 5, --drags >= 1, --window > 0 and --load 0 to 64")
     models = ["facemesh", "sfm"] if args.model == "both" else [args.model]
     skipped = {}
     if "sfm" in models:
@@ -547,27 +551,35 @@ def cmd_bench(args) -> int:
     result = {
         "input": description, "size": list(size), "frames": len(frames),
         "edit": [p.stem for p in paths], "pose": preset.get("pose", {}), "camera_fps": args.camera_fps,
-        "pairing": "sync",
+        "pairing": "sync", "competing_busy_loops": args.load,
         "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
     }
     try:
-        for model in models:
-            print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
-            entry = measure_stages(model, frames, fps, preset, args.drags)
-            if not args.no_graph:
-                print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
-                      file=sys.stderr, flush=True)
-                entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size,
-                                           resize="fill" if wanted else "stretch"))
-            result["models"][model] = entry
+        with competing_load(args.load):
+            _measure_models(args, models, frames, fps, preset, preset_file, source, size, wanted, result)
     finally:
         shutil.rmtree(preset_file.parent, ignore_errors=True)
     result["machine"]["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]
     print(table(result))
+    if args.load:
+        print(f"with {args.load} competing busy loop(s) running (--load)")
     print(f"load average {result['machine']['load_avg_start'][0]:.2f} -> {result['machine']['load_avg_end'][0]:.2f} "
           f"on {os.cpu_count()} CPUs")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
     return 0
+
+
+def _measure_models(args, models, frames, fps, preset, preset_file, source, size, wanted, result) -> None:
+    """Each model's in-process stages and (unless --no-graph) its graph figures, into ``result``."""
+    for model in models:
+        print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
+        entry = measure_stages(model, frames, fps, preset, args.drags)
+        if not args.no_graph:
+            print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
+                  file=sys.stderr, flush=True)
+            entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size,
+                                       resize="fill" if wanted else "stretch"))
+        result["models"][model] = entry

@@ -338,6 +338,11 @@ class Node:
     def teardown(self) -> None:
         """Release resources. Called once after spinning, also after an error."""
 
+    def after_messages(self) -> None:
+        """Called after each batch of message callbacks (the messages that were waiting when the
+        node last looked), before timers: a node that falls behind can act on the newest of them
+        only (the renderer renders only the newest frame of a backlog)."""
+
     # -- running ---------------------------------------------------------------------------------
     def start(self) -> None:
         """Set up and connect without spinning (for tests and embedding)."""
@@ -390,6 +395,8 @@ class Node:
                 sub.last_take_age_ms = (time.time_ns() - msg.stamp) / 1e6
             self._call(sub.callback, msg, frames) if sub.raw else self._call(sub.callback, msg)
             ran += 1
+        if ran and self.running:
+            self._call(self.after_messages)
         now = time.monotonic()
         for t in self.timers:
             if now >= t.next_at and self.running:

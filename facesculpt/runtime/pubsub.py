@@ -35,7 +35,7 @@ log = logging.getLogger("facesculpt.runtime.pubsub")
 # High-water marks when the profile gives none. Small types (events, diagnostics) may queue
 # deeply; big ones (images) must not pile up behind a stalled peer: memory stays bounded by
 # hwm * message size.
-SMALL_TYPES = {"InputEvent", "Diagnostics", "Deformation", "FaceModel"}
+SMALL_TYPES = {"InputEvent", "Diagnostics", "Deformation", "FaceModel", "FrameDone", "CodedFrame"}
 DEFAULT_HWM_SMALL = 10000
 DEFAULT_HWM_LARGE = 4
 _SNDMORE, _NOBLOCK = int(zmq.SNDMORE), int(zmq.NOBLOCK)  # plain ints: IntFlag arithmetic is slow

@@ -64,6 +64,10 @@ class RendererNode(Node):
         "pairing": Param("latest", "frames with face states: latest (the newest state) or sync (each frame's own)",
                          choices=("latest", "sync")),
         "buffer": Param(30, "frames kept while waiting for their state (sync)", range=(1, 1000)),
+        "backlog": Param("auto", "frames ready at once when the renderer fell behind (sync): newest (render the "
+                                 "newest, skip the others: latency stays low), all (render every one: nothing is "
+                                 "lost, latency grows), auto (all when writing a video file, else newest)",
+                         choices=("auto", "newest", "all")),
         "sync_timeout_s": Param(0.5, "sync: a frame this much older than the newest is shown without a face, s",
                                 range=(0.0, 60.0)),
         "max_state_age_s": Param(0.5, "latest: the oldest state (relative to the frame) still drawn, s",
@@ -131,6 +135,8 @@ class RendererNode(Node):
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))
         self.groups = FaceGroups(capacity=p.buffer)  # the states of one frame (one per face)
+        self.every_frame = p.backlog == "all" or (p.backlog == "auto" and bool(p.output))
+        self._ready: list = []            # pairs ready to render, rendered after the batch of messages
         self.image_pub = self.advertise("render/image", Image) if p.publish else None
         self.events_pub = self.advertise("input/events", InputEvent) if p.window else None
         # One FrameDone per handled frame: an offline camera (camera.wait_for) sends the next one on it.
@@ -205,6 +211,18 @@ class RendererNode(Node):
     def _render_all(self, pairs) -> None:
         for name, n in self.pairer.counters.items():
             self.counters[f"pairing_{name}"] = n
+        self._ready += pairs
+
+    def after_messages(self) -> None:
+        """Render the pairs the batch of messages made ready: all of them, or (``backlog``) only the
+        newest, the older ones acknowledged as not rendered (an offline camera sends on) and counted."""
+        pairs, self._ready = self._ready, []
+        if not self.every_frame and len(pairs) > 1:
+            for pair in pairs[:-1]:
+                self.done_pub.publish(FrameDone(stamp=pair.frame.stamp, seq=pair.frame.seq,
+                                                frame_id=pair.frame.frame_id, rendered=False))
+            self.count("skipped_behind", len(pairs) - 1)
+            pairs = pairs[-1:]
         for pair in pairs:
             self._render(pair.frame, pair.state)
 
