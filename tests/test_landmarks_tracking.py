@@ -89,3 +89,34 @@ def test_several_faces_are_tracked_without_rerunning_the_detector(models_dir, da
     # Still image: every track stays on its own face.
     for a, b in zip(first, faces):
         assert np.abs(a.points[:, :2] - b.points[:, :2]).mean() < 2.0
+
+
+def test_a_large_crop_is_area_downsampled_on_whole_pixels_and_lands_where_its_roi_says():
+    """crop_image shrinks a large ROI by a whole factor first (its part of the image grown to a
+    multiple of the factor, OpenCV's fast path): the crop must still show exactly the ROI."""
+    import cv2
+
+    from facesculpt.geometry.crops import _multiple_span, crop_image
+
+    assert _multiple_span(10, 17, 100, 3) == (10, 19) and _multiple_span(90, 99, 100, 4) == (88, 100)
+    assert _multiple_span(0, 5, 5, 2) == (0, 4)  # the image ends: trimmed to a multiple
+    h, w = 1080, 1920
+    ys, xs = np.mgrid[:h, :w].astype(np.float32)
+    image = np.dstack([xs / 4 % 256, ys / 4 % 256, np.zeros_like(xs)]).astype(np.uint8)  # position-coded
+    for roi in ([963.4, 541.7, 701.0, 701.0, 0.0], [420.2, 300.9, 500.0, 500.0, 0.3], [1800.0, 1000.0, 600.0, 600.0, 0.0]):
+        crop = crop_image(image, np.array(roi), 192)
+        # the centre pixel of the crop is the ROI's centre in the image
+        cx, cy = crop[96, 96, 0] * 4.0, crop[96, 96, 1] * 4.0
+        assert abs(cx - roi[0] % 1024) < 12 and abs(cy - roi[1] % 1024) < 12, (roi, cx, cy)
+        # and the crop equals a direct warp of the area-smoothed image closely (no shift)
+        f = int(max(roi[2], roi[3]) / 192)
+        ref = cv2.warpAffine(cv2.blur(image, (f, f)), _matrix(roi), (192, 192),
+                             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+        inside = (slice(20, 172), slice(20, 172))
+        assert np.median(np.abs(crop[inside].astype(int) - ref[inside].astype(int))) <= 1
+
+
+def _matrix(roi):
+    from facesculpt.geometry.crops import crop_matrix
+
+    return crop_matrix(np.array(roi), 192)
