@@ -10,7 +10,7 @@ frames; sparse: the accumulated identity) — published when it changes, at most
 ``model_period_s`` seconds while it is still being learned. No face, too few valid landmarks or
 any other refusal: an empty state for that frame (0 vertices: the renderer's "no face", so a
 renderer pairing frames with states never waits for it), a counter in diagnostics, never an
-exception.
+exception. ``face/expression`` is computed and sent only while something subscribes to it.
 """
 
 from __future__ import annotations
@@ -289,6 +289,8 @@ class FitterNode(Node):
                 landmarks=ibug68_points(result, dense), corrected=corrected.ibug(dense) if corrected else [],
             ))
             self.count("fitted")
+            if self.expression_pub.subscriber_count() == 0:  # nobody listens: spare the frame path its cost
+                continue
             fitter = self.faces.fitters[f.key]
             with self.stage("expression"):
                 values = face_expression(result, fitter.model, fitter.neutral, msg.points[f.index])
