@@ -187,3 +187,43 @@ def test_real_process_publishes_state_and_latched_model(graph, frames):
         client.close()
         proc.terminate()
         assert proc.wait(10) == 0
+
+
+def test_expression_parameters_go_out_only_while_someone_subscribes(graph, frames):
+    from facesculpt.msgs import Diagnostics, FaceExpression
+    from facesculpt.nodes.fitter.expression import NAMES
+    from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVERY_MESSAGE
+
+    proc = graph.spawn("run", "fitter", "model=facemesh", "neutral_frames=3")
+    client = Node(name="fitter_expression_client")
+    states, stages = [], []
+    pub = client.advertise("face/landmarks", FaceLandmarks)
+    client.subscribe("face/state", FaceState, states.append, qos=EVERY_MESSAGE)
+    client.subscribe("diagnostics", Diagnostics,
+                     lambda m: stages.append(set(m.values.get("stages_ms", {}))) if m.node == "fitter" else None,
+                     qos=EVERY_MESSAGE)
+    client.start()
+
+    def feed(until, seconds=30.0):
+        deadline, k = time.monotonic() + seconds, 0
+        while not until() and time.monotonic() < deadline:
+            pub.publish(frames[k % len(frames)])
+            k += 1
+            client.spin_once(0.05)
+
+    try:
+        feed(lambda: len(states) >= 10 and len(stages) >= 2)
+        assert len(states) >= 10 and any("fit" in s for s in stages)
+        assert not any("expression" in s for s in stages)  # nobody asked for them: not computed
+        expressions: list[FaceExpression] = []
+        client.subscribe("face/expression", FaceExpression, expressions.append, qos=EVERY_MESSAGE)
+        feed(lambda: len(expressions) >= 5)
+        assert len(expressions) >= 5, "no face/expression once subscribed"
+        e = expressions[-1]
+        assert e.names == list(NAMES) and e.values.shape == (len(NAMES),) and np.isfinite(e.values).all()
+        assert e.stamp in {m.stamp for m in frames}
+    finally:
+        client.close()
+        proc.terminate()
+        assert proc.wait(10) == 0
