@@ -51,3 +51,28 @@ def test_bench_at_a_chosen_size(data_dir, models_dir, tmp_path):
     bad = subprocess.run([sys.executable, "-m", "facesculpt.cli", "bench", "--size", "1280by720", "--no-graph"],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "must be WIDTHxHEIGHT" in bad.stderr.strip().splitlines()[-1]
+
+
+def test_bench_scenario_acts_in_the_window_beside_a_busy_loop(data_dir, models_dir, tmp_path):
+    """--scenario: the first preset load and the first nose drag (8 s in) happen inside the measured
+    window, and the deformer takes them; --load 1 runs a busy loop beside it and stops it after."""
+    from facesculpt.app.bench_scenario import DRAGS_S, LOAD_AT_S, BenchScenario
+
+    events = BenchScenario("p.json").due(60.0)
+    kinds = [e.kind for e in events]
+    assert kinds.count("press") == kinds.count("release") == len(DRAGS_S) and kinds.count("move") > 200
+    assert [e.command for e in events if e.kind == "command"] == ["load_preset", "reset", "load_preset"]
+    assert len(LOAD_AT_S) == 2 and BenchScenario("p.json").due(0.0)[0].command == "load_preset"
+    out = tmp_path / "bench.json"
+    result = subprocess.run(
+        [sys.executable, "-m", "facesculpt.cli", "bench", "--model", "facemesh", "--frames", "6", "--drags", "2",
+         "--window", "13", "--scenario", "--load", "1", "--json", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr[-2000:]
+    figures = json.loads(out.read_text())
+    assert figures["scenario"] is True and figures["competing_busy_loops"] == 1
+    entry = figures["models"]["facemesh"]
+    counters = entry["nodes"]["deformer"]["counters"]
+    assert counters.get("preset_loaded", 0) >= 1 and counters.get("press", 0) >= 1, counters
+    assert entry["pipelined_fps"] > 5
+    assert "with 1 competing busy loop(s) running" in result.stdout

@@ -29,9 +29,6 @@ import json
 import math
 import os
 import shutil
-import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -97,6 +94,9 @@ def register(sub) -> None:
     p.add_argument("--load", type=int, default=0, metavar="N",
                    help="run N busy loops (one core's demand each) beside the measurement, as a browser or a video "
                         "call would (default 0)")
+    p.add_argument("--scenario", action="store_true",
+                   help="the graph's window starts with its first frames (the neutral is learnt inside it) and "
+                        "holds a preset load, nose drags, a reset and a second load (use --window 60)")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)
@@ -262,224 +262,6 @@ def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dic
 
 
 # -- the pipelined graph ----------------------------------------------------------------------------
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def launch_spec(source: str, model: str, camera_fps: float, size: tuple[int, int] = SIZE,
-                resize: str = "stretch") -> dict:
-    """The launch file of the measured graph; the camera delivers ``size`` (px: :func:`bench_size`,
-    stretched, or ``--size``, filled)."""
-    return {"nodes": [
-        {"name": "camera", "node": "camera", "required": True,
-         "params": {"source": source, "width": size[0], "height": size[1], "resize": resize,
-                    "fps": camera_fps, "loop": True}},
-        {"name": "landmarks", "node": "landmarks"},
-        {"name": "fitter", "node": "fitter", "params": {"model": model}},
-        {"name": "deformer", "node": "deformer"},
-        {"name": "renderer", "node": "renderer", "params": {"pairing": "sync", "publish": True}},
-    ]}
-
-
-def _node_processes(launch_pid: int) -> dict:
-    """Node name -> psutil.Process of the graph started by the launcher ``launch_pid``."""
-    import psutil
-
-    out = {}
-    try:
-        children = psutil.Process(launch_pid).children(recursive=True)
-    except psutil.Error:
-        return out
-    for child in children:
-        try:
-            cmd = child.cmdline()
-        except psutil.Error:
-            continue
-        if "--config-json" in cmd:
-            out[json.loads(cmd[cmd.index("--config-json") + 1]).get("name", "?")] = child
-        elif "master" in cmd:
-            out["master"] = child
-    return out
-
-
-def _cpu_seconds(procs: dict) -> dict:
-    import psutil
-
-    out = {}
-    for name, proc in procs.items():
-        try:
-            t = proc.cpu_times()
-            out[name] = t.user + t.system
-        except psutil.Error:
-            pass
-    return out
-
-
-def node_figures(diagnostics: dict[str, list[dict]]) -> dict[str, dict]:
-    """Per node (tools' own listeners, named ``_...``, aside): mean stage times (ms) over the
-    window's diagnostics, and the last rates, drops and error count."""
-    nodes = {}
-    for name, values in diagnostics.items():
-        if name.startswith("_"):
-            continue
-        stages: dict[str, list[float]] = {}
-        for v in values:
-            for k, ms in (v.get("stages_ms") or {}).items():
-                stages.setdefault(k, []).append(float(ms))
-        last = values[-1]
-        nodes[name] = {
-            "stages_ms": {k: round(float(np.mean(v)), 3) for k, v in stages.items()},
-            "rate_hz": last.get("rate_hz", {}),
-            "dropped": last.get("dropped", {}),
-            "errors": last.get("errors", 0),
-        }
-    return nodes
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    """SIGTERM the launcher (it stops its nodes), SIGKILL it after 15 s."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
-def _launch(workdir: Path, address: str, spec: dict) -> tuple[subprocess.Popen, object]:
-    """`facesculpt launch` of ``spec`` with its own master at ``address``, sockets and
-    ``launch.log`` in ``workdir``; returns (process, open log) once the master answers
-    (RuntimeError after 20 s)."""
-    import yaml
-
-    from facesculpt.runtime.master import master_alive
-
-    spec_file = workdir / "bench.yaml"
-    spec_file.write_text(yaml.safe_dump(spec))
-    log = open(workdir / "launch.log", "w")
-    env = dict(os.environ, FACESCULPT_MASTER=address, FACESCULPT_RUN_DIR=str(workdir), PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", "launch", str(spec_file)], env=env,
-                            stdout=log, stderr=subprocess.STDOUT)
-    deadline = time.monotonic() + 20
-    while not master_alive(address, 0.2):
-        if proc.poll() is not None or time.monotonic() > deadline:
-            _stop(proc)
-            log.close()
-            raise RuntimeError(f"the graph did not start (see {log.name})")
-    return proc, log
-
-
-def _keep_diagnostics(msg, diagnostics: dict, camera_sent: list) -> None:
-    """Keep a node's diagnostics; the camera's frames sent so far, with the arrival time (ns)."""
-    diagnostics.setdefault(msg.node, []).append(msg.values)
-    sent = (msg.values.get("published") or {}).get("camera/image")
-    if msg.node == "camera" and sent is not None:
-        camera_sent.append((time.time_ns(), int(sent)))
-
-
-def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
-                  warmup_s: float, size: tuple[int, int] = SIZE, start_timeout_s: float = 90.0,
-                  resize: str = "stretch") -> dict:
-    """Frames out per second, end-to-end latency (p50/p95/p99), the longest stall (the longest gap
-    between two output frames) and the camera frames that never came out, of the graph as
-    separate processes."""
-    from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
-    from facesculpt.runtime.node import Node
-    from facesculpt.runtime.qos import EVERY_MESSAGE
-
-    workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
-    address = f"tcp://127.0.0.1:{_free_port()}"
-    log_path = workdir / "launch.log"
-    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size, resize))
-    listener = None
-    try:
-        arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns)
-        diagnostics: dict[str, list[dict]] = {}
-        deformed = []
-        listener = Node(name=f"_bench_{os.getpid()}", master=address)
-        listener.subscribe("render/image", Image, lambda m: arrivals.append((time.time_ns(), m.stamp)),
-                           qos=EVERY_MESSAGE)
-        camera_sent: list[tuple[int, int]] = []  # (arrival ns, camera/image published so far)
-        listener.subscribe("diagnostics", Diagnostics, lambda m: _keep_diagnostics(m, diagnostics, camera_sent),
-                           qos=EVERY_MESSAGE)
-        listener.subscribe("face/deformation", Deformation,
-                           lambda m: deformed.append(float(np.abs(m.displacement).max()) if m.displacement.size else 0.0))
-        events = listener.advertise("input/events", InputEvent)
-        listener.start()
-
-        def spin_for(seconds: float, until=lambda: False):
-            end = time.monotonic() + seconds
-            while time.monotonic() < end and not until():
-                listener.spin_once(0.02)
-                if proc.poll() is not None:
-                    raise RuntimeError(f"the graph stopped (exit code {proc.returncode}; see {log_path})")
-
-        # Up: frames come out and the edit is in place (the command is repeated until it lands).
-        def edited() -> bool:
-            return bool(deformed) and max(deformed) > 0
-
-        deadline = time.monotonic() + start_timeout_s
-        while not (arrivals and edited()):
-            if time.monotonic() > deadline:
-                heard = ", ".join(sorted(n for n in diagnostics if not n.startswith("_"))) or "no node"
-                raise RuntimeError(f"the graph gave {len(arrivals)} frames and no edit within {start_timeout_s:.0f} s; "
-                                   f"diagnostics heard from {heard} (see {log_path})")
-            if not edited():
-                events.publish(InputEvent(stamp=time.time_ns(), kind="command", command="load_preset",
-                                          argument=str(preset_file), source="bench"))
-            spin_for(1.0, lambda: bool(arrivals) and edited())
-        spin_for(warmup_s)
-        procs = _node_processes(proc.pid)
-        cpu0 = _cpu_seconds(procs)
-        arrivals.clear()
-        diagnostics.clear()
-        camera_sent.clear()
-        t0 = time.monotonic()
-        spin_for(window_s)
-        elapsed = time.monotonic() - t0
-        cpu1 = _cpu_seconds(procs)
-        window = list(arrivals)
-    finally:
-        if listener is not None:
-            listener.close()
-        _stop(proc)
-        log.close()
-    if len(window) < 2:
-        raise RuntimeError(f"the graph gave {len(window)} frames in {window_s} s (see {log_path})")
-    shutil.rmtree(workdir, ignore_errors=True)  # kept when something failed: its launch.log says why
-    nodes = node_figures(diagnostics)
-    for name in cpu1:
-        if name in cpu0:
-            nodes.setdefault(name, {})["cpu_percent"] = round(100.0 * (cpu1[name] - cpu0[name]) / elapsed, 1)
-    return {**output_figures(window, camera_sent), "window_s": round(elapsed, 2), "nodes": nodes}
-
-
-def output_figures(window: list[tuple[int, int]], camera_sent: list[tuple[int, int]]) -> dict:
-    """The rate, latency, longest stall and dropped frames of the output frames ``window``
-    ((arrival ns, capture stamp ns)), with the camera's reports (arrival ns, frames sent so far)."""
-    latency = np.array([(a - s) / 1e6 for a, s in window])
-    gaps_ms = np.diff([a for a, _ in window]) / 1e6
-    dropped = None
-    if len(camera_sent) >= 2:  # camera frames sent between two of its reports, against frames out then
-        (t_first, n_first), (t_last, n_last) = camera_sent[0], camera_sent[-1]
-        came_out = sum(1 for a, s in window if t_first <= s <= t_last)
-        dropped = max(0, (n_last - n_first) - came_out)
-    return {
-        "pipelined_fps": round((len(window) - 1) / max(1e-9, (window[-1][0] - window[0][0]) / 1e9), 2),
-        "frames_out": len(window),
-        "latency_ms": {"p50": round(float(np.percentile(latency, 50)), 2),
-                       "p95": round(float(np.percentile(latency, 95)), 2),
-                       "p99": round(float(np.percentile(latency, 99)), 2),
-                       "mean": round(float(latency.mean()), 2)},
-        "longest_stall_ms": round(float(gaps_ms.max()), 2),
-        "frames_dropped": dropped,
-    }
-
-
-# -- report -------------------------------------------------------------------------------------------
 def _fmt(value, digits=2) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
@@ -551,7 +333,7 @@ def cmd_bench(args) -> int:
     result = {
         "input": description, "size": list(size), "frames": len(frames),
         "edit": [p.stem for p in paths], "pose": preset.get("pose", {}), "camera_fps": args.camera_fps,
-        "pairing": "sync", "competing_busy_loops": args.load,
+        "pairing": "sync", "competing_busy_loops": args.load, "scenario": args.scenario,
         "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
@@ -574,6 +356,8 @@ def cmd_bench(args) -> int:
 
 def _measure_models(args, models, frames, fps, preset, preset_file, source, size, wanted, result) -> None:
     """Each model's in-process stages and (unless --no-graph) its graph figures, into ``result``."""
+    from facesculpt.app.bench_graph import measure_graph
+
     for model in models:
         print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
         entry = measure_stages(model, frames, fps, preset, args.drags)
@@ -581,5 +365,5 @@ def _measure_models(args, models, frames, fps, preset, preset_file, source, size
             print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
                   file=sys.stderr, flush=True)
             entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size,
-                                       resize="fill" if wanted else "stretch"))
+                                       resize="fill" if wanted else "stretch", scenario=args.scenario))
         result["models"][model] = entry
