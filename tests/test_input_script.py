@@ -164,6 +164,12 @@ def _record_bag(video, path, frames: int) -> None:
     cap.release()
 
 
+def _face_px(state: FaceState) -> float:
+    """The size of a fitted face in its frame: RMS distance of its projected vertices from their mean, px."""
+    p = state.projected.astype(np.float64)
+    return float(np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean()))
+
+
 def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_dir, tmp_path):
     """camera (a bag of d3.mp4) -> landmarks -> fitter -> deformer -> renderer, with the script
     dragging the nose tip 24 px to the right. In the output, per rendered frame: the nose-tip
@@ -211,11 +217,6 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
     # The drag is turned into millimetres on the face as it was then; d3 leans in and out, so a
     # later frame shows those millimetres as more or fewer pixels: scale by the face's size.
     ref = states[max([s for s in states if s <= deformations[-1].stamp] or [min(states)])]
-
-    def face_px(st: FaceState) -> float:
-        p = st.projected.astype(np.float64)
-        return float(np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean()))
-
     r = 10  # nose patch half-size, px
     checked = 0
     for stamp in sorted(s for s in renders if s > after and s in frames and s in states):
@@ -224,7 +225,7 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
                         st.projection)
         mesh_shift = drawn - st.projected
         tip = mesh_shift[nose]
-        expected = scripted * face_px(st) / face_px(ref)
+        expected = scripted * _face_px(st) / _face_px(ref)
         assert abs(tip[0] - expected) <= 0.2 * expected and abs(tip[1]) <= 0.2 * expected, f"tip moved {tip}, {expected}"
         x, y = (int(round(c)) for c in st.projected[nose])
         in_patch = np.all(np.abs(st.projected - st.projected[nose]) <= r, axis=1)

@@ -449,6 +449,9 @@ class Node:
         def _on_signal(signum, frame):
             if self._stopped.is_set():  # e.g. the terminal's Ctrl-C, then the launcher's SIGTERM: one line
                 return
+            # Flag first: a second signal that lands while this one is logging runs its handler
+            # inside this one, and must find the node already stopping.
+            self._stopped.set()
             self.log.info("stopping (%s)", signal.Signals(signum).name)
             self.shutdown()
         if threading.current_thread() is threading.main_thread():
