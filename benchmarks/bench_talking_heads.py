@@ -178,6 +178,7 @@ def bench_graph(args) -> None:
     import time
 
     from facesculpt.app.bench import bench_size
+    from facesculpt.app.bench_graph import free_port
     from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, Image, encode
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
@@ -187,15 +188,9 @@ def bench_graph(args) -> None:
           "| bases sent: bytes | all coding/ payload |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for name in args.videos.split(","):
-        with tempfile.TemporaryDirectory() as tmp:
-            import socket
-
-            with socket.socket() as sock:
-                sock.bind(("127.0.0.1", 0))
-                port = sock.getsockname()[1]
-            address = f"tcp://127.0.0.1:{port}"
+        with tempfile.TemporaryDirectory() as tmp, open(Path(tmp) / "launch.log", "w+") as log:
+            address = f"tcp://127.0.0.1:{free_port()}"
             env = dict(os.environ, FACESCULPT_MASTER=address, FACESCULPT_RUN_DIR=tmp, PYTHONUNBUFFERED="1")
-            log = open(Path(tmp) / "launch.log", "w")
             cap = cv2.VideoCapture(str(_video(name)))
             width, _ = bench_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
             cap.release()
@@ -217,8 +212,10 @@ def bench_graph(args) -> None:
             while proc.poll() is None:
                 listener.spin_once(0.02)
             listener.close()
+            log.seek(0)
+            log_tail = log.read()[-2000:]
         if len(out) < 10:
-            print(f"| {name} | {args.fps} | no output (see the launch log) | | | | | | |")
+            print(f"| {name} | {args.fps} | no output | | | | | | |\n{log_tail}")
             continue
         # the coded part: from the first decoded frame to the last, without the learning frames
         arrivals = np.array([a for a, _ in out], np.float64)

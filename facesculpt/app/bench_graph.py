@@ -22,7 +22,7 @@ import numpy as np
 from facesculpt.app.bench import SIZE
 
 
-def _free_port() -> int:
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -154,7 +154,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE
 
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
-    address = f"tcp://127.0.0.1:{_free_port()}"
+    address = f"tcp://127.0.0.1:{free_port()}"
     log_path = workdir / "launch.log"
     proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size, resize))
     listener = None

@@ -274,6 +274,7 @@ class FitterNode(Node):
                 self.count(f.outcome.skipped)
                 if f.outcome.error:
                     self.last_error = f.outcome.error
+        expressions_wanted = bool(fitted) and self.expression_pub.subscriber_count() > 0
         for f in fitted:
             result = f.outcome.fit
             self.last_fits[f.key], self.last_points[f.key] = result, np.asarray(msg.points[f.index])
@@ -289,7 +290,7 @@ class FitterNode(Node):
                 landmarks=ibug68_points(result, dense), corrected=corrected.ibug(dense) if corrected else [],
             ))
             self.count("fitted")
-            if self.expression_pub.subscriber_count() == 0:  # nobody listens: spare the frame path its cost
+            if not expressions_wanted:  # nobody listens: spare the frame path their cost
                 continue
             fitter = self.faces.fitters[f.key]
             with self.stage("expression"):

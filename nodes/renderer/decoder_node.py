@@ -1,8 +1,8 @@
 """The decoder node: ``facesculpt run decoder`` (launch/coding.yaml): a coded talking head rendered.
 
 Subscribes the latched ``coding/key`` (CodedKey: the keyframe) and ``coding/basis`` (CodedBasis:
-the expression basis) and ``coding/frame`` (CodedFrame) of an encoder node
-(:mod:`facesculpt.nodes.reenact.encoder_node`), on this machine or another (``transport: tcp``),
+the expression basis) and ``coding/frame`` (CodedFrame) of an encoder node (``facesculpt run
+encoder``, the talking-heads room), on this machine or another (``transport: tcp``),
 and renders each frame from the keyframe (:class:`.coded_face.CodedFace`) into a window, a video
 file and/or ``render/image``. Frames of another key or basis than the ones at hand are skipped and
 counted until those arrive; a key or basis that cannot be decoded is dropped with its reason
@@ -104,11 +104,12 @@ class DecoderNode(Node):
         """The compositor for a key of this size, on the window's GL context when there is one."""
         if self.face is not None and (self.face.width, self.face.height) == (width, height):
             return self.face.compositor
-        if self.face is not None:
+        if self.face is not None:  # a key of another size: the old face can no longer be drawn
             self.face.compositor.release()
-            if self.window is not None:
-                self.window.close()
-                self.window = None
+            self.face, self.versions = None, (-1, -1)
+        if self.window is not None:
+            self.window.close()
+            self.window = None
         ctx = None
         if self.params.window:
             from .window import Window
