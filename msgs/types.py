@@ -19,12 +19,17 @@ from .codec import DecodeError, Message, array, register
 class Image(Message):
     """A camera frame or a composited output frame.
 
-    image: (H, W, 3) uint8, BGR.  K: (3, 3) float64 pinhole intrinsics, pixels.
+    image: (H, W, 3) uint8, BGR.  K: (3, 3) float64 pinhole intrinsics of ``image``, pixels.
+    halvings: 0 for a frame as captured; n > 0 for a copy of it halved n times (each pixel the
+    mean of a 2 x 2 block, ``facesculpt.geometry.halving``: the camera's ``camera/analysis``),
+    whose frame was ``frame_size`` [W, H] px.
     """
 
     TYPE = "Image"
     image: np.ndarray = array("u1", "H", "W", 3)
     K: np.ndarray = array("f8", 3, 3)
+    halvings: int = 0
+    frame_size: list = field(default_factory=lambda: [0, 0])
 
 
 @register

@@ -7,14 +7,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from facesculpt.geometry.halving import frame_intrinsics, halve, halved_intrinsics, halvings
 from facesculpt.nodes.landmarks import LandmarkDetector
 from facesculpt.nodes.landmarks.detector import Face
-from facesculpt.nodes.landmarks.working_resolution import (
-    halve,
-    halvings,
-    to_full_resolution,
-    track_at_working_resolution,
-)
+from facesculpt.nodes.landmarks.working_resolution import to_full_resolution, track_at_working_resolution
 
 
 def test_halvings_and_exact_halves():
@@ -35,6 +31,17 @@ def test_points_carried_back_to_the_frame():
     np.testing.assert_allclose(back.points, [[1.5, 1.5, 4.0], [43.5, 13.5, -8.0]])
     np.testing.assert_allclose(back.roi, [19.5, 11.5, 80.0, 80.0, 0.3])
     assert back.track_id == 2 and back.score == 0.9 and face.points[1, 0] == 10.5
+
+
+def test_intrinsics_of_a_halved_copy_project_where_its_pixels_are():
+    K = np.array([[1000.0, 0.0, 959.5], [0.0, 1000.0, 539.5], [0.0, 0.0, 1.0]])
+    point = np.array([0.1, -0.05, 1.0])
+    x_frame = (K @ point)[:2]
+    for times in (1, 2):
+        x_copy = (halved_intrinsics(K, times) @ point)[:2]
+        s = 2.0 ** times  # the copy's pixel x covers frame pixels s*x .. s*x + s - 1: centre s*x + (s-1)/2
+        np.testing.assert_allclose(x_copy * s + (s - 1) / 2, x_frame)
+        np.testing.assert_allclose(frame_intrinsics(halved_intrinsics(K, times), times), K)
 
 
 def test_working_resolution_landmarks_match_full_resolution(data_dir, models_dir):

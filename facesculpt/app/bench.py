@@ -83,6 +83,9 @@ def register(sub) -> None:
     p.add_argument("--warmup", type=float, default=2.0, help="seconds of graph output before the window (default 2)")
     p.add_argument("--camera-fps", type=float, default=60.0,
                    help="camera rate in the graph (default 60; -1: as fast as it reads)")
+    p.add_argument("--pace", type=int, default=2, metavar="N",
+                   help="the graph's camera sends a frame while fewer than N wait for the renderer "
+                        "(camera.pace_in_flight, default 2); 0: every frame it reads")
     p.add_argument("--threads", type=int, default=1,
                    help="OpenBLAS and OpenCV threads per process, in-process and in the graph's nodes "
                         "(default 1; 0: the libraries' own defaults, one per core)")
@@ -333,7 +336,7 @@ def cmd_bench(args) -> int:
     result = {
         "input": description, "size": list(size), "frames": len(frames),
         "edit": [p.stem for p in paths], "pose": preset.get("pose", {}), "camera_fps": args.camera_fps,
-        "pairing": "sync", "competing_busy_loops": args.load, "scenario": args.scenario,
+        "pairing": "sync", "camera_pace": args.pace, "competing_busy_loops": args.load, "scenario": args.scenario,
         "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
@@ -365,5 +368,6 @@ def _measure_models(args, models, frames, fps, preset, preset_file, source, size
             print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
                   file=sys.stderr, flush=True)
             entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size,
-                                       resize="fill" if wanted else "stretch", scenario=args.scenario))
+                                       resize="fill" if wanted else "stretch", scenario=args.scenario,
+                                       pace=args.pace))
         result["models"][model] = entry

@@ -29,13 +29,14 @@ def free_port() -> int:
 
 
 def launch_spec(source: str, model: str, camera_fps: float, size: tuple[int, int] = SIZE,
-                resize: str = "stretch") -> dict:
+                resize: str = "stretch", pace: int = 2) -> dict:
     """The launch file of the measured graph; the camera delivers ``size`` (px: :func:`bench_size`,
-    stretched, or ``--size``, filled)."""
+    stretched, or ``--size``, filled), with ``pace`` frames in flight (0: every frame it reads)."""
     return {"nodes": [
         {"name": "camera", "node": "camera", "required": True,
          "params": {"source": source, "width": size[0], "height": size[1], "resize": resize,
-                    "fps": camera_fps, "loop": True}},
+                    "fps": camera_fps, "loop": True, "pace_by": "render/done" if pace else "",
+                    "pace_in_flight": max(1, pace)}},
         {"name": "landmarks", "node": "landmarks"},
         {"name": "fitter", "node": "fitter", "params": {"model": model}},
         {"name": "deformer", "node": "deformer"},
@@ -136,14 +137,15 @@ def _launch(workdir: Path, address: str, spec: dict) -> tuple[subprocess.Popen, 
 def _keep_diagnostics(msg, diagnostics: dict, camera_sent: list) -> None:
     """Keep a node's diagnostics; the camera's frames sent so far, with the arrival time (ns)."""
     diagnostics.setdefault(msg.node, []).append(msg.values)
-    sent = (msg.values.get("published") or {}).get("camera/image")
+    # Frames the camera read: a paced camera (pace_by) skips some before they are published.
+    sent = (msg.values.get("counters") or {}).get("frames_read", (msg.values.get("published") or {}).get("camera/image"))
     if msg.node == "camera" and sent is not None:
         camera_sent.append((time.time_ns(), int(sent)))
 
 
 def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
                   warmup_s: float, size: tuple[int, int] = SIZE, start_timeout_s: float = 90.0,
-                  resize: str = "stretch", scenario: bool = False) -> dict:
+                  resize: str = "stretch", scenario: bool = False, pace: int = 2) -> dict:
     """Frames out per second, end-to-end latency (p50/p95/p99), the longest stall (the longest gap
     between two output frames) and the camera frames that never came out, of the graph as
     separate processes. ``scenario``: the window starts with the first frames out and holds the
@@ -156,7 +158,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
     address = f"tcp://127.0.0.1:{free_port()}"
     log_path = workdir / "launch.log"
-    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size, resize))
+    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size, resize, pace))
     listener = None
     try:
         arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns)

@@ -51,12 +51,10 @@ from facesculpt.nodes.fitter import (
 )
 from facesculpt.nodes.fitter.expression import face_expression
 from facesculpt.nodes.landmarks import LandmarkDetector
-from facesculpt.nodes.landmarks.working_resolution import track_at_working_resolution
+from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
 
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
 STAGES = ("landmarks", "fit", "merge", "render")
-#: Landmarks run on a copy of a larger frame halved to at most this many pixels (1920x1080).
-ANALYSIS_PIXELS = 1920 * 1080
 
 
 def load_face_model(name_or_path: str) -> MorphableModel:

@@ -1,15 +1,26 @@
 """The camera node: frames from a webcam, a video file, a still image or a bag
 on `camera/image`, stamped with their capture time, with intrinsics K.
 
-Live (``wait_for`` empty, the default) the camera sends at its pace and the graph keeps up as it
-can: latest-only subscribers skip the frames they had no time for. Offline (``wait_for:
-render/done``, for a replay or demo that writes a file) it runs in lockstep with the renderer:
-a frame goes out only while fewer than ``max_in_flight`` sent frames wait for their
-:class:`~facesculpt.msgs.FrameDone`, and at the end of the source the camera waits for the last
-ones before it ends, so every frame reaches the file. A frame still unacknowledged after
-``resend_s`` is published again (a node that connected after it went out missed it; the renderer
-ignores a copy of a frame it already has); one unacknowledged after ``ack_timeout_s`` is given
-up (counter ``ack_timeout``) and the camera sends on.
+Live (``wait_for`` empty, the default) the camera reads at its pace and the graph keeps up as it
+can. It is paced by the renderer (``pace_by: render/done``, the default): a frame goes out only
+while fewer than ``pace_in_flight`` sent frames wait for their acknowledgement, and the newest
+frame read meanwhile goes out with the next acknowledgement (older ones are skipped, counter
+``skipped_busy``). A graph that cannot keep the camera's rate then spends no work on frames it
+would never render, and no stage queues frames behind a slower one. Without a publisher of
+``pace_by`` (no renderer), or with ``pace_by`` empty, every frame goes out and latest-only
+subscribers skip the frames they had no time for.
+
+Offline (``wait_for: render/done``, for a replay or demo that writes a file) it runs in lockstep
+with the renderer: a frame goes out only while fewer than ``max_in_flight`` sent frames wait for
+their :class:`~facesculpt.msgs.FrameDone`, no frame is skipped, and at the end of the source the
+camera waits for the last ones before it ends, so every frame reaches the file. A frame still
+unacknowledged after ``resend_s`` is published again (a node that connected after it went out
+missed it; the renderer ignores a copy of a frame it already has); one unacknowledged after
+``ack_timeout_s`` is given up (counter ``ack_timeout``) and the camera sends on.
+
+With ``analysis_pixels`` set, each frame also goes out on ``camera/analysis`` halved until it
+holds at most that many pixels (``facesculpt.geometry.halving``), for the landmarks
+(``image_topic: camera/analysis``): the analysis path then never receives the full frame.
 """
 
 from __future__ import annotations
@@ -19,6 +30,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from facesculpt.geometry.halving import halve, halved_intrinsics, halvings
 from facesculpt.msgs import FrameDone, Image
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
@@ -58,13 +70,25 @@ class CameraNode(Node):
                                       "acknowledging publisher), s", range=(0.0, 3600.0)),
         "wait_for": Param("", "offline lockstep: the topic of FrameDone acknowledgements (render/done) to wait "
                               "for before sending more frames, so every frame is processed and written; "
-                              "\"\": live, frames go out at the pace whether or not the graph keeps up"),
+                              "\"\": live, at the source's pace (see pace_by)"),
         "max_in_flight": Param(1, "with wait_for: frames sent but not yet acknowledged (1: no latest-only "
                                   "node can skip a frame; more overlaps the stages, but a node that keeps "
                                   "only the newest frame may then skip one)", range=(1, 4)),
         "ack_timeout_s": Param(10.0, "with wait_for: longest wait for a frame's acknowledgement before "
                                      "sending on (counted as ack_timeout), also at the end of the source, s",
                                range=(0.1, 3600.0)),
+        "analysis_pixels": Param(0, "also publish camera/analysis: the frame halved until it holds at most this "
+                                    "many pixels, for the landmarks to track on (landmarks.image_topic); "
+                                    "0: no such topic", range=(0, None)),
+        "pace_by": Param("render/done", "live: the topic of FrameDone acknowledgements; a frame goes out only "
+                                        "while fewer than pace_in_flight sent frames wait for theirs, and the "
+                                        "newest frame read meanwhile goes out with the next one (older ones are "
+                                        "skipped); every frame goes out while nothing publishes the topic, or "
+                                        "with \"\""),
+        "pace_in_flight": Param(2, "with pace_by: frames sent but not yet acknowledged (2: the analysis of one "
+                                   "overlaps the rendering of the one before)", range=(1, 8)),
+        "pace_timeout_s": Param(0.5, "with pace_by: a sent frame unacknowledged after this long no longer "
+                                     "holds the next one back, s", range=(0.01, 60.0)),
         "resend_s": Param(2.0, "with wait_for: publish a frame again when its acknowledgement has not come "
                                "after this long (a node that connected late missed it; the renderer ignores "
                                "a copy of a frame it has), s; 0: never", range=(0.0, 3600.0)),
@@ -73,6 +97,7 @@ class CameraNode(Node):
     def setup(self):
         p = self.params
         self.pub = self.advertise("camera/image", Image)
+        self.analysis_pub = self.advertise("camera/analysis", Image) if p.analysis_pixels else None
         try:
             self.source = open_source(p.source, loop=p.loop, motion=p.motion, fps=p.fps if p.fps > 0 else 30.0)
         except (SourceError, FileNotFoundError) as exc:  # no such camera or file: a respawn cannot help
@@ -88,18 +113,22 @@ class CameraNode(Node):
             self.K_fixed = np.asarray(p.K, dtype=np.float64).reshape(3, 3)
         self._K_cache: dict[tuple, np.ndarray] = {}
         self.lockstep = bool(p.wait_for)
-        # Lockstep: seq -> [the Image, monotonic time first sent, monotonic time last sent].
+        # Lockstep and paced: seq -> [the Image (paced: None), monotonic time first sent, monotonic
+        # time last sent, its stamp].
         self.in_flight: OrderedDict[int, list] = OrderedDict()
         self.next_send_at = 0.0   # lockstep pacing: monotonic time the next frame may go out
         self.ended = False        # lockstep: the source is done; waiting for the last acknowledgements
         self.done_sub = None
         self.settle_until = 0.0   # lockstep: monotonic time the first frame may go out
-        if self.lockstep:
-            self.done_sub = self.subscribe(p.wait_for, FrameDone, self.on_done, qos=EVERY_MESSAGE)
+        self.paced = bool(p.pace_by) and not self.lockstep
+        self.pending = None       # paced: the newest frame read while the in-flight frames were full
+        if self.lockstep or self.paced:
+            self.done_sub = self.subscribe(p.wait_for or p.pace_by, FrameDone, self.on_done, qos=EVERY_MESSAGE)
         waits = p.wait_subscribers or self.lockstep
         self.wait_until = time.monotonic() + p.wait_timeout_s if waits else 0.0
         self.log.info("%s at %s%s", self.source.description, f"{rate:.1f} fps" if rate else "full speed",
-                      f", in lockstep with {p.wait_for} ({p.max_in_flight} in flight)" if self.lockstep else "")
+                      f", in lockstep with {p.wait_for} ({p.max_in_flight} in flight)" if self.lockstep else
+                      f", paced by {p.pace_by} ({p.pace_in_flight} in flight)" if self.paced else "")
         self.tick = self.timer(LOCKSTEP_TICK_S if self.lockstep else self.period, self.on_tick)
 
     def intrinsics(self, width: int, height: int) -> np.ndarray:
@@ -140,7 +169,8 @@ class CameraNode(Node):
         return True
 
     def _publish_next(self) -> bool:
-        """Read, resize and publish the next frame; False at the end of the source (or on its error)."""
+        """Read, resize and publish the next frame (paced and held back: keep it as the pending
+        frame); False at the end of the source (or on its error)."""
         try:
             frame, stamp = next(self.frames)
             self._report_problems()
@@ -154,16 +184,49 @@ class CameraNode(Node):
             self.log.error("%s", exc)
             self._end()
             return False
+        self.count("frames_read")
+        if self.paced and not self._pace_allows():
+            if self.pending is not None:
+                self.count("skipped_busy")
+            self.pending = (frame, stamp)
+            return True
+        self.pending = None
+        self._send(frame, stamp)
+        return True
+
+    def _send(self, frame: np.ndarray, stamp: int) -> None:
         frame = resize_frame(frame, self.params.width, self.params.height, self.params.resize)
         h, w = frame.shape[:2]
         self.sent += 1
         msg = Image(stamp=stamp, seq=self.sent, frame_id="camera", image=np.ascontiguousarray(frame),
                     K=self.intrinsics(w, h))
         self.pub.publish(msg)
-        if self.lockstep:
+        if self.analysis_pub is not None:
+            self._publish_analysis(msg)
+        if self.lockstep or self.paced:
             now = time.monotonic()
-            self.in_flight[self.sent] = [msg, now, now]
-        return True
+            self.in_flight[self.sent] = [msg if self.lockstep else None, now, now, stamp]
+
+    def _publish_analysis(self, msg: Image) -> None:
+        """camera/analysis: ``msg``'s frame halved to at most ``analysis_pixels`` (the frame itself
+        when it holds no more), same stamp and seq, its K for the copy."""
+        h, w = msg.image.shape[:2]
+        times = halvings(w, h, self.params.analysis_pixels)
+        self.analysis_pub.publish(Image(stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id,
+                                        image=halve(msg.image, times), K=halved_intrinsics(msg.K, times),
+                                        halvings=times, frame_size=[w, h]))
+
+    def _pace_allows(self) -> bool:
+        """Paced: whether a frame may go out now (fewer than ``pace_in_flight`` sent frames younger
+        than ``pace_timeout_s`` wait for their acknowledgement, or nothing acknowledges at all)."""
+        if not self.done_sub.endpoints:
+            self.in_flight.clear()
+            return True
+        limit = time.monotonic() - self.params.pace_timeout_s
+        while self.in_flight and next(iter(self.in_flight.values()))[1] < limit:
+            self.in_flight.popitem(last=False)
+            self.count("pace_timeout")
+        return len(self.in_flight) < self.params.pace_in_flight
 
     def _end(self) -> None:
         """No more frames: live, stop now; in lockstep, once the frames in flight are acknowledged."""
@@ -179,7 +242,7 @@ class CameraNode(Node):
         p = self.params
         now = time.monotonic()
         for seq, entry in list(self.in_flight.items()):
-            msg, first_sent, last_sent = entry
+            msg, first_sent, last_sent, _ = entry
             if now - first_sent >= p.ack_timeout_s:
                 del self.in_flight[seq]
                 self.count("ack_timeout")
@@ -207,7 +270,7 @@ class CameraNode(Node):
         """The renderer handled frame ``msg.seq``: it leaves the window, and so do older frames
         still in it (a node downstream skipped them: they will never be acknowledged)."""
         sent = self.in_flight.get(msg.seq)
-        if sent is None or sent[0].stamp != msg.stamp:
+        if sent is None or sent[3] != msg.stamp:
             self.count("ack_unknown")  # after its timeout, or another camera's frame
             return
         for seq in list(self.in_flight):
@@ -217,7 +280,12 @@ class CameraNode(Node):
             self.count("ack_skipped")
         del self.in_flight[msg.seq]
         self.count("acknowledged")
-        if self.wait_until == 0.0:
+        if self.paced:
+            if self.pending is not None and self._pace_allows():
+                frame, stamp = self.pending
+                self.pending = None
+                self._send(frame, stamp)
+        elif self.wait_until == 0.0:
             self._advance()
 
     def _report_problems(self) -> None:

@@ -9,29 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
+
+from facesculpt.geometry.halving import halve, halvings, to_frame_pixels
 
 from .detector import Face
 
-
-def halvings(width: int, height: int, max_pixels: int) -> int:
-    """How many times a ``width`` x ``height`` frame is halved to hold at most ``max_pixels``
-    pixels (0 when it already does, or when ``max_pixels`` <= 0: full resolution)."""
-    n = 0
-    while max_pixels > 0 and (width >> n) * (height >> n) > max_pixels and min(width >> n, height >> n) >= 64:
-        n += 1
-    return n
-
-
-def halve(image: np.ndarray, times: int) -> np.ndarray:
-    """(H, W, C) uint8 -> (H >> times, W >> times, C): each step averages 2 x 2 blocks (an odd last
-    row or column is dropped first, so the scale is exactly 2 and pixel (i, j) of the copy covers
-    pixels 2i..2i+1, 2j..2j+1 of the original)."""
-    for _ in range(times):
-        h, w = image.shape[:2]
-        image = cv2.resize(image[: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-    return image
+#: Landmarks run on a copy of a larger frame halved to at most this many pixels (1920x1080).
+ANALYSIS_PIXELS = 1920 * 1080
 
 
 def to_full_resolution(faces: list[Face], times: int) -> list[Face]:
@@ -44,19 +29,21 @@ def to_full_resolution(faces: list[Face], times: int) -> list[Face]:
     out = []
     for face in faces:
         points = face.points.astype(np.float32, copy=True)
-        points[:, :2] = (points[:, :2] + 0.5) * s - 0.5
+        points[:, :2] = to_frame_pixels(points[:, :2], times)
         points[:, 2] *= s
         roi = face.roi.astype(np.float32, copy=True)
-        roi[:2] = (roi[:2] + 0.5) * s - 0.5
+        roi[:2] = to_frame_pixels(roi[:2], times)
         roi[2:4] *= s
         out.append(dataclasses.replace(face, points=points, roi=roi))
     return out
 
 
-def track_at_working_resolution(detector, frame_bgr: np.ndarray, max_pixels: int) -> list[Face]:
+def track_at_working_resolution(detector, frame_bgr: np.ndarray, max_pixels: int, halved: int = 0) -> list[Face]:
     """``detector.track`` (a :class:`LandmarkDetector`) on ``frame_bgr`` (H, W, 3) uint8 halved to
     at most ``max_pixels`` (:func:`halvings`; <= 0: the frame as it is), the faces in the frame's
-    pixels. Every frame of a video must go through here with the same ``max_pixels`` (the
+    pixels. ``halved``: ``frame_bgr`` is itself a copy of the frame halved that many times (the
+    camera's ``camera/analysis``); the faces are then in the pixels of the frame it came from.
+    Every frame of a video must go through here with the same ``max_pixels`` and ``halved`` (the
     tracker keeps its crops in the copy's pixels)."""
     times = halvings(frame_bgr.shape[1], frame_bgr.shape[0], max_pixels)
-    return to_full_resolution(detector.track(halve(frame_bgr, times)), times)
+    return to_full_resolution(detector.track(halve(frame_bgr, times)), times + halved)
