@@ -57,7 +57,7 @@ def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
     from facesculpt.nodes.renderer.coded_face import CodedFace
 
     frames, fits, neutral, triangles = d0_fits
-    enc = LiveEncoder(components=8, learn_frames=20, fps=25.0)
+    enc = LiveEncoder(triangles, components=8, learn_frames=20, fps=25.0)
     assert enc.empty_record() is None  # nothing to send before the key
     keys, bases, records = [], [], []
     for frame, fit in zip(frames, fits):
@@ -68,7 +68,7 @@ def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
     assert [i for i, k in enumerate(keys) if k is not None] == [19] and all(r is None for r in records[:19])
     key = keys[19]
     assert (key.header["width"], key.header["height"]) == frames[0].shape[1::-1]
-    key_arrays = unpack_key_arrays(key.arrays, key.header["vertices"])
+    key_arrays = unpack_key_arrays(key.arrays, key.header["vertices"], key.header["K"])
     # d0 smiles from about frame 20 on, which the first 20 frames never showed: the basis misses
     # it, so it is learnt again and sent again (the keyframe stays)
     sent = [i for i, b in enumerate(bases) if b is not None]
@@ -77,7 +77,7 @@ def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
     rms, moved = [], []
     for i in range(19, len(frames)):
         basis = bases[max(j for j in sent if j <= i)]
-        arrays = unpack_basis(basis.arrays, len(neutral), basis.basis_steps)
+        arrays = unpack_basis(basis.arrays, len(neutral), basis.basis_steps, triangles)
         assert len(records[i]) == record_bytes(8)
         present, pose, coeffs = unpack_records(records[i], basis.coeff_steps)
         assert present.all()
@@ -93,7 +93,7 @@ def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
     assert unpack_records(enc.empty_record(), enc.steps)[0].tolist() == [False]
     first = bases[19]
     _, kp, kc = unpack_records(first.record, first.coeff_steps)
-    arrays = dict(key_arrays, **unpack_basis(first.arrays, len(neutral), first.basis_steps))
+    arrays = dict(key_arrays, **unpack_basis(first.arrays, len(neutral), first.basis_steps, triangles))
     face = CodedFace(key.header, key.keyframe, arrays, triangles, kp[0], kc[0])
     try:
         assert _face_psnr(face.render(True, kp[0], kc[0]), frames[19], fits[19].projected) > 30.0
@@ -105,7 +105,7 @@ def test_a_coded_stream_header_that_is_garbage_is_refused_in_one_sentence():
     from facesculpt.msgs.fsc import unpack_header, unpack_records
 
     with pytest.raises(ValueError, match="not a coded stream's header"):
-        unpack_header(b"{not json", b"")
+        unpack_header(b"{not json")
     with pytest.raises(ValueError, match="not whole records"):
         unpack_records(b"\x01" * 20, np.ones(12))
 

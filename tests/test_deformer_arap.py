@@ -183,13 +183,9 @@ def test_accelerated_drag_lands_closer_than_plain_iterations(sfm):
 
 
 def farthest_points(V, k):
-    idx = [0]
-    dist = np.linalg.norm(V - V[0], axis=1)
-    for _ in range(k - 1):
-        i = int(np.argmax(dist))
-        idx.append(i)
-        dist = np.minimum(dist, np.linalg.norm(V - V[i], axis=1))
-    return np.array(idx)
+    from facesculpt.geometry.biharmonic import farthest_point_samples
+
+    return farthest_point_samples(V, k)
 
 
 def test_rigid_motion_of_all_handles_gives_rigid_result(sfm):

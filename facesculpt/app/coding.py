@@ -7,8 +7,8 @@ shape onto the fitted camera-space mesh: rotation, translation, scale) and its e
 displacement from the neutral (V, 3) mm. The displacements of the whole video are reduced to
 ``components`` principal components (their mean and basis, int8 per row, go in the header, once); each frame
 sends its coefficients. The header also holds the keyframe (the first frame with a face, whole,
-as a JPEG: the face's texture and the background as a still; the background is never updated),
-its fit and the neutral. Stream layout: :mod:`facesculpt.msgs.fsc`; the same parts travel on the
+as a WebP image: the face's texture and the background as a still; the background is never
+updated), its fit and the neutral. Stream layout: :mod:`facesculpt.msgs.fsc`; the same parts travel on the
 graph's ``coding/key`` and ``coding/frame`` (the encoder and decoder nodes).
 
 Decoding: :class:`facesculpt.nodes.renderer.coded_face.CodedFace` renders each frame from the
@@ -24,7 +24,16 @@ import numpy as np
 
 from facesculpt.app.reenactment import inner_lip_ids
 from facesculpt.geometry.similarity import similarity_vector
-from facesculpt.msgs.fsc import CodedStream, coefficient_steps, read_stream, write_stream
+from facesculpt.msgs.fsc import (
+    KEY_QUALITY,
+    CodedStream,
+    coefficient_steps,
+    keyframe_image,
+    pack_basis,
+    pack_key_arrays,
+    read_stream,
+    write_stream,
+)
 from facesculpt.nodes.reenact.expression_basis import expression_basis, expression_coefficients
 
 
@@ -33,7 +42,7 @@ class Analysis:
     """What the encoder measured of a video: fps, size (w, h), present (F,) bool, pose (F, 7),
     expression (F, V, 3) mm from the neutral (zeros without a face), neutral (V, 3), projected
     (F, V, 2) px of each frame's fit (NaN without a face), key: the keyframe's index, key_fit,
-    key_image."""
+    key_image, triangles (T, 3) of the model."""
 
     fps: float
     size: tuple
@@ -45,6 +54,7 @@ class Analysis:
     key: int
     key_fit: object
     key_image: np.ndarray
+    triangles: np.ndarray
 
 
 def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0, progress=None) -> Analysis:
@@ -76,28 +86,29 @@ def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0,
             projected.append(np.full((len(neutral), 2), np.nan, np.float32) if fit is None else fit.projected)
             if fit is not None and key < 0:
                 key, key_fit, key_image = i, fit, frame
+        triangles = np.asarray(pipe.model.triangles)
     if key < 0:
         raise ValueError("no face was found in the video: nothing to code")
     return Analysis(fps, size, np.array(present), np.array(pose), np.array(expression),
-                    neutral.astype(np.float32), np.array(projected), key, key_fit, key_image)
+                    neutral.astype(np.float32), np.array(projected), key, key_fit, key_image, triangles)
 
 
-def encode(analysis: Analysis, path, components: int = 12, jpeg_quality: int = 80) -> dict:
-    """Write ``analysis`` as a `.fsc` stream at ``path``; returns its part sizes (bytes)."""
+def encode(analysis: Analysis, path, components: int = 12, key_quality: int = KEY_QUALITY) -> dict:
+    """Write ``analysis`` as a `.fsc` stream at ``path``; returns its part sizes (bytes).
+    key_quality: the keyframe's WebP quality (1..100)."""
     a = analysis
     mean, basis = expression_basis(a.expression[a.present], components)
     coeffs = np.zeros((len(a.present), len(basis)))
     coeffs[a.present] = expression_coefficients(a.expression[a.present], mean, basis)
-    ok, jpeg = cv2.imencode(".jpg", a.key_image, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
-    if not ok:
-        raise RuntimeError("cannot encode the keyframe as JPEG")
     f = a.key_fit
-    header = {"version": 1, "model": "facemesh", "fps": a.fps, "frames": len(a.present), "width": a.size[0],
+    basis_blob, basis_steps = pack_basis(mean, basis, a.triangles, a.neutral)
+    key_blob = pack_key_arrays(f.vertices, a.neutral, None if f.K is not None else f.projected)
+    header = {"model": "facemesh", "fps": a.fps, "frames": len(a.present), "width": a.size[0],
               "height": a.size[1], "key": a.key, "vertices": int(a.neutral.shape[0]), "components": len(basis),
-              "K": None if f.K is None else np.asarray(f.K).tolist(), "coeff_steps": coefficient_steps(coeffs).tolist()}
-    arrays = {"key_vertices": f.vertices, "key_projected": f.projected, "neutral": a.neutral, "mean": mean,
-              "basis": basis}
-    return write_stream(path, header, jpeg.tobytes(), arrays, a.present, a.pose, coeffs)
+              "K": None if f.K is None else np.asarray(f.K).tolist(), "coeff_steps": coefficient_steps(coeffs).tolist(),
+              "basis_steps": basis_steps.tolist()}
+    return write_stream(path, header, keyframe_image(a.key_image, key_quality), key_blob, basis_blob, a.present,
+                        a.pose, coeffs)
 
 
 class Decoder:
@@ -111,7 +122,7 @@ class Decoder:
         h = stream.header
         model = load_face_model(h["model"])
         key = int(h["key"])
-        self.face = CodedFace(h, stream.keyframe_jpeg, stream.arrays, model.triangles, stream.pose[key],
+        self.face = CodedFace(h, stream.keyframe, stream.arrays, model.triangles, stream.pose[key],
                               stream.coeffs[key], lips=inner_lip_ids(model))
 
     def frame(self, i: int) -> np.ndarray:
@@ -125,7 +136,9 @@ class Decoder:
 
 def decode_file(path) -> tuple[CodedStream, Decoder]:
     """The stream at ``path`` and a :class:`Decoder` for it."""
-    stream = read_stream(path)
+    from facesculpt.app.pipeline import load_face_model
+
+    stream = read_stream(path, lambda model: load_face_model(model).triangles)
     return stream, Decoder(stream)
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 def register(sub) -> None:
     p = sub.add_parser("encode", help="code a talking-head video as a keyframe plus pose and expression per frame",
-                       description="Model-based coding: one keyframe (the first frame with a face, JPEG: face "
+                       description="Model-based coding: one keyframe (the first frame with a face, WebP: face "
                                    "texture and background still), the fitted neutral and an expression basis once, "
                                    "then per frame only the quantised head pose (7 numbers) and expression "
                                    "coefficients. Prints the bitrate.",
@@ -25,7 +25,9 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="FILE.fsc", help="the coded stream")
     p.add_argument("--components", type=int, default=12, metavar="N",
                    help="expression coefficients per frame, 1 to 64 (default 12; one byte each)")
-    p.add_argument("--jpeg-quality", type=int, default=80, metavar="Q", help="keyframe JPEG quality (default 80)")
+    # The default is facesculpt.msgs.fsc.KEY_QUALITY, not imported here (it pulls in scipy at every start).
+    p.add_argument("--key-quality", type=int, default=None, metavar="Q",
+                   help="keyframe WebP quality, 1 to 100 (default 70)")
     p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
                    help="frames the person's neutral face is learned from (default 30)")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="code only the first N frames (0: all)")
@@ -50,11 +52,13 @@ def cmd_encode(args) -> int:
     from facesculpt.app.coding import analyse, encode
     from facesculpt.app.process import _frames, _progress, open_input
     from facesculpt.app.safe_output import refuse_output_over_input, temporary_name
+    from facesculpt.msgs.fsc import KEY_QUALITY
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)
-    if not 1 <= args.components <= 64 or not 1 <= args.jpeg_quality <= 100 or args.neutral_frames < 1:
-        raise ValueError("--components must be 1 to 64, --jpeg-quality 1 to 100 and --neutral-frames >= 1")
+    args.key_quality = KEY_QUALITY if args.key_quality is None else args.key_quality
+    if not 1 <= args.components <= 64 or not 1 <= args.key_quality <= 100 or args.neutral_frames < 1:
+        raise ValueError("--components must be 1 to 64, --key-quality 1 to 100 and --neutral-frames >= 1")
     if args.max_frames < 0:
         raise ValueError("--max-frames must be >= 0")
     refuse_output_over_input(args.input, args.output)
@@ -79,14 +83,14 @@ def cmd_encode(args) -> int:
     target = Path(args.output).expanduser()
     staging = temporary_name(target)
     try:
-        sizes = encode(analysis, staging, args.components, args.jpeg_quality)
+        sizes = encode(analysis, staging, args.components, args.key_quality)
         staging.replace(target)
     finally:
         staging.unlink(missing_ok=True)
     n = len(analysis.present)
     seconds = n / fps
     print(f"wrote {n} frames to {target} ({int(analysis.present.sum())} with a face): per-frame stream "
-          f"{sizes['records'] * 8 / seconds / 1000:.2f} kbit/s at {fps:g} fps; header {sizes['total'] - sizes['records']} "
+          f"{sizes['stream'] * 8 / seconds / 1000:.2f} kbit/s at {fps:g} fps; header {sizes['total'] - sizes['records']} "
           f"bytes once (keyframe {sizes['keyframe']}); whole file {sizes['total'] * 8 / seconds / 1000:.1f} kbit/s "
           f"over {seconds:.1f} s", file=sys.stderr)
     return 0

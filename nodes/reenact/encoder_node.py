@@ -20,6 +20,7 @@ import json
 import numpy as np
 
 from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, FaceModel, FaceState, Image
+from facesculpt.msgs.fsc import KEY_QUALITY
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
@@ -43,7 +44,7 @@ class EncoderNode(Node):
                                  "counts toward learning the basis again and sending it again (0: never)",
                             range=(0.0, 100.0)),
         "refresh_frames": Param(15, "frames missed by refresh_mm that call for a new basis", range=(1, 100000)),
-        "jpeg_quality": Param(80, "keyframe JPEG quality", range=(1, 100)),
+        "key_quality": Param(KEY_QUALITY, "keyframe WebP quality", range=(1, 100)),
         "fps": Param(30.0, "frame rate written in the key (the decoder's video output uses it), frames/s",
                      range=(1.0, 1000.0)),
     }
@@ -53,9 +54,7 @@ class EncoderNode(Node):
         self.basis_pub = self.advertise("coding/basis", CodedBasis, qos=LATCHED)
         self.frame_pub = self.advertise("coding/frame", CodedFrame)
         self.version = self.basis_version = 0
-        p = self.params
-        self.encoder = LiveEncoder(p.components, p.learn_frames, p.jpeg_quality, p.fps,
-                                   refresh_mm=p.refresh_mm, refresh_frames=p.refresh_frames)
+        self.encoder: LiveEncoder | None = None  # made with the first face/model (it needs the mesh)
         self.model: FaceModel | None = None
         self.face_id: int | None = None
         self.images: collections.OrderedDict[int, Image] = collections.OrderedDict()
@@ -65,9 +64,13 @@ class EncoderNode(Node):
 
     def on_model(self, msg: FaceModel) -> None:
         self.model = msg
+        if self.encoder is None:
+            p = self.params
+            self.encoder = LiveEncoder(msg.triangles, p.components, p.learn_frames, p.key_quality, p.fps,
+                                       refresh_mm=p.refresh_mm, refresh_frames=p.refresh_frames)
 
     def on_image(self, msg: Image) -> None:
-        if self.encoder.learning:
+        if self.encoder is None or self.encoder.learning:
             self.images[msg.stamp] = msg
             while len(self.images) > IMAGES_KEPT:
                 self.images.popitem(last=False)
@@ -96,7 +99,7 @@ class EncoderNode(Node):
                                           keyframe=np.frombuffer(key.keyframe, np.uint8),
                                           arrays=np.frombuffer(key.arrays, np.uint8), triangles=self.model.triangles,
                                           version=self.version))
-            self.log.info("coding: key %d sent (JPEG %d bytes, arrays %d)", self.version, len(key.keyframe),
+            self.log.info("coding: key %d sent (image %d bytes, arrays %d)", self.version, len(key.keyframe),
                           len(key.arrays))
             self.count("keys_sent")
         if basis is not None:

@@ -2,7 +2,7 @@
 
 A file's encoder sees the whole video before it chooses its expression basis; a live one cannot.
 :class:`LiveEncoder` learns the basis from the first ``learn_frames`` frames with a face, then sends
-its key (the frame that completes the learning: its JPEG, fit and the neutral;
+its key (the frame that completes the learning: its image, fit and the neutral;
 :func:`facesculpt.msgs.fsc.pack_key_arrays`) and the basis (:func:`~facesculpt.msgs.fsc.pack_basis`),
 and from then on one record per frame: the face's pose as a similarity (7 numbers) and its
 expression displacement from the key's neutral projected onto the basis. An expression the learning
@@ -17,11 +17,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from facesculpt.geometry.similarity import similarity_vector
-from facesculpt.msgs.fsc import coefficient_steps, pack_basis, pack_key_arrays, pack_records
+from facesculpt.msgs.fsc import (
+    FORMAT_VERSION,
+    KEY_QUALITY,
+    coefficient_steps,
+    keyframe_image,
+    pack_basis,
+    pack_key_arrays,
+    pack_records,
+)
 
 from .expression_basis import expression_basis, expression_coefficients
 
@@ -34,7 +41,7 @@ POOL_FRAMES = 300
 @dataclass
 class CodedKeyParts:
     """A keyframe as ``coding/key`` carries it: header (dict: fps, width, height, K, vertices,
-    model), keyframe (JPEG bytes), arrays (:func:`~facesculpt.msgs.fsc.pack_key_arrays`)."""
+    model, version), keyframe (WebP bytes), arrays (:func:`~facesculpt.msgs.fsc.pack_key_arrays`)."""
 
     header: dict
     keyframe: bytes
@@ -57,15 +64,18 @@ class CodedBasisParts:
 class LiveEncoder:
     """Frame-by-frame coder of one face (see the module docstring).
 
+    triangles: (T, 3) the model's mesh (the basis is sent at control vertices of it);
     components: expression coefficients per frame (1..64); learn_frames: frames with a face the
-    first basis is learnt from; jpeg_quality: the keyframe's; fps: the rate written in the header;
+    first basis is learnt from; key_quality: the keyframe's WebP quality; fps: the rate written in the header;
     refresh_mm: a frame the basis misses by more (RMS, mm) counts toward a new basis (0: never);
     refresh_frames: how many such frames call for it."""
 
-    def __init__(self, components: int = 12, learn_frames: int = 90, jpeg_quality: int = 80, fps: float = 30.0,
-                 model_id: str = "facemesh", refresh_mm: float = 1.0, refresh_frames: int = 15):
+    def __init__(self, triangles: np.ndarray, components: int = 12, learn_frames: int = 90,
+                 key_quality: int = KEY_QUALITY, fps: float = 30.0, model_id: str = "facemesh",
+                 refresh_mm: float = 1.0, refresh_frames: int = 15):
+        self.triangles = np.asarray(triangles)
         self.components, self.learn_frames = int(components), int(learn_frames)
-        self.jpeg_quality, self.fps, self.model_id = int(jpeg_quality), float(fps), model_id
+        self.key_quality, self.fps, self.model_id = int(key_quality), float(fps), model_id
         self.refresh_mm, self.refresh_frames = float(refresh_mm), int(refresh_frames)
         self.pool: list[np.ndarray] = []
         self.missed = 0
@@ -92,17 +102,14 @@ class LiveEncoder:
             self.pool.append(shape.astype(np.float32))
             if len(self.pool) < self.learn_frames or image is None:
                 return None, None, None
-            ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
-            if not ok:
-                raise RuntimeError("cannot encode the keyframe as JPEG")
             self.neutral = np.asarray(neutral, np.float64)
             self.keyframe = (shape, np.asarray(camera_vertices, np.float32))
             self.key = CodedKeyParts(
-                {"version": 1, "model": self.model_id, "fps": self.fps, "width": int(image.shape[1]),
+                {"version": FORMAT_VERSION, "model": self.model_id, "fps": self.fps, "width": int(image.shape[1]),
                  "height": int(image.shape[0]), "vertices": int(len(self.neutral)),
                  "K": None if K is None else np.asarray(K).tolist()},
-                jpeg.tobytes(), pack_key_arrays({"key_vertices": camera_vertices, "key_projected": projected,
-                                                 "neutral": self.neutral}))
+                keyframe_image(image, self.key_quality),
+                pack_key_arrays(camera_vertices, self.neutral, None if K is not None else projected))
             self.pool = self.pool[-POOL_FRAMES:]
             basis = self._learn_basis()
             return self.key, basis, basis.record
@@ -136,5 +143,5 @@ class LiveEncoder:
         self.steps = coefficient_steps(expression_coefficients(E, self.mean, self.basis)) * STEP_HEADROOM
         self.missed = 0
         self.bases += 1
-        blob, basis_steps = pack_basis(self.mean, self.basis)
+        blob, basis_steps = pack_basis(self.mean, self.basis, self.triangles, self.neutral)
         return CodedBasisParts(self.bases, blob, basis_steps, self.steps.copy(), self._record(*self.keyframe)[0])

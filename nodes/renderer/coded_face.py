@@ -26,19 +26,19 @@ from .mouth_interior import CLOSED_MOUTH_PX, INNER_LIP_FACEMESH, opening_px, pai
 class CodedFace:
     """Renders coded frames of one key.
 
-    header: the stream header (width, height, K); keyframe_jpeg: bytes; arrays: the key's arrays
-    (key_vertices (V, 3) camera space, key_projected (V, 2) px, neutral (V, 3) mm, mean (3V,),
+    header: the stream header (width, height, K); keyframe: the keyframe image's bytes (WebP or
+    JPEG); arrays: the key's arrays (key_vertices (V, 3) camera space, key_projected (V, 2) px, neutral (V, 3) mm, mean (3V,),
     basis (C, 3V)); triangles (T, 3) int; key_pose (7,) and key_coeffs (C,): the keyframe's own
     record; lips: inner-lip vertex ids (default: the face mesh's for V = 468, else no painted
     mouth); compositor: one to draw with (e.g. on a window's GL context), else a new one;
     head_motion: carry the face's motion over the hair and neck around it (else only the face moves)."""
 
-    def __init__(self, header: dict, keyframe_jpeg: bytes, arrays: dict, triangles: np.ndarray,
+    def __init__(self, header: dict, keyframe: bytes, arrays: dict, triangles: np.ndarray,
                  key_pose: np.ndarray, key_coeffs: np.ndarray, lips=None, compositor: Compositor | None = None,
                  head_motion: bool = True):
-        self.image = cv2.imdecode(np.frombuffer(keyframe_jpeg, np.uint8), cv2.IMREAD_COLOR)
+        self.image = cv2.imdecode(np.frombuffer(keyframe, np.uint8), cv2.IMREAD_COLOR)
         if self.image is None:
-            raise ValueError("the coded stream's keyframe is not a JPEG image")
+            raise ValueError("the coded stream's keyframe is not an image")
         self.width, self.height = int(header["width"]), int(header["height"])
         if self.image.shape[:2] != (self.height, self.width):
             raise ValueError(f"the keyframe is {self.image.shape[1]}x{self.image.shape[0]}, its header says "

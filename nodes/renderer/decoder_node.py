@@ -16,7 +16,7 @@ import json
 import numpy as np
 
 from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, Image
-from facesculpt.msgs.fsc import unpack_basis, unpack_key_arrays, unpack_records
+from facesculpt.msgs.fsc import FORMAT_VERSION, unpack_basis, unpack_key_arrays, unpack_records
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import LATCHED
@@ -63,10 +63,13 @@ class DecoderNode(Node):
     def on_key(self, msg: CodedKey) -> None:
         try:
             header = json.loads(msg.header)
-            arrays = unpack_key_arrays(msg.arrays.tobytes(), int(header["vertices"]))
+            if header.get("version") != FORMAT_VERSION:
+                raise ValueError(f"it is coded in format version {header.get('version')}; this decoder reads "
+                                 f"{FORMAT_VERSION} (update the encoder's side)")
+            arrays = unpack_key_arrays(msg.arrays.tobytes(), int(header["vertices"]), header.get("K"))
             if int(header["width"]) < 1 or int(header["height"]) < 1:
                 raise ValueError("its frame size is not positive")
-        except (ValueError, KeyError, TypeError) as exc:
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
             self._refuse("coding/key", exc)
             return
         self.key = (msg.version, header, msg.keyframe.tobytes(), arrays, np.array(msg.triangles))
@@ -82,7 +85,8 @@ class DecoderNode(Node):
             return
         version, header, jpeg, key_arrays, triangles = self.key
         try:
-            arrays = dict(key_arrays, **unpack_basis(msg.arrays.tobytes(), int(header["vertices"]), msg.basis_steps))
+            arrays = dict(key_arrays, **unpack_basis(msg.arrays.tobytes(), int(header["vertices"]), msg.basis_steps,
+                                                     triangles))
             _, pose, coeffs = unpack_records(msg.record.tobytes(), msg.coeff_steps)
             if len(msg.coeff_steps) != len(msg.basis_steps) or len(pose) != 1:
                 raise ValueError("its steps and its keyframe record do not match its basis")
