@@ -250,6 +250,8 @@ class CameraNode(Node):
                                  seq, self.done_sub.topic, p.ack_timeout_s)
             elif p.resend_s and now - last_sent >= p.resend_s:
                 self.pub.publish(msg)
+                if self.analysis_pub is not None:
+                    self._publish_analysis(msg)
                 entry[2] = now
                 self.count("resent")
                 self.log.info("frame %d: no acknowledgement after %.1f s; sent again", seq, now - first_sent)
