@@ -50,7 +50,7 @@ class LandmarksNode(Node):
             min_detection_score=p.min_detection_score, min_tracking_score=p.min_tracking_score,
             min_face=p.min_face, redetect_interval=p.redetect_interval)
         self.pub = self.advertise("face/landmarks", FaceLandmarks)
-        self.scale = None  # (halvings from the received frame, the camera's): a change restarts tracking
+        self.scale = None  # (this node's halvings, the camera's): a change restarts tracking
         self.subscribe(p.image_topic, Image, self.on_image)
         self.log.info("face networks loaded (threads=%d, max_faces=%d)", p.threads, p.max_faces)
 

@@ -38,12 +38,10 @@ def to_full_resolution(faces: list[Face], times: int) -> list[Face]:
     return out
 
 
-def track_at_working_resolution(detector, frame_bgr: np.ndarray, max_pixels: int, halved: int = 0) -> list[Face]:
+def track_at_working_resolution(detector, frame_bgr: np.ndarray, max_pixels: int) -> list[Face]:
     """``detector.track`` (a :class:`LandmarkDetector`) on ``frame_bgr`` (H, W, 3) uint8 halved to
-    at most ``max_pixels`` (:func:`halvings`; <= 0: the frame as it is), the faces in the frame's
-    pixels. ``halved``: ``frame_bgr`` is itself a copy of the frame halved that many times (the
-    camera's ``camera/analysis``); the faces are then in the pixels of the frame it came from.
-    Every frame of a video must go through here with the same ``max_pixels`` and ``halved`` (the
-    tracker keeps its crops in the copy's pixels)."""
+    at most ``max_pixels`` (:func:`~facesculpt.geometry.halving.halvings`; <= 0: the frame as it
+    is), the faces in the frame's pixels. Every frame of a video must go through here with the
+    same ``max_pixels`` (the tracker keeps its crops in the copy's pixels)."""
     times = halvings(frame_bgr.shape[1], frame_bgr.shape[0], max_pixels)
-    return to_full_resolution(detector.track(halve(frame_bgr, times)), times + halved)
+    return to_full_resolution(detector.track(halve(frame_bgr, times)), times)
