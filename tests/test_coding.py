@@ -144,3 +144,12 @@ def test_a_format_1_stream_still_decodes(coded, tmp_path):
         decoder.close()
     np.testing.assert_allclose(stream.arrays["key_projected"], a.key_fit.projected)
     assert frame.shape == frames[0].shape and np.abs(frame.astype(int) - frames[a.key]).mean() < 6.0
+
+
+def test_encode_help_states_the_formats_keyframe_quality():
+    """The help text names the default without importing the stream format (scipy) at start-up."""
+    from facesculpt.msgs.fsc import KEY_QUALITY
+
+    result = subprocess.run([sys.executable, "-m", "facesculpt.cli", "encode", "--help"], capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 0 and f"(default {KEY_QUALITY})" in " ".join(result.stdout.split())
