@@ -141,7 +141,9 @@ class Pipeline:
     ``pose``; keyframes: "on" keeps views of each face at the poses it shows and renders turned
     surface from the closest one where it sees it better than the frame (image-based rendering,
     :mod:`facesculpt.nodes.renderer.keyframe_views`), "auto" (the default) does so when a pose edit
-    is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never. The GL context is made here; call :meth:`close` (or use ``with``) to free it.
+    is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never; outline_band: how far
+    past the fitted outline an edit's motion is carried (share of the face's size; None: the
+    compositor's ``OUTLINE_BAND``). The GL context is made here; call :meth:`close` (or use ``with``) to free it.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
@@ -151,7 +153,8 @@ class Pipeline:
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic",
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
-                 face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None):
+                 face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
+                 outline_band: float | None = None):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -173,6 +176,8 @@ class Pipeline:
         self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px,
                                    "atlas": atlas != "off", "atlas_blend": atlas == "on", "plate": plate == "on",
                                    "interpolation": interpolation}
+        if outline_band is not None:
+            self.compositor_options["outline_band"] = float(outline_band)
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()

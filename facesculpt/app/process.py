@@ -116,6 +116,10 @@ def register(sub) -> None:
     p.add_argument("--plate", choices=("on", "off"), default="off",
                    help="keep a background plate (the background seen behind the face in other frames, registered "
                         "when the camera moves) and take what an edit uncovers from it where known (default off)")
+    p.add_argument("--outline-band", type=float, default=None, metavar="S",
+                   help="carry an edit's motion this far past the fitted outline, fading out, as a share of the "
+                        "face's size, so a real outline the fit lies inside moves with the face (default 0.05; "
+                        "0: not at all)")
     p.add_argument("--refine", choices=("off", "appearance"), default="off",
                    help="refine each frame's landmark fit on its pixels against the person's learned appearance "
                         "(issue 20; README: Appearance refinement)")
@@ -380,7 +384,8 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "pushpull"),
                         plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "cubic"),
-                        refine=None if getattr(args, "refine", "off") == "off" else args.refine, **pose_options)
+                        refine=None if getattr(args, "refine", "off") == "off" else args.refine,
+                        outline_band=getattr(args, "outline_band", None), **pose_options)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

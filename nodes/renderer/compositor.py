@@ -70,6 +70,7 @@ from .warp import (
 )
 
 FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's size
+OUTLINE_BAND = 0.05  # a shape edit's motion reaches this far past the fitted outline (share of the face's size)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
 ATLAS_STRETCH = (1.5, 3.0)   # source-map stretch (linear) from which the atlas starts / fully takes over
@@ -101,15 +102,13 @@ class Compositor:
     (:class:`.background_plate.BackgroundPlate`; ``plate_max_age`` frames an estimate is used,
     ``plate_register`` follow camera motion) and take uncovered pixels from it; ``keyframes`` keep views
     of the face at other poses and take turned surface from them (:mod:`.keyframe_views`); ``inpaint``
-    "pushpull", "telea", "ns" or "patch" (:mod:`.inpaint`). ``atlases`` holds one
+    "pushpull", "telea", "ns" or "patch" (:mod:`.inpaint`); ``outline_band`` how far past the fitted
+    outline (share of the face's size, 0: not at all) a shape edit's motion is carried (:meth:`_read_map`). ``atlases`` holds one
     :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
-    After each :meth:`render`, ``timings`` holds the stage times of that frame in ms
-    (plate (the main thread's part of its learning, whose update then runs on a thread of its own
-    until the fill waits for it; its use counts in inpaint), camera (with the subdivided vertices),
-    draw, readback, masks, inpaint, texture (the sampling of the frame), composite, total),
-    ``box`` the frame-pixel rectangle (x0, y0, x1, y1) it worked on (None when nothing changed) and ``deformed_px`` the (V, 2) pixels of the
-    deformed vertices.
+    After each :meth:`render`: ``timings``, the stage times of that frame in ms (:data:`STAGES`;
+    plate: the main thread's part of its learning); ``box``, the frame rectangle (x0, y0, x1, y1)
+    it worked on (None when nothing changed); ``deformed_px``, the deformed vertices' (V, 2) pixels.
     """
 
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
@@ -118,7 +117,7 @@ class Compositor:
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
                  plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,
-                 keyframes: bool = False):
+                 keyframes: bool = False, outline_band: float = OUTLINE_BAND):
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -128,11 +127,13 @@ class Compositor:
             raise ValueError(f"unknown interpolation {interpolation!r} (known: {', '.join(INTERPOLATIONS)})")
         if feather_px < 0 or dilate_px < 0:
             raise ValueError("feather_px and dilate_px must be >= 0")
+        if not 0 <= outline_band <= 0.5:
+            raise ValueError(f"outline_band must be a share of the face's size in [0, 0.5], got {outline_band}")
         if subdivision is not None and not 0 <= subdivision <= 3:
             raise ValueError(f"subdivision must be 0 to 3 levels, got {subdivision}")
         self.width, self.height = width, height
         self.inpaint = inpaint
-        self.feather_px = float(feather_px)
+        self.feather_px, self.outline_band = float(feather_px), float(outline_band)
         self.dilate_px = int(dilate_px)
         self.telea_radius = float(telea_radius)
         self.interpolation = interpolation
@@ -164,14 +165,9 @@ class Compositor:
         self._closed = self._S = self._fine = None
         self.timings: dict[str, float] = {}
         self.box: tuple[int, int, int, int] | None = None
-        # Crops of the last frame (box coordinates), for overlays and tests.
-        self.original_region: np.ndarray | None = None
-        self.deformed_region: np.ndarray | None = None
-        self.changed_region: np.ndarray | None = None
-        self.inpainted_region: np.ndarray | None = None
+        self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None  # last box's
         self.deformed_px: np.ndarray | None = None   # (V, 2) pixels of the last deformed mesh
 
-    # -- geometry ----------------------------------------------------------------------------
     def _set_triangles(self, triangles: np.ndarray, n_vertices: int) -> None:
         """Check the triangles and make their closed, subdivided mesh current (built once per
         triangle set and vertex count, kept by a hash of the triangles)."""
@@ -292,7 +288,7 @@ class Compositor:
         t1 = time.perf_counter()
         self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
         t2 = time.perf_counter()
-        offsets, orig_mask = self._read_map(box, projected, dst_px, head_motion)
+        offsets, orig_mask, face = self._read_map(box, projected, dst_px, head_motion)
         t3 = time.perf_counter()
         covered, changed, fill, source = self._masks(offsets, orig_mask, projected)
         t4 = time.perf_counter()
@@ -315,7 +311,7 @@ class Compositor:
             np.copyto(crop, frame_bgr[y0:y1, x0:x1], where=np.asarray(keep_mask[y0:y1, x0:x1], bool)[..., None])
         t7 = time.perf_counter()
         self.box = box
-        self.original_region, self.deformed_region = orig_mask, covered.view(np.uint8)
+        self.original_region, self.deformed_region = orig_mask, (covered if head_motion else face).view(np.uint8)
         self.changed_region, self.inpainted_region = changed.view(np.uint8), fill
         self.timings = {
             "camera": (t1 - t0) * 1e3, "atlas": t_atlas, "draw": (t2 - t1) * 1e3, "readback": (t3 - t2) * 1e3,
@@ -324,15 +320,20 @@ class Compositor:
         return out
 
     def _read_map(self, box: tuple[int, int, int, int], projected: np.ndarray, dst_px: np.ndarray,
-                  head_motion: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`);
-        with ``head_motion``, the offsets carried over the head region around the face at
-        ``projected`` and ``dst_px`` (V, 2) px (:func:`.motion_extension.extend_motion`)."""
+                  head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`),
+        and the (h, w) bool deformed face; with ``head_motion``, the offsets carried over the head
+        region around the face at ``projected`` and ``dst_px`` (V, 2) px
+        (:func:`.motion_extension.extend_motion`), else over the outline band (:meth:`band_px`)."""
         offsets, orig_mask = self.maps.read(box)
+        face = covered_pixels(offsets)
         if head_motion:
             head = head_region(offsets.shape[:2], box[:2], np.concatenate([projected, dst_px]))
             offsets = extend_motion(offsets, head)
-        return offsets, orig_mask
+        elif self.outline_band > 0:  # the band outside both outlines; what the face uncovered stays to fill
+            band = dilate(face.view(np.uint8) | orig_mask, self.band_px(projected))
+            offsets = extend_motion(offsets, band & ~(orig_mask & ~face.view(np.uint8)))
+        return offsets, orig_mask, face
 
     def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
               projected: np.ndarray) -> None:
@@ -497,7 +498,7 @@ class Compositor:
             corners = near[self._closed]
             ring[self._closed[corners[:, 0] | corners[:, 1] | corners[:, 2]]] = True
             near = ring
-        pad = self.dilate_px + 10 + int(np.ceil(self.feather_px))
+        pad = self.dilate_px + 10 + int(np.ceil(self.feather_px)) + self.band_px(projected)
         both = np.concatenate([projected[near], dst_px[near]])
         lo = np.floor(both.min(axis=0)).astype(int) - pad
         hi = np.ceil(both.max(axis=0)).astype(int) + pad + 1
@@ -527,6 +528,10 @@ class Compositor:
         if cv2.countNonZero(source.view(np.uint8)) == 0:  # the face fills the whole box: take what is outside the fill
             source = fill == 0
         return covered, changed, fill, source if cv2.countNonZero(source.view(np.uint8)) else None
+
+    def band_px(self, projected: np.ndarray) -> int:
+        """Pixels past the fitted outline a shape edit's motion reaches (``outline_band`` of the face's size)."""
+        return int(round(self.outline_band * face_size(projected)))
 
     def feather_width(self, projected: np.ndarray) -> float:
         """Width (pixels) of the soft edge for a face at ``projected`` (V, 2) pixels: the larger

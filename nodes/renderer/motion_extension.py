@@ -1,4 +1,5 @@
-"""The face's motion carried over the head around it, for pose edits (issue 18).
+"""The face's motion carried over the head around it, for pose edits (issue 18), and over a band
+past its outline for shape edits (the compositor's ``outline_band``, issue 15).
 
 The face model ends at the forehead and the jaw; hair, ears and neck are not in it. When a pose
 edit turns the head, the source map moves the face but not what surrounds it, which would tear

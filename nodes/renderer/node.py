@@ -12,7 +12,7 @@ output). Writes ``output`` (a video file) when set.
 Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames kept
 for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea" | "ns" | "patch"), plate
 ("on" | "off": the background plate, ``background_plate.py``), plate_max_age,
-feather_px, dilate_px, output (video path), fps (of the video file), publish, overlay
+feather_px, dilate_px, outline_band, output (video path), fps (of the video file), publish, overlay
 (fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
 the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s,
 pinch_markers (a marker at each pinch of the pinch node's input/events, ``pinch_markers.py``),
@@ -39,7 +39,7 @@ from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
 
-from .compositor import Compositor
+from .compositor import OUTLINE_BAND, Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
 from .inpaint import INPAINT_METHODS
@@ -87,6 +87,9 @@ class RendererNode(Node):
                                range=(1, 100000)),
         "feather_px": Param(3.0, "soft edge inside the deformed outline, px", range=(0.0, 100.0)),
         "dilate_px": Param(2, "growth of the region to inpaint, px", range=(0, 100)),
+        "outline_band": Param(OUTLINE_BAND, "how far past the fitted outline a shape edit's motion is carried, "
+                                            "fading out, as a share of the face's size (a real outline the fit "
+                                            "lies inside moves with the face; 0: not at all)", range=(0.0, 0.5)),
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),
@@ -283,6 +286,7 @@ class RendererNode(Node):
             ctx = self.window.ctx
         p = self.params
         self.compositor = Compositor(width, height, ctx=ctx, inpaint=p.inpaint, feather_px=p.feather_px,
+                                     outline_band=p.outline_band,
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
                                      atlas_every=p.atlas_every, atlas_thread=True,
                                      plate=p.plate == "on", plate_max_age=p.plate_max_age,
