@@ -240,13 +240,18 @@ def unpack_records(data: bytes, coeff_steps: np.ndarray) -> tuple[np.ndarray, np
     records ``data`` with C = len(coeff_steps); ValueError when its length is not a whole number
     of records."""
     steps = np.asarray(coeff_steps, np.float64)
-    size = record_bytes(len(steps))
+    flags, qp, qc = _record_fields(data, len(steps))
+    return flags.astype(bool), dequantise_pose(qp), qc.astype(np.float64) * steps
+
+
+def _record_fields(data: bytes, components: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whole records ``data`` -> (flags (F,) uint8, pose (F, 7) int16, coefficients (F, C) int8);
+    ValueError when its length is not a whole number of records."""
+    size = record_bytes(components)
     if len(data) % size:
         raise ValueError(f"{len(data)} bytes are not whole records of {size} bytes")
     rec = np.frombuffer(data, np.uint8).reshape(-1, size)
-    qp = rec[:, 1:15].copy().view("<i2")
-    qc = rec[:, 15:].copy().view(np.int8)
-    return rec[:, 0].astype(bool), dequantise_pose(qp), qc.astype(np.float64) * steps
+    return rec[:, 0], rec[:, 1:15].copy().view("<i2"), rec[:, 15:].copy().view(np.int8)
 
 
 def _zigzag_planes(values: np.ndarray, nbytes: int) -> bytes:
@@ -266,13 +271,10 @@ def pack_record_block(records: bytes, components: int) -> bytes:
     """A file's records, smaller: each pose and coefficient column as its change from the frame
     before (they move slowly), zigzag-coded in byte planes, then zlib. :func:`unpack_record_block`
     gives back the very same bytes."""
-    size = record_bytes(components)
-    R = np.frombuffer(records, np.uint8).reshape(-1, size)
-    pose = R[:, 1:15].copy().view("<i2").astype(np.int64)
-    coeffs = R[:, 15:].copy().view(np.int8).astype(np.int64)
-    dp = np.diff(pose, axis=0, prepend=np.zeros((1, 7), np.int64)).T
-    dc = np.diff(coeffs, axis=0, prepend=np.zeros((1, int(components)), np.int64)).T
-    return zlib.compress(R[:, 0].tobytes() + _zigzag_planes(dp, 3) + _zigzag_planes(dc, 2), 9)
+    flags, pose, coeffs = _record_fields(records, components)
+    dp = np.diff(pose.astype(np.int64), axis=0, prepend=np.zeros((1, 7), np.int64)).T
+    dc = np.diff(coeffs.astype(np.int64), axis=0, prepend=np.zeros((1, int(components)), np.int64)).T
+    return zlib.compress(flags.tobytes() + _zigzag_planes(dp, 3) + _zigzag_planes(dc, 2), 9)
 
 
 def unpack_record_block(blob: bytes, components: int, frames: int) -> bytes:
@@ -320,16 +322,22 @@ def read_stream(path, triangles_of=None) -> CodedStream:
     data = open(path, "rb").read()
     if data[:4] != MAGIC:
         raise ValueError(f"{path} is not a facesculpt coded stream (.fsc)")
-    pos, parts, header = 4, [], None
-    while len(parts) < (3 if header is not None and header.get("version", 1) == 1 else 5):
+    pos, parts = 4, []
+
+    def read_part() -> None:
+        nonlocal pos
         if pos + 4 > len(data):
             raise ValueError(f"{path} is cut short in its header")
         (n,) = struct.unpack_from("<I", data, pos)
         parts.append(data[pos + 4:pos + 4 + n])
         pos += 4 + n
-        if len(parts) == 1:
-            header = unpack_header(parts[0])
-    if header.get("version", 1) == 1:
+
+    read_part()
+    header = unpack_header(parts[0])
+    v1 = header.get("version", 1) == 1
+    for _ in range(2 if v1 else 4):  # keyframe and arrays; format 2: key arrays, basis and records apart
+        read_part()
+    if v1:
         arrays = _v1_arrays(header, parts[2])
     else:
         if triangles_of is None:
@@ -338,7 +346,7 @@ def read_stream(path, triangles_of=None) -> CodedStream:
         arrays = unpack_key_arrays(parts[2], V, header.get("K"))
         arrays.update(unpack_basis(parts[3], V, header["basis_steps"], triangles_of(header["model"])))
     size, frames = record_bytes(int(header["components"])), int(header["frames"])
-    if len(parts) == 5:
+    if not v1:
         records = unpack_record_block(parts[4], int(header["components"]), frames)
     elif (len(data) - pos) // size == frames:
         records = data[pos:pos + frames * size]

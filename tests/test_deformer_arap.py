@@ -8,6 +8,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
+from facesculpt.geometry.biharmonic import farthest_point_samples
 from facesculpt.nodes.deformer import ArapDeformer, DeformerError, cotangent_weights, fit_rotations
 from facesculpt.nodes.deformer.anchors import roi_within_radius
 
@@ -182,15 +183,9 @@ def test_accelerated_drag_lands_closer_than_plain_iterations(sfm):
             assert errors[0] < errors[1], (k, errors)
 
 
-def farthest_points(V, k):
-    from facesculpt.geometry.biharmonic import farthest_point_samples
-
-    return farthest_point_samples(V, k)
-
-
 def test_rigid_motion_of_all_handles_gives_rigid_result(sfm):
     V, F, _ = sfm
-    h = farthest_points(V, 64)
+    h = farthest_point_samples(V, 64)
     Rm = Rotation.from_euler("xyz", [12.0, -25.0, 8.0], degrees=True).as_matrix()
     t = np.array([6.0, -4.0, 15.0])
     moved = V @ Rm.T + t

@@ -137,9 +137,11 @@ def _launch(workdir: Path, address: str, spec: dict) -> tuple[subprocess.Popen, 
 def _keep_diagnostics(msg, diagnostics: dict, camera_sent: list) -> None:
     """Keep a node's diagnostics; the camera's frames sent so far, with the arrival time (ns)."""
     diagnostics.setdefault(msg.node, []).append(msg.values)
+    if msg.node != "camera":
+        return
     # Frames the camera read: a paced camera (pace_by) skips some before they are published.
     sent = (msg.values.get("counters") or {}).get("frames_read", (msg.values.get("published") or {}).get("camera/image"))
-    if msg.node == "camera" and sent is not None:
+    if sent is not None:
         camera_sent.append((time.time_ns(), int(sent)))
 
 

@@ -41,16 +41,16 @@ def to_frame_pixels(xy: np.ndarray, times: int) -> np.ndarray:
 
 def halved_intrinsics(K: np.ndarray, times: int) -> np.ndarray:
     """(3, 3) pinhole intrinsics of a frame, pixels -> those of its copy halved ``times`` times."""
-    s = float(1 << times)
-    out = np.array(K, np.float64, copy=True)
-    out[:2, :2] /= s
-    out[:2, 2] = (out[:2, 2] + 0.5) / s - 0.5
-    return out
+    return _rescaled_intrinsics(K, 1.0 / (1 << times))
 
 
 def frame_intrinsics(K: np.ndarray, times: int) -> np.ndarray:
     """The inverse of :func:`halved_intrinsics`: a halved copy's (3, 3) K -> the frame's."""
-    s = float(1 << times)
+    return _rescaled_intrinsics(K, float(1 << times))
+
+
+def _rescaled_intrinsics(K: np.ndarray, s: float) -> np.ndarray:
+    """K for pixels ``s`` times as many a side, the same pixel-centre map as :func:`to_frame_pixels`."""
     out = np.array(K, np.float64, copy=True)
     out[:2, :2] *= s
     out[:2, 2] = (out[:2, 2] + 0.5) * s - 0.5

@@ -311,7 +311,7 @@ class Compositor:
             np.copyto(crop, frame_bgr[y0:y1, x0:x1], where=np.asarray(keep_mask[y0:y1, x0:x1], bool)[..., None])
         t7 = time.perf_counter()
         self.box = box
-        self.original_region, self.deformed_region = orig_mask, (covered if head_motion else face).view(np.uint8)
+        self.original_region, self.deformed_region = orig_mask, face.view(np.uint8)
         self.changed_region, self.inpainted_region = changed.view(np.uint8), fill
         self.timings = {
             "camera": (t1 - t0) * 1e3, "atlas": t_atlas, "draw": (t2 - t1) * 1e3, "readback": (t3 - t2) * 1e3,
