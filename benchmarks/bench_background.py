@@ -11,7 +11,8 @@ synthetic set, and the plate on a real video.
 2. The same stages as ``facesculpt process`` in-process (facesculpt.app.pipeline.Pipeline:
    calibrate on the first ``--neutral-frames``, the preset solved once, then every frame analysed
    once) and each frame composited by one compositor per method (``pushpull``, ``telea``, ``ns``,
-   ``patch``, ``plate`` (push-pull under the plate), ``patch+plate``): the fills differ only
+   ``patch``, ``drag`` (the background beside the face carried in by its motion), ``plate``
+   (push-pull under the plate), ``patch+plate``, ``drag+plate``): the fills differ only
    in the compositor, so the fits are shared; process --fill/--plate runs the same compositor.
 3. Scored over the frames after the neutral: fill-region PSNR (dB) and SSIM, the region being
    the pixels that were face in the input and are background in the ground truth; "do nothing"
@@ -29,7 +30,7 @@ synthetic set, and the plate on a real video.
 Writes ``results.md`` and ``results.json`` to ``--out`` (default: a new temporary folder).
 
 Run: ``python benchmarks/bench_background.py [--out DIR] [--frames 90] [--models facemesh,sfm]
-[--methods pushpull,telea,ns,patch,plate,patch+plate] [--real-video d3] [--real-frames 150]``.
+[--methods pushpull,telea,ns,patch,drag,plate,patch+plate,drag+plate] [--real-video d3] [--real-frames 150]``.
 Needs the shared data and ``facesculpt setup``.
 """
 
@@ -63,7 +64,8 @@ EDITS = {
                       "both cheeks 8 mm toward the midline (face slimmed)", True),
 }
 METHODS = {"pushpull": ("pushpull", False), "telea": ("telea", False), "ns": ("ns", False),
-           "patch": ("patch", False), "plate": ("pushpull", True), "patch+plate": ("patch", True)}
+           "patch": ("patch", False), "drag": ("drag", False), "plate": ("pushpull", True),
+           "patch+plate": ("patch", True), "drag+plate": ("drag", True)}
 SWAY_PERIOD = 50
 REAL_PRESET = Path(__file__).resolve().parent.parent / "nodes" / "deformer" / "presets" / "cheeks.json"
 

@@ -38,7 +38,7 @@ liquify, enlarged 2x without smoothing) and the presets to ``--out`` (default: a
 folder), and prints the tables.
 
 Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
-[--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--pythonpath DIR]``
+[--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--pythonpath DIR] [--process-args "--fill drag"]``
 (``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
 revision, to compare compositors on the same ground truth). Needs the shared data
 (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
@@ -83,6 +83,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--neutral-frames", type=int, default=30, help="process --neutral-frames; scoring starts after them")
     p.add_argument("--atlas-edits", default=",".join(ATLAS_EDITS),
                    help=f"edits also run with process --atlas on (default {','.join(ATLAS_EDITS)}; '' for none)")
+    p.add_argument("--process-args", default="", type=str.split, metavar="ARGS",
+                   help="more options for every process run, e.g. '--fill drag' (compare settings on one truth)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
     p.add_argument("--pythonpath", default="", help="run process with this folder first on PYTHONPATH (a copy of "
@@ -174,7 +176,7 @@ def run_with_atlas(args, data, seq, video, preset, e, m, frames, scored, truth_s
     folder = out / "frames" / f"synthetic_{e}_{m}_atlas"
     try:
         got, took = run_process(video, folder, preset, m, neutral_frames=args.neutral_frames,
-                                pythonpath=args.pythonpath, data=data, extra_args=("--atlas", "on"))
+                                pythonpath=args.pythonpath, data=data, extra_args=(*args.process_args, "--atlas", "on"))
     except RuntimeError as exc:
         print(exc, file=sys.stderr)
         return {"error": str(exc)}
@@ -213,7 +215,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
             folder = out / "frames" / f"synthetic_{e}_{m}"
             try:
                 frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames,
-                                           pythonpath=args.pythonpath, data=data)
+                                           pythonpath=args.pythonpath, data=data, extra_args=args.process_args)
             except RuntimeError as exc:
                 print(exc, file=sys.stderr)
                 results[e][m] = {"error": str(exc)}
@@ -251,7 +253,7 @@ def real_videos(args, data: Path, out: Path, presets: dict) -> list[dict]:
                 row = {"video": name, "model": m, "edit": e}
                 try:
                     frames, took = run_process(video, folder, Path(preset), m, args.real_frames, args.neutral_frames,
-                                               args.pythonpath, data)
+                                               args.pythonpath, data, args.process_args)
                 except RuntimeError as exc:
                     print(exc, file=sys.stderr)
                     rows.append({**row, "error": str(exc), "sharpness": float("nan"), "seam": float("nan"),

@@ -122,7 +122,7 @@ def test_a_bad_value_stops_a_real_node_in_one_sentence_with_exit_code_2():
     assert out.stderr.strip().splitlines() == ["facesculpt: deformer.iterations=0 is out of range [1, 100]"]
     out = _run("run", "renderer", "inpaint=navier")
     assert out.returncode == 2
-    assert out.stderr.strip().splitlines() == ["facesculpt: renderer.inpaint='navier' is not one of pushpull, telea, ns, patch"]
+    assert out.stderr.strip().splitlines() == ["facesculpt: renderer.inpaint='navier' is not one of pushpull, telea, ns, patch, drag"]
     out = _run("run", "camera", "fps=fast")
     assert out.returncode == 2 and "camera.fps" in out.stderr and "Traceback" not in out.stderr
 

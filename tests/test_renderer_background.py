@@ -156,7 +156,9 @@ def test_compositor_with_the_plate_uncovers_the_true_background(gl):
             out = comp.render(frame, vertices, projected, triangles, deformed)
         x0, y0, x1, y1 = comp.box
         uncovered = np.zeros((H, W), bool)
-        uncovered[y0:y1, x0:x1] = (comp.inpainted_region != 0) & (comp.deformed_region == 0)
+        # inside the old outline: the fill's rim past it is the outline band's (moved with the face)
+        uncovered[y0:y1, x0:x1] = ((comp.inpainted_region != 0) & (comp.deformed_region == 0)
+                                   & (comp.original_region != 0))
         assert uncovered.sum() > 1000
         errors[plate] = np.abs(out[uncovered].astype(float) - bg[uncovered]).mean()
         if plate:
@@ -165,3 +167,66 @@ def test_compositor_with_the_plate_uncovers_the_true_background(gl):
         comp.release()
     assert errors[True] < 3.0, errors
     assert errors[False] > 3 * errors[True], errors
+
+
+def test_drag_fill_samples_past_the_offsets_and_never_the_face():
+    """drag_fill takes each fill pixel from the frame at its dragged offset, unless that lands on
+    the face (those are left for another fill)."""
+    from facesculpt.nodes.renderer.drag_fill import drag_fill
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    frame = np.zeros((60, 80, 3), np.uint8)
+    frame[..., 0] = np.arange(80, dtype=np.uint8)[None, :]   # blue = x, green = y: where a sample came from
+    frame[..., 1] = np.arange(60, dtype=np.uint8)[:, None]
+    origin = (10, 5)                    # the crop is the frame's box [10:50] x [5:45]
+    crop = np.full((40, 40, 3), 255, np.uint8)
+    face = np.zeros((40, 40), np.uint8)
+    face[:, :20] = 1                    # the face, before and after, on the crop's left half
+    fill = np.zeros((40, 40), np.uint8)
+    fill[:, 20:26] = 1                  # what it uncovered, beside it
+    dragged = np.full((40, 40, 2), UNCOVERED, np.float32)
+    dragged[:20, 20:26] = (6.0, 0.0)    # upper half: dragged 6 px outward, past the face
+    dragged[20:, 20:26] = (-8.0, 0.0)   # lower half: into the face
+    done = drag_fill(crop, frame, fill, dragged, face, origin)
+    assert done[:20, 20:26].all() and not done[20:].any() and not done[:, :20].any()
+    ys, xs = np.nonzero(done)
+    assert np.array_equal(crop[ys, xs, 0], xs + origin[0] + 6)
+    assert np.array_equal(crop[ys, xs, 1], ys + origin[1])
+    assert (crop[~done] == 255).all()   # the rest untouched
+
+
+def test_compositor_drag_fill_continues_the_background_into_the_gap(gl):
+    """A 'face' (a flat colour) narrowed by a quarter over a background of vertical stripes: the
+    drag fill gives the uncovered strips the stripes (their edges, none of the face's colour);
+    push-pull gives a smear of them."""
+    x = np.arange(W)
+    bg = np.zeros((H, W, 3), np.uint8)
+    bg[:] = np.where((x // 4) % 2 == 0, 60, 200).astype(np.uint8)[None, :, None]
+    face_colour = np.array([30, 30, 230], np.uint8)
+    cx = 160
+    vertices, projected, triangles = plane_mesh((cx, 120), 90, n=10)
+    frame = bg.copy()
+    frame[75:166, cx - 45:cx + 46] = face_colour
+    deformed = vertices.copy()
+    deformed[:, 0] = cx + 0.75 * (vertices[:, 0] - cx)
+    contrast = {}
+    for fill in ("drag", "pushpull"):
+        with Compositor(W, H, ctx=gl, inpaint=fill) as comp:
+            out = comp.render(frame, vertices, projected, triangles, deformed)
+            x0, y0, x1, y1 = comp.box
+            gap = np.zeros((H, W), bool)
+            gap[y0:y1, x0:x1] = (comp.inpainted_region != 0) & (comp.deformed_region == 0) & (comp.original_region != 0)
+            comp_face = np.zeros((H, W), np.uint8)
+            comp_face[y0:y1, x0:x1] = comp.deformed_region
+        gap[:80] = gap[162:] = False    # away from the corners, where the face's top and bottom edges meet it
+        # and 2 px from the new outline: the face's last column, half outside the fitted outline, moves in with it
+        gap &= cv2.dilate(comp_face, np.ones((5, 5), np.uint8)) == 0
+        assert gap.sum() > 500
+        values = out[gap].astype(int)
+        pairs = gap[:, :-1] & gap[:, 1:]    # horizontal neighbours both in the gap: the stripes' edges
+        contrast[fill] = np.abs(np.diff(out[..., 1].astype(int), axis=1))[pairs].mean()
+        if fill == "drag":
+            assert (np.abs(values - face_colour).sum(axis=1) > 60).all()   # no face colour in the gap
+    background = np.abs(np.diff(bg[..., 1].astype(int), axis=1)).mean()
+    assert contrast["drag"] > 0.6 * background, (contrast, background)   # the stripes, squeezed
+    assert contrast["pushpull"] < 0.3 * contrast["drag"], contrast        # a smear

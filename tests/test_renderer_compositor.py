@@ -255,6 +255,34 @@ def test_the_edit_moves_a_real_outline_that_lies_past_the_fitted_one(gl):
     assert bottom + 7 <= edges[0.05] <= bottom + 13 and edges[0.05] >= edges[0.0] + 3, edges
 
 
+def test_carry_past_outline_fades_the_band_out_and_fills_the_gap_unfaded():
+    """The face (a disc moving 5 px right) shrank from a larger disc: past the old outline the
+    offsets fade from almost 5 px to nothing at the reach; the gap between the outlines takes the
+    face's offset whole when asked (the drag fill), else stays uncovered."""
+    from facesculpt.nodes.renderer.motion_extension import carry_past_outline
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    yy, xx = np.mgrid[:101, :101]
+    r = np.hypot(xx - 50.0, yy - 50.0)
+    offsets = np.full((101, 101, 2), UNCOVERED, np.float32)
+    offsets[r <= 20] = (5.0, 0.0)
+    outline = (r <= 30).astype(np.uint8)                 # the old face and the new together
+    gap = (r > 20.5) & (r < 29.5)
+    reach = 10.0
+    for with_gap in (False, True):
+        out = carry_past_outline(offsets, outline, reach, gap if with_gap else None)
+        assert np.array_equal(out[r <= 20], offsets[r <= 20])
+        if with_gap:
+            assert np.allclose(out[gap], (5.0, 0.0))
+        else:
+            assert (out[gap][:, 0] == UNCOVERED).all()
+        assert (out[r > 30 + reach + 1.5][:, 0] == UNCOVERED).all()   # beyond reach: not moved
+        ring = [out[(r > 30 + d - 0.5) & (r <= 30 + d + 0.5)][:, 0] for d in (1, 4, 7)]
+        means = [float(v[v < 0.5 * UNCOVERED].mean()) for v in ring]
+        assert 4.5 < means[0] <= 5.0 and means[0] > means[1] > means[2] > 0.0, means
+        assert np.allclose(out[(r > 30.5) & (r < 39.5)][:, 1], 0.0)   # the motion's direction kept
+
+
 # -- smooth outlines -----------------------------------------------------------------------------
 def outline_turning(region: np.ndarray, centre, radius: float, chord: int = 6) -> float:
     """The largest turn (degrees) between consecutive ``chord``-px chords of the outline of

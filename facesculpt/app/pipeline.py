@@ -124,8 +124,8 @@ class Pipeline:
     are not fitted (the other fitter options are :class:`FitterConfig`'s defaults, the fitter
     node's); faces: which faces are fitted and edited, "largest", "all" or a face number from 1
     (:func:`facesculpt.nodes.fitter.parse_faces`), each with its own fitter and neutral;
-    inpaint, feather_px, dilate_px, interpolation: the compositor's (inpaint "pushpull", "telea", "ns"
-    or "patch"; interpolation "cubic", "lanczos" or "linear", the kernel the frame is sampled with);
+    inpaint, feather_px, dilate_px, interpolation: the compositor's (inpaint "pushpull", "telea", "ns",
+    "patch" or "drag"; interpolation "cubic", "lanczos" or "linear", the kernel the frame is sampled with);
     plate: "on" keeps a background plate and takes what an edit uncovers from it where it was seen
     (issue 16, :mod:`facesculpt.nodes.renderer.background_plate`), "off" not; atlas: the face's texture memory (issue 16),
     "off", "on" (learned and blended where the frame sees the edited surface badly) or "learn"
@@ -147,7 +147,7 @@ class Pipeline:
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
-                 neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "pushpull",
+                 neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "drag",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic",

@@ -110,9 +110,10 @@ def register(sub) -> None:
     p.add_argument("--save-texture", default="", metavar="FILE.png",
                    help="write the face's texture atlas (in the model's UV layout) as a PNG at the end "
                         "(learned even with --atlas off)")
-    p.add_argument("--fill", choices=("pushpull", "telea", "ns", "patch"), default="pushpull",
-                   help="fill of the background an edit uncovers where it was never seen: pushpull (smooth, the "
-                        "default), telea / ns (OpenCV inpainting), patch (background copied in from nearby)")
+    p.add_argument("--fill", choices=("drag", "pushpull", "telea", "ns", "patch"), default="drag",
+                   help="fill of the background an edit uncovers where it was never seen: drag (the background "
+                        "beside the face carried in by its motion, the default), pushpull (smooth), telea / ns "
+                        "(OpenCV inpainting), patch (background copied in from nearby)")
     p.add_argument("--plate", choices=("on", "off"), default="off",
                    help="keep a background plate (the background seen behind the face in other frames, registered "
                         "when the camera moves) and take what an edit uncovers from it where known (default off)")
@@ -382,7 +383,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
                          getattr(args, "preset", None))
     save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
-                        faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "pushpull"),
+                        faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "drag"),
                         plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "cubic"),
                         refine=None if getattr(args, "refine", "off") == "off" else args.refine,
                         outline_band=getattr(args, "outline_band", None), **pose_options)

@@ -14,8 +14,9 @@ Per frame, on a box around the part of the face that moves only:
    read back for the box only;
 4. masks: the covered pixels whose offset is not negligible are the changed region (only
    those are re-rendered); the background the face no longer covers (original minus deformed
-   region, slightly dilated) is inpainted from the surrounding background (:mod:`.inpaint`),
-   each connected part on its own small box; with ``plate`` on, the background plate
+   region, slightly dilated) is filled: by default dragged in (:mod:`.drag_fill`: the
+   background beside the face, carried by its motion), else inpainted from the surrounding
+   background (:mod:`.inpaint`), each connected part on its own small box; with ``plate`` on, the background plate
    (:mod:`.background_plate`: the background seen behind the face in earlier frames, learned
    from every input frame outside the face grown by ``PLATE_MARGIN``, registered when the
    camera moves) replaces the fill where it is known, fading into it at its border;
@@ -29,7 +30,7 @@ Per frame, on a box around the part of the face that moves only:
    from the input frame (every ``atlas_every`` frames; :mod:`.atlas_raster`), and where the
    input sees a changed pixel's surface badly (the source map stretches it more than
    ``ATLAS_STRETCH`` to one, or the surface is hidden or grazing in the input:
-   ``ATLAS_GRAZING``), its sampled colour is blended toward the atlas's, in the frame's
+   ``ATLAS_GRAZING``; :func:`.texture_atlas.blend_atlas`), its sampled colour is blended toward the atlas's, in the frame's
    lighting, as far as the atlas knows that texel.
 
 Steps 4-5 run on the CPU: on llvmpipe a GPU pass would add an upload and a readback of the same
@@ -49,14 +50,15 @@ import numpy as np
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate, face_region
 from .camera import estimate_projection, project
+from .drag_fill import drag_fill
 from .gl_context import create_headless_context
-from .inpaint import INPAINT_METHODS, dilate, fill_by_parts, uncovered_mask
+from .inpaint import FILL_METHODS, dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .mesh import close_holes
-from .motion_extension import extend_motion, head_box, head_region
-from .source_map import SourceMapRenderer
+from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
+from .source_map import UNCOVERED, SourceMapRenderer
 from .subdivision import levels_for, loop_subdivision
-from .texture_atlas import TextureAtlas
+from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
     IDENTITY_PX,
     INTERPOLATIONS,
@@ -73,8 +75,6 @@ FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's
 OUTLINE_BAND = 0.05  # a shape edit's motion reaches this far past the fitted outline (share of the face's size)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
-ATLAS_STRETCH = (1.5, 3.0)   # source-map stretch (linear) from which the atlas starts / fully takes over
-ATLAS_GRAZING = 0.35         # input-view frontality (cosine, 0 where hidden) under which the atlas takes over
 
 
 def face_size(projected: np.ndarray) -> float:
@@ -86,10 +86,10 @@ def face_size(projected: np.ndarray) -> float:
 class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
-    Compositor(width, height, ctx=None, inpaint="pushpull", feather_px=3.0, dilate_px=2,
+    Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2,
     telea_radius=3.0, interpolation="cubic", subdivision=None): frame size in pixels; ``ctx`` a
-    moderngl context to draw with (default: a headless EGL context of its own); ``inpaint``
-    "pushpull" (fast) or "telea" (OpenCV); ``feather_px`` least width of the soft edge inside
+    moderngl context to draw with (default: a headless EGL context of its own); ``inpaint`` the
+    fill of what the face uncovers (below); ``feather_px`` least width of the soft edge inside
     the deformed outline (pixels; it grows to ``FEATHER_FRACTION`` of the face's size; 0: a hard
     edge); ``dilate_px`` growth of the region to inpaint (pixels); ``interpolation`` the kernel
     the frame is sampled with ("cubic", "lanczos", "linear"); ``subdivision`` Loop levels of
@@ -102,7 +102,7 @@ class Compositor:
     (:class:`.background_plate.BackgroundPlate`; ``plate_max_age`` frames an estimate is used,
     ``plate_register`` follow camera motion) and take uncovered pixels from it; ``keyframes`` keep views
     of the face at other poses and take turned surface from them (:mod:`.keyframe_views`); ``inpaint``
-    "pushpull", "telea", "ns" or "patch" (:mod:`.inpaint`); ``outline_band`` how far past the fitted
+    "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag" (:mod:`.drag_fill`); ``outline_band`` how far past the fitted
     outline (share of the face's size, 0: not at all) a shape edit's motion is carried (:meth:`_read_map`). ``atlases`` holds one
     :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
@@ -112,7 +112,7 @@ class Compositor:
     """
 
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
-                 inpaint: str = "pushpull", feather_px: float = 3.0, dilate_px: int = 2,
+                 inpaint: str = "drag", feather_px: float = 3.0, dilate_px: int = 2,
                  telea_radius: float = 3.0, interpolation: str = "cubic", subdivision: int | None = None,
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
@@ -121,8 +121,8 @@ class Compositor:
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
-        if inpaint not in INPAINT_METHODS:
-            raise ValueError(f"unknown inpaint method {inpaint!r} (known: {', '.join(INPAINT_METHODS)})")
+        if inpaint not in FILL_METHODS:
+            raise ValueError(f"unknown inpaint method {inpaint!r} (known: {', '.join(FILL_METHODS)})")
         if interpolation not in INTERPOLATIONS:
             raise ValueError(f"unknown interpolation {interpolation!r} (known: {', '.join(INTERPOLATIONS)})")
         if feather_px < 0 or dilate_px < 0:
@@ -288,14 +288,14 @@ class Compositor:
         t1 = time.perf_counter()
         self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
         t2 = time.perf_counter()
-        offsets, orig_mask, face = self._read_map(box, projected, dst_px, head_motion)
+        offsets, orig_mask, face, dragged = self._read_map(box, projected, dst_px, head_motion)
         t3 = time.perf_counter()
         covered, changed, fill, source = self._masks(offsets, orig_mask, projected)
         t4 = time.perf_counter()
         x0, y0, x1, y1 = box
         crop = out[y0:y1, x0:x1]
         if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
-            self._fill(crop, fill, source, box, projected)
+            self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)))
         t5 = time.perf_counter()
         write = changed | (covered & (fill != 0))
         block = bounding_slices(write)
@@ -320,26 +320,39 @@ class Compositor:
         return out
 
     def _read_map(self, box: tuple[int, int, int, int], projected: np.ndarray, dst_px: np.ndarray,
-                  head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`),
-        and the (h, w) bool deformed face; with ``head_motion``, the offsets carried over the head
+        the (h, w) bool deformed face, and for the drag fill the offsets dragged into what the face
+        uncovered (None for other fills); with ``head_motion``, the offsets carried over the head
         region around the face at ``projected`` and ``dst_px`` (V, 2) px
-        (:func:`.motion_extension.extend_motion`), else over the outline band (:meth:`band_px`)."""
+        (:func:`.motion_extension.extend_motion`), else over the outline band (:meth:`band_px`;
+        :func:`.motion_extension.carry_past_outline`)."""
         offsets, orig_mask = self.maps.read(box)
         face = covered_pixels(offsets)
+        dragged = None
         if head_motion:
             head = head_region(offsets.shape[:2], box[:2], np.concatenate([projected, dst_px]))
             offsets = extend_motion(offsets, head)
-        elif self.outline_band > 0:  # the band outside both outlines; what the face uncovered stays to fill
-            band = dilate(face.view(np.uint8) | orig_mask, self.band_px(projected))
-            offsets = extend_motion(offsets, band & ~(orig_mask & ~face.view(np.uint8)))
-        return offsets, orig_mask, face
+        elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
+            gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
+            offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
+            if gap is not None:
+                dragged, offsets = offsets, offsets.copy()
+                offsets[gap] = UNCOVERED
+        return offsets, orig_mask, face, dragged
 
     def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
-              projected: np.ndarray) -> None:
+              projected: np.ndarray, drag: tuple) -> None:
         """Fill the ``fill`` pixels of ``crop`` (the frame's ``box``, in place) from the ``source``
-        pixels (step 4), then lay the background plate over them where it knows the background."""
-        fill_by_parts(crop, fill, source, self.inpaint, radius=self.telea_radius, in_place=True)
+        pixels (step 4), then lay the background plate over them where it knows the background.
+        ``drag``: (the input frame, the dragged offsets or None, the face before and after) for the
+        drag fill (:func:`.drag_fill.drag_fill`; push-pull where it does not reach)."""
+        frame, dragged, face = drag
+        rest, known, method = fill, source, self.inpaint
+        if dragged is not None:
+            done = drag_fill(crop, frame, fill, dragged, face, box[:2], self.interpolation)
+            rest, known, method = fill & ~done.view(np.uint8), source | done, "pushpull"
+        fill_by_parts(crop, rest, known, method, radius=self.telea_radius, in_place=True)
         if self.plate is not None:
             self.plate_sync()
             self.plate_region = self.plate.take(crop, fill, source, box, self.feather_width(projected))
@@ -455,32 +468,14 @@ class Compositor:
     def _blend_atlas(self, warped: np.ndarray, block: tuple[slice, slice], offsets: np.ndarray,
                      changed: np.ndarray, box: tuple[int, int, int, int], has_uv: bool) -> None:
         """Blend the atlas into ``warped`` (the sampled ``block`` of the box, (h', w', 3) uint8,
-        in place) where the input sees the changed pixels' surface badly: the source map's
-        stretch (linear, from its Jacobian) over ATLAS_STRETCH, or the input-view frontality
-        (the extras' third channel, interpolated per vertex) under ATLAS_GRAZING; weighted by the atlas's
-        confidence at the pixel's texture coordinates (``extra[..., :2]``: the source map's extras of
-        ``box``). Nothing without ``has_uv`` or with ``atlas_blend`` off."""
+        in place) where the input sees the changed pixels' surface badly
+        (:func:`.texture_atlas.blend_atlas`, with the source map's extras of ``box``). Nothing
+        without ``has_uv`` or with ``atlas_blend`` off."""
         if not (has_uv and self.atlas_blend):
             return
-        off = offsets[block].astype(np.float64)
-        ext = self.maps.read_extra(box)[block]
-        dx_dx = 1.0 + np.gradient(off[..., 0], axis=1)
-        dy_dy = 1.0 + np.gradient(off[..., 1], axis=0)
-        det = dx_dx * dy_dy - np.gradient(off[..., 0], axis=0) * np.gradient(off[..., 1], axis=1)
-        stretch = 1.0 / np.sqrt(np.maximum(np.abs(det), 1e-6))
-        lo, hi = ATLAS_STRETCH
-        w = np.maximum(np.clip((stretch - lo) / (hi - lo), 0.0, 1.0),
-                       np.clip(1.0 - ext[..., 2] / ATLAS_GRAZING, 0.0, 1.0))
-        w *= changed[block]
-        if not (w > 0).any():
-            self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
-            return
-        colours, confidence = self.atlas.sample(np.clip(ext[..., :2], 0.0, 1.0))
-        w = (w * confidence).astype(np.float32)
-        mixed = warped.astype(np.float32) * (1.0 - w[..., None]) + colours * w[..., None]
-        np.copyto(warped, np.clip(np.rint(mixed), 0, 255).astype(np.uint8), where=(w > 0)[..., None])
         self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
-        self.atlas_region[block] = w
+        self.atlas_region[block] = blend_atlas(warped, offsets[block], self.maps.read_extra(box)[block],
+                                               changed[block], self.atlas)
 
     def _work_box(self, projected: np.ndarray, dst_px: np.ndarray, moved: np.ndarray,
                   head_motion: bool = False) -> tuple[int, int, int, int] | None:

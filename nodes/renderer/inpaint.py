@@ -30,6 +30,9 @@ import cv2
 import numpy as np
 
 INPAINT_METHODS = ("pushpull", "telea", "ns", "patch")
+#: The compositor's fills: these, and "drag" (:mod:`.drag_fill`: the background beside the face
+#: carried in by its motion, push-pull where that does not reach), which needs the source map.
+FILL_METHODS = INPAINT_METHODS + ("drag",)
 _SLIVER_KERNEL = np.ones((2, 2), np.uint8)
 
 

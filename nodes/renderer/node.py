@@ -10,7 +10,7 @@ left-drags become ``correct_landmark`` commands for the fitter: ``correction_mod
 output). Writes ``output`` (a video file) when set.
 
 Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames kept
-for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea" | "ns" | "patch"), plate
+for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea" | "ns" | "patch" | "drag"), plate
 ("on" | "off": the background plate, ``background_plate.py``), plate_max_age,
 feather_px, dilate_px, outline_band, output (video path), fps (of the video file), publish, overlay
 (fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
@@ -42,7 +42,7 @@ from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
 from .compositor import OUTLINE_BAND, Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
-from .inpaint import INPAINT_METHODS
+from .inpaint import FILL_METHODS
 from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
 from .pinch_markers import PinchMarkers, draw_pinch_markers
@@ -72,9 +72,10 @@ class RendererNode(Node):
                                 range=(0.0, 60.0)),
         "max_state_age_s": Param(0.5, "latest: the oldest state (relative to the frame) still drawn, s",
                                  range=(0.0, 60.0)),
-        "inpaint": Param("pushpull", "fill of the background the deformed face uncovers where it was never seen: "
-                                     "pushpull (smooth), telea / ns (OpenCV inpainting), patch (background copied in "
-                                     "from nearby, seams corrected)", choices=INPAINT_METHODS),
+        "inpaint": Param("drag", "fill of the background the deformed face uncovers where it was never seen: "
+                                     "drag (the background beside the face carried in by its motion), pushpull "
+                                     "(smooth), telea / ns (OpenCV inpainting), patch (background copied in from "
+                                     "nearby, seams corrected)", choices=FILL_METHODS),
         "mouth": Param("off", "paint: where an edit opens a mouth that is closed in the frame, paint a dark "
                               "interior with a soft teeth band instead of stretching the lips (face-mesh "
                               "model; on in launch/reenact.yaml); off: the lips stretch", choices=("off", "paint")),
@@ -90,7 +91,7 @@ class RendererNode(Node):
         "outline_band": Param(0.0, f"how far past the fitted outline a shape edit's motion is carried, fading "
                                    f"out, as a share of the face's size (a real outline the fit lies inside moves "
                                    f"with the face; {OUTLINE_BAND} as process does; 0, the live default: not at "
-                                   f"all, it costs a 720p frame about 5 ms)", range=(0.0, 0.5)),
+                                   f"all, it costs the renderer about 3 ms a 720p frame)", range=(0.0, 0.5)),
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),

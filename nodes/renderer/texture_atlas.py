@@ -37,6 +37,8 @@ import cv2
 import numpy as np
 
 UV_MARGIN = 0.02  # share of the unit square left free around a derived layout
+ATLAS_STRETCH = (1.5, 3.0)   # source-map stretch (linear) from which the atlas starts / fully takes over
+ATLAS_GRAZING = 0.35         # input-view frontality (cosine, 0 where hidden) under which the atlas takes over
 CONFIDENT = (0.35, 0.7)  # best quality from which a texel's confidence rises from 0, and where it is 1
 
 
@@ -188,3 +190,29 @@ class TextureAtlas:
         conf = cv2.remap(self.confidence(), grid[..., 0], grid[..., 1], cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return col.reshape(-1, 3)[:n].reshape(*shape, 3), conf.reshape(-1)[:n].reshape(shape)
+
+
+def blend_atlas(warped: np.ndarray, offsets: np.ndarray, extra: np.ndarray, changed: np.ndarray,
+                atlas: TextureAtlas) -> np.ndarray:
+    """Blend ``atlas`` into ``warped`` ((h, w, 3) uint8, the frame sampled through the source map;
+    in place) where the input sees the ``changed`` ((h, w) bool) pixels' surface badly: the source
+    map's stretch (linear, from the Jacobian of ``offsets`` (h, w, 2) px) over ATLAS_STRETCH, or
+    the input-view frontality (``extra[..., 2]``) under ATLAS_GRAZING; weighted by the atlas's
+    confidence at the pixels' texture coordinates (``extra[..., :2]``: the source map's extras,
+    (h, w, >= 3) float32). Returns the (h, w) float32 weight the atlas got."""
+    off = offsets.astype(np.float64)
+    dx_dx = 1.0 + np.gradient(off[..., 0], axis=1)
+    dy_dy = 1.0 + np.gradient(off[..., 1], axis=0)
+    det = dx_dx * dy_dy - np.gradient(off[..., 0], axis=0) * np.gradient(off[..., 1], axis=1)
+    stretch = 1.0 / np.sqrt(np.maximum(np.abs(det), 1e-6))
+    lo, hi = ATLAS_STRETCH
+    w = np.maximum(np.clip((stretch - lo) / (hi - lo), 0.0, 1.0),
+                   np.clip(1.0 - extra[..., 2] / ATLAS_GRAZING, 0.0, 1.0))
+    w *= changed
+    if not (w > 0).any():
+        return w.astype(np.float32)
+    colours, confidence = atlas.sample(np.clip(extra[..., :2], 0.0, 1.0))
+    w = (w * confidence).astype(np.float32)
+    mixed = warped.astype(np.float32) * (1.0 - w[..., None]) + colours * w[..., None]
+    np.copyto(warped, np.clip(np.rint(mixed), 0, 255).astype(np.uint8), where=(w > 0)[..., None])
+    return w

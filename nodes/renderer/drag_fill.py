@@ -1,0 +1,52 @@
+"""The drag fill (issue 16): what a shrinking face uncovers, taken from the background beside it
+as the face's own motion carries it in.
+
+When an edit pulls the outline in (cheeks, jaw), the pixels between the old and the new outline
+show background the camera did not see in this frame. The compositor gives each of them the
+source-map offset of its nearest pixel of the deformed face
+(:func:`.motion_extension.carry_past_outline` with its ``gap``), so it samples the input as far
+beyond the old outline as the outline moved there: the background next to the face, with its
+edges and texture, continued into the gap (squeezed, as a 2D liquify would), instead of a smooth
+smear; a real outline just past the fitted one (registration error) moves in with the face. A
+pixel whose dragged source lands on the original face (where the motion runs along the outline,
+not across it) is left to the smooth fill.
+
+Crops (h, w, 3) uint8, masks (h, w), offsets (h, w, 2) float32 pixels (UNCOVERED: none).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .source_map import UNCOVERED
+from .warp import INTERPOLATIONS
+
+
+def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np.ndarray,
+              face: np.ndarray, origin: tuple[int, int], interpolation: str = "cubic") -> np.ndarray:
+    """Fill the ``fill`` pixels (h, w, nonzero: to fill) of ``crop`` (the frame's box whose top-left
+    pixel is ``origin`` (x, y); in place) with ``frame`` (H, W, 3) uint8 (the input) sampled at their
+    ``dragged`` offsets, where those are set and do not land on ``face`` (h, w, nonzero: the face
+    before and after the edit; positions outside the box count as background). Returns (h, w) bool,
+    the pixels filled; the others are left as they were, for another fill."""
+    done = (fill != 0) & (dragged[..., 0] < 0.5 * UNCOVERED)
+    ys, xs = np.nonzero(done)
+    if len(ys) == 0:
+        return done
+    h, w = done.shape
+    sx = np.rint(xs + dragged[ys, xs, 0]).astype(np.int64)
+    sy = np.rint(ys + dragged[ys, xs, 1]).astype(np.int64)
+    inside = (sx >= 0) & (sx < w) & (sy >= 0) & (sy < h)
+    on_face = np.zeros(len(ys), bool)
+    on_face[inside] = face[sy[inside], sx[inside]] != 0
+    done[ys[on_face], xs[on_face]] = False
+    keep = ~on_face
+    ys, xs = ys[keep], xs[keep]
+    if len(ys):  # only these pixels are sampled (the gaps are thin strips far apart, one per cheek),
+        # as one row: remap works row by row, and a column of single pixels costs thirty times as much
+        map_x = (xs + origin[0] + dragged[ys, xs, 0]).astype(np.float32)[None, :]
+        map_y = (ys + origin[1] + dragged[ys, xs, 1]).astype(np.float32)[None, :]
+        crop[ys, xs] = cv2.remap(frame, map_x, map_y, INTERPOLATIONS[interpolation],
+                                 borderMode=cv2.BORDER_REPLICATE)[0]
+    return done
