@@ -13,8 +13,8 @@ merged per frame with the deformer's Eq. 5. Geometry is computed before timing.
 Measured per frame (medians, ms): the compositor's stages (camera recovery with the subdivided
 vertices, draw (the source map), readback, masks (regions, uncovered mask, sources), inpaint (the
 fill), texture (the frame sampled through the source map), composite) and its total, with the
-push-pull fill, with Telea on the bounding box, with Navier-Stokes, with the patch fill, with the
-background plate on (issue 16: push-pull or patch under it), with Lanczos-4 sampling instead of bicubic, and
+push-pull fill, with Telea on the bounding box, with the drag fill (the default), with Navier-Stokes,
+with the patch fill, with the background plate on (issue 16: push-pull, patch or drag under it), with Lanczos-4 sampling instead of bicubic, and
 the whole render of the baseline compositor (``--baseline``, default the commit before the
 source-map warp: texture round trip, no subdivision), loaded from git; the peer cv2.inpaint(TELEA, radius 3) of the same uncovered mask on the full
 frame; and a GPU variant of the composite step (upload background + alpha, blend in a shader,
@@ -47,8 +47,8 @@ from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
 from facesculpt.runtime.process_limits import limit_threads  # noqa: E402
 
 BASELINE_REV = "7c619da"  # the compositor before the source-map warp (issue 15)
-FILL_VARIANTS = (("ns", "ns", False), ("patch", "patch", False), ("pushpull+plate", "pushpull", True),
-                 ("patch+plate", "patch", True))
+FILL_VARIANTS = (("drag", "drag", False), ("ns", "ns", False), ("patch", "patch", False),
+                 ("pushpull+plate", "pushpull", True), ("patch+plate", "patch", True), ("drag+plate", "drag", True))
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
 SIZE = (856, 480)
