@@ -83,6 +83,11 @@ def pull_push(values: np.ndarray, weight: np.ndarray) -> np.ndarray:
     return estimate
 
 
+def _fade_out(u: np.ndarray) -> np.ndarray:
+    """Smoothstep from 1 at ``u`` = 0 to 0 at ``u`` = 1 (``u`` in [0, 1])."""
+    return 1.0 - u * u * (3.0 - 2.0 * u)
+
+
 def extend_motion(offsets: np.ndarray, head: np.ndarray) -> np.ndarray:
     """The source map ``offsets`` (h, w, 2) float32 with the face's motion carried over the
     ``head`` (h, w) uint8 0/1 region (:func:`head_region`): its uncovered pixels get the
@@ -106,7 +111,7 @@ def extend_motion(offsets: np.ndarray, head: np.ndarray) -> np.ndarray:
     to_edge = cv2.distanceTransform(cv2.resize(head, small, interpolation=cv2.INTER_NEAREST), cv2.DIST_L2, 3)
     to_edge = np.maximum(to_edge - 1.0, 0.0) * step  # zero a cell inside: resampled, it is zero at the border
     u = to_face / np.maximum(to_face + to_edge, 1e-6)
-    fade = 1.0 - u * u * (3.0 - 2.0 * u)        # smoothstep: 1 at the face, 0 at the border
+    fade = _fade_out(u)                          # 1 at the face, 0 at the border
     field = cv2.resize(pull_push(mean, weight) * fade[..., None], (w, h), interpolation=cv2.INTER_LINEAR)
     return cv2.copyTo(field, ((head != 0) & ~covered).view(np.uint8), offsets.copy())
 
@@ -142,6 +147,6 @@ def carry_past_outline(offsets: np.ndarray, outline: np.ndarray, reach_px: float
     carried = offsets.reshape(-1, 2)[np.flatnonzero(covered)[nearest[target] - 1]]
     if to_outline is not None:
         u = to_outline[target] / np.float32(reach_px)   # 0 in the gap: unfaded
-        carried *= (1.0 - u * u * (3.0 - 2.0 * u))[:, None]
+        carried *= _fade_out(u)[:, None]
     out[target] = carried
     return out
