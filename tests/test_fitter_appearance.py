@@ -16,7 +16,9 @@ from facesculpt.nodes.fitter.appearance import (
     Refinement,
     frontality,
     refine_pose,
+    track_pose,
 )
+from facesculpt.nodes.fitter.surface_features import surface_features, track_features
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
 
@@ -92,6 +94,67 @@ def test_the_fitter_option_is_checked_and_refines_real_frames(data_dir, models_d
             fits[refine] = [pipe.fit_frame(f, i / 25.0) for i, f in enumerate(frames)]
             assert pipe.fitter.config.refine == refine
     moved = [np.abs(a.projected - b.projected).max() for a, b in zip(fits[None], fits["appearance"])]
-    assert max(moved[:10]) == 0.0          # the first refine_after frames only learn the appearance
-    assert 0.0 < max(moved[10:]) < 10.0    # then the pose moves, a little
+    assert moved[0] < 1e-3                 # nothing to track from, nothing learned yet
+    assert 0.0 < max(moved[1:]) < 10.0     # then the pose moves, a little
     make_fitter("facemesh", FitterConfig(refine="appearance"))  # without an image nothing changes
+
+
+def _textured(size=(480, 640), seed=0) -> np.ndarray:
+    """(H, W) uint8 blobs at several scales: corners everywhere."""
+    rng = np.random.default_rng(seed)
+    noise = sum(cv2.resize(rng.random((size[0] // c, size[1] // c)).astype(np.float32), size[::-1],
+                           interpolation=cv2.INTER_CUBIC) for c in (4, 8, 16))
+    return cv2.normalize(noise, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def test_corners_on_the_face_are_tracked_to_a_fraction_of_a_pixel_and_a_covered_one_is_dropped():
+    X, _, _ = _scene()
+    image = _textured()
+    found = surface_features(image, project(X, K), np.ones(len(X), bool))
+    assert found is not None and len(found) >= 50
+    hull = cv2.convexHull(project(X, K).astype(np.float32))
+    assert all(cv2.pointPolygonTest(hull, tuple(map(float, p)), True) >= 9 for p in found.pixels)
+    mixed = np.einsum("pk,pkc->pc", found.weights, project(X, K)[found.vertices]) + found.offsets
+    assert np.allclose(mixed, found.pixels) and np.allclose(found.weights.sum(axis=1), 1.0)
+    shift = np.float32([[1, 0, 1.3], [0, 1, -0.6]])
+    moved = cv2.warpAffine(image, shift, image.shape[::-1], flags=cv2.INTER_CUBIC)
+    x0, y0 = found.pixels[0].astype(int)
+    moved[y0 - 12:y0 + 13, x0 - 12:x0 + 13] = 128                  # a hand over one corner
+    tracked, ok = track_features(image, moved, found)
+    assert not ok[0] and ok.mean() > 0.8
+    error = np.linalg.norm(tracked[ok] - (found.pixels[ok] + [1.3, -0.6]), axis=1)
+    assert np.median(error) < 0.05
+
+
+def test_the_tracked_corners_give_the_head_its_motion():
+    X, _, _ = _scene()
+    image = _textured()
+    found = surface_features(image, project(X, K), np.ones(len(X), bool))
+    truth = Refinement(np.r_[np.radians([0.8, -1.2, 0.4]), 3.0, -2.0, 5.0])
+    after = project(truth.apply(X), K)
+    # each corner moves with its vertices (the scene's motion, through their mix)
+    seen = np.einsum("pk,pkc->pc", found.weights, after[found.vertices]) + found.offsets
+    seen[:5] += 6.0                                                 # five mistracked corners
+    motion = track_pose(X, K, (found.vertices, found.weights, found.offsets, seen))
+    error = np.linalg.norm(project(motion.apply(X), K) - after, axis=1)
+    assert np.median(error) < 0.05 and error.max() < 0.2
+
+
+def test_refinement_filters_landmark_noise_on_a_still_face(data_dir, models_dir):
+    """A still frame whose landmarks jitter as a whole (the head's pose noise): the refined fit
+    follows the image (which does not move) and takes only a share of each frame's landmark
+    noise, so it jitters less. (Noise of single points is the dense shape's, not the pose's.)"""
+    from facesculpt.nodes.landmarks.detector import LandmarkDetector
+
+    frame = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4")).read()[1]
+    points = LandmarkDetector(models_dir).detect(frame)[0].points.astype(np.float64)
+    rng = np.random.default_rng(1)
+    noisy = [points.copy() for _ in range(40)]
+    for p in noisy:
+        p[:, :2] += rng.normal(0, 0.8, 2)
+    jitter = {}
+    for refine in (None, "appearance"):
+        fitter = make_fitter("facemesh", FitterConfig(refine=refine), image_size=frame.shape[1::-1])
+        tracks = np.array([fitter.fit(p, stamp=i / 25.0, image=frame).projected for i, p in enumerate(noisy)])
+        jitter[refine] = np.median(np.linalg.norm(np.diff(tracks[15:], axis=0), axis=2))
+    assert jitter["appearance"] < 0.5 * jitter[None]

@@ -12,7 +12,10 @@ hair or a highlight that does not match the template weighs less) and a prior th
 landmark vertices near where the landmark fit put them, so it cannot drift; each frame starts
 from the last frame's correction and is held near it.
 
-Arrays in, arrays out: the fitter (:meth:`.fitter.Fitter.fit` with ``image``) keeps the template.
+:func:`track_pose` is the rigid motion that corners tracked from the last frame show
+(:mod:`.surface_features`): the fast part of the complementary filter in :mod:`.appearance_refiner`.
+
+Arrays in, arrays out: the fitter's :class:`.appearance_refiner.AppearanceRefiner` keeps the template.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from .pose import projection_jacobian, rodrigues, skew
 
 #: Image scales of the pyramid, coarse to fine, and Gauss-Newton steps at each.
 LEVELS = (0.5, 1.0)
-STEPS = 3
+STEPS = 2
 #: The prior (the landmark vertices staying where the landmark fit put them): moving every landmark
 #: vertex by 1 px costs as much as a photometric residual of sqrt(PRIOR_WEIGHT) grey levels at every
 #: compared vertex.
@@ -39,8 +42,16 @@ SHAPE_WEIGHT = 1.0
 #: Moving every landmark vertex 1 px from where the last frame's refinement would put it costs as
 #: much as a photometric residual of sqrt(TEMPORAL_WEIGHT) grey levels at every compared vertex.
 TEMPORAL_WEIGHT = 1.0
+#: Huber threshold of a tracked corner's distance, px (:func:`track_pose`).
+TRACK_HUBER_PX = 1.0
+#: The complementary filter (:func:`track_pose`, :mod:`.appearance_refiner`): each frame the
+#: face follows the corners tracked from the last frame, and moves this share of the way back
+#: to the frame's own fit.
+BLEND = 0.1
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
+#: The refined shape change applied is the mean of the last this many frames' (the person's shape).
+SHAPE_FRAMES = 100
 #: At most this many vertices are compared (every n-th of those with a weight).
 MAX_VERTICES = 1000
 #: The frame is cropped to the face's box grown by this share of its sides.
@@ -166,6 +177,27 @@ def _image_jacobian(grad: np.ndarray, Xm: np.ndarray, centre: np.ndarray, theta:
     return np.concatenate(parts, axis=1)
 
 
+def _pixel_term(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarray | None,
+                K: np.ndarray | None, vertices: np.ndarray, mix: np.ndarray, targets: np.ndarray,
+                huber_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(H (n, n), g (n,)) of sum |mix-weighted pixels of ``vertices`` - targets|^2 over points:
+    vertices (P, m) int, mix (P, m) weights, targets (P, 2) px; Huber weights beyond ``huber_px``."""
+    flat = vertices.reshape(-1)
+    B = None if basis is None else basis[flat]
+    Xm = _moved(X[flat], centre, theta, B)
+    P, m = vertices.shape
+    px = project(Xm, K, "perspective" if K is not None else "orthographic").reshape(P, m, 2)
+    J = np.einsum("pk,pkcn->pcn", mix, _jacobian(Xm, centre, theta, B, K).reshape(P, m, 2, -1))
+    r = np.einsum("pk,pkc->pc", mix, px) - targets
+    w = np.ones(P)
+    if huber_px is not None:
+        d = np.linalg.norm(r, axis=1)
+        w = np.where(d <= huber_px, 1.0, huber_px / np.maximum(d, 1e-9))
+    J = J.reshape(2 * P, -1)
+    w = np.repeat(w, 2)
+    return J.T @ (J * w[:, None]), J.T @ (w * r.reshape(-1))
+
+
 def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
                 K: np.ndarray | None, anchors: np.ndarray, prior_weight: float | None = None,
                 basis: np.ndarray | None = None, shape_weight: float | None = None,
@@ -180,8 +212,7 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     displacement of each vertex per standard deviation of k shape components (None: pose only),
     whose change costs ``shape_weight`` (SHAPE_WEIGHT's meaning); start: (6 + k,) the last frame's
     ``theta``, where the search starts and which the landmark vertices' pixels are held near with
-    ``temporal_weight`` (TEMPORAL_WEIGHT's meaning), so the refinement does not add jitter. The
-    weights default to the module's constants."""
+    ``temporal_weight`` (TEMPORAL_WEIGHT's meaning). The weights default to the module's constants."""
     prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
     temporal_weight = TEMPORAL_WEIGHT if temporal_weight is None else temporal_weight
     shape_weight = SHAPE_WEIGHT if shape_weight is None else shape_weight
@@ -194,7 +225,17 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     if len(use) < 20:
         return Refinement(np.zeros(6 + k))
     kind = "perspective" if K is not None else "orthographic"
-    anchor_px = project(X[anchors], K, kind)
+    anchors = np.asarray(anchors, np.int64)
+    points = []   # (share of the photometric weight, vertices (P, 1), target pixels (P, 2))
+    if len(anchors):
+        # the landmark fit's pixels and (a quadratic pull, so one target: their weighted mean)
+        # where the last frame's refinement would put them
+        target, share = project(X[anchors], K, kind), prior_weight
+        if start is not None:
+            held = project(_moved(X[anchors], centre, theta, None if basis is None else basis[anchors]), K, kind)
+            target = (prior_weight * target + temporal_weight * held) / (prior_weight + temporal_weight)
+            share = prior_weight + temporal_weight
+        points.append((share / len(anchors), anchors[:, None], target))
     # the face's box (grown by a margin the motion stays within) is all the pyramid needs
     px0 = project(X[use], K, kind)
     lo = np.floor(px0.min(axis=0) - CROP_MARGIN * np.ptp(px0, axis=0) - 8).astype(int).clip(0, None)
@@ -203,8 +244,6 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     if min(grey.shape) < 8:
         return Refinement(np.zeros(6 + k))
     B_use = None if basis is None else basis[use]
-    B_anchor = None if basis is None else basis[anchors]
-    held_px = None if start is None else project(_moved(X[anchors], centre, theta, B_anchor), K, kind)
     for scale in LEVELS:
         small = cv2.GaussianBlur(cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), (0, 0), 1.0)
         gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0
@@ -223,19 +262,29 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
             J = _image_jacobian(grad, Xm, centre, theta, B_use, K)
             H = J.T @ (J * w[:, None])
             g = J.T @ (w * r)
-            # the prior: the landmark vertices' pixels stay where the landmark fit put them
-            Xa = _moved(X[anchors], centre, theta, B_anchor)
-            Ja = _jacobian(Xa, centre, theta, B_anchor, K).reshape(-1, 6 + k)
-            lam = prior_weight * float(w.sum()) / max(len(anchors), 1)
-            pa = project(Xa, K, kind)
-            H += lam * Ja.T @ Ja
-            g += lam * Ja.T @ (pa - anchor_px).reshape(-1)
-            if held_px is not None:   # and near where the last frame's refinement put them
-                lam_t = temporal_weight * float(w.sum()) / max(len(anchors), 1)
-                H += lam_t * Ja.T @ Ja
-                g += lam_t * Ja.T @ (pa - held_px).reshape(-1)
+            total = float(w.sum())   # the point terms' weights are relative to the photometric term's
+            for share, pv, targets in points:
+                Hp, gp = _pixel_term(X, centre, theta, basis, K, pv, np.ones(pv.shape), targets)
+                H += share * total * Hp
+                g += share * total * gp
             if k:
-                H[6:, 6:] += shape_weight * float(w.sum()) * np.eye(k)
-                g[6:] += shape_weight * float(w.sum()) * theta[6:]
+                H[6:, 6:] += shape_weight * total * np.eye(k)
+                g[6:] += shape_weight * total * theta[6:]
             theta -= np.linalg.solve(H + 1e-6 * np.eye(6 + k), g)
     return Refinement(theta.copy())
+
+
+def track_pose(vertices: np.ndarray, K: np.ndarray | None, tracks: tuple, steps: int = 4) -> Refinement:
+    """The rigid motion (rotation about the centroid, translation: a :class:`Refinement`) that moves
+    ``vertices`` (V, 3) float64 camera space (``K`` (3, 3), or None: orthographic) so the corners
+    tracked from the last frame land where they were found: ``tracks`` (vertices (P, 3) int, mix
+    (P, 3), offsets (P, 2), found (P, 2) px), each corner at its vertices' mixed pixels plus its
+    offset (:mod:`.surface_features`); Huber weights beyond TRACK_HUBER_PX."""
+    X = np.asarray(vertices, np.float64)
+    centre = X.mean(axis=0)
+    tv, mix, offsets, found = tracks
+    theta = np.zeros(6)
+    for _ in range(steps):
+        H, g = _pixel_term(X, centre, theta, None, K, tv, mix, found - offsets, TRACK_HUBER_PX)
+        theta -= np.linalg.solve(H + 1e-6 * np.eye(6), g)
+    return Refinement(theta)

@@ -69,7 +69,8 @@ class DenseFitter(Fitter):
         local = ref.copy()
         local[have] = (obs[have] - t) @ R / s
         if self.config.smoothing:
-            R, t, s, _ = self.smoother.pose(R, t, s, np.zeros(0), now)
+            if not self._rigid_smoothing_deferred:
+                R, t, s = self.smoother.rigid(R, t, s, now)
             local = self.smoother.shape(local, now)
         vertices, proj, t_out, s_out = self._posed(local, R, t, s)
         self._pose = (R, t, s)

@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
 
 from facesculpt.geometry.projection import project
-from facesculpt.geometry.vertex_normals import vertex_normals
 from facesculpt.nodes.fitter import pose
+from facesculpt.nodes.fitter.appearance_refiner import AppearanceRefiner
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.fit_camera import FitCamera
 from facesculpt.nodes.fitter.model import MorphableModel, load_model
@@ -42,13 +41,16 @@ class Fitter:
         self.smoother = PoseSmoother(config.smooth_min_cutoff, config.smooth_beta, config.smooth_beta_mm,
                                      orthographic=not camera.perspective)
         self.neutral_version = 0  # changes of the neutral (dense: each learned frame)
+        self._rigid_smoothing_deferred = False   # fit(): the subclass leaves the pose unsmoothed
+        self.refiner = AppearanceRefiner(
+            camera.K if camera.perspective else None, camera.projection, config.refine_after)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget everything learned from earlier frames: warm start, filters (and the
         subclasses': identity, neutral)."""
         self._pose = None  # (R, t, s) of the previous frame
-        self._refined = None  # the previous frame's appearance refinement (config.refine)
+        self.refiner.reset()
         self._last_time = None
         self._frame = 0
         self.smoother.reset()
@@ -100,6 +102,9 @@ class Fitter:
         if self._last_time is not None and (now - self._last_time > self.config.warm_start_gap_s or now < self._last_time):
             self._pose = None  # too long since the last frame (or time went back): start cold
             self.smoother.reset()
+        refining = image is not None and self.config.refine == "appearance"
+        # the refinement measures the pose better: the pose is smoothed after it, not before
+        self._rigid_smoothing_deferred = refining and self.config.smoothing
         try:
             result = self._fit(pts, ids, w, finite, now)
         except pose.PoseError as exc:
@@ -108,48 +113,20 @@ class Fitter:
             raise FitError(f"the fit is numerically degenerate: {exc}") from None
         self._last_time = now
         self._frame += 1
-        if image is not None and self.config.refine == "appearance":
-            result = self._refine(result, image)
+        if refining:
+            result = self.refiner.refine(self.model, result, image, now)
+            if self._rigid_smoothing_deferred:
+                result = self._smoothed_rigid(result, now)
         return result
 
-    def _refine(self, result: FitResult, image: np.ndarray) -> FitResult:
-        """``result`` with its pose and leading shape components refined against the person's
-        appearance (once it has been learned over ``config.refine_after`` frames), which the
-        refined fit then updates."""
-        from . import appearance
-
-        grey = np.asarray(image, np.float32) if image.ndim == 2 else \
-            cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY).astype(np.float32)
-        X = np.asarray(result.vertices, np.float64)
-        template = getattr(self, "_appearance", None)
-        if template is None or len(template.sum) != len(X):
-            template = self._appearance = appearance.AppearanceTemplate(len(X))
-            self._appearance_frames = 0
-            self._refined = None   # the last frame's Refinement: where the next one starts
-        perspective = self.camera.perspective
-        normals = vertex_normals(X, self.model.triangles)
-        if self._appearance_frames >= self.config.refine_after:
-            front = appearance.frontality(X, normals, perspective)
-            w = template.confidence * np.clip((front - appearance.MIN_FRONTALITY) / (1 - appearance.MIN_FRONTALITY), 0, 1)
-            k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), self.model.num_shape)
-            model_basis = self.model.shape_basis[:, :, :k].astype(np.float64) * self.model.shape_std[:k]
-            basis = np.einsum("ij,vjk->vik", result.scale * np.asarray(result.R, np.float64), model_basis) if k else None
-            found = appearance.refine_pose(grey, X, w, template.grey, self.K if perspective else None,
-                                           np.asarray(self.model.landmark_vertices, np.int64), basis=basis,
-                                           start=None if self._refined is None else self._refined.theta)
-            self._refined = found
-            c = X.mean(axis=0)
-            X = found.apply(X, basis)
-            normals = vertex_normals(X, self.model.triangles)
-            alpha = np.asarray(result.alpha, np.float32).copy()
-            alpha[:k] += found.shape.astype(np.float32)
-            result = dataclasses.replace(
-                result, vertices=X.astype(np.float32), projected=project(X, self.K, self.projection).astype(np.float32),
-                R=found.R @ np.asarray(result.R), t=found.R @ (np.asarray(result.t) - c) + c + found.t, alpha=alpha,
-                model_vertices=(result.model_vertices + (model_basis @ found.shape if k else 0)).astype(np.float32))
-        template.update(grey, np.asarray(result.projected, np.float64), appearance.frontality(X, normals, perspective))
-        self._appearance_frames += 1
-        return result
+    def _smoothed_rigid(self, result: FitResult, now: float) -> FitResult:
+        """``result`` moved from its head pose to the smoothed one (the subclass deferred that
+        smoothing to after the refinement)."""
+        R0, t0, s0 = np.asarray(result.R, np.float64), np.asarray(result.t, np.float64), float(result.scale)
+        R, t, s = self.smoother.rigid(R0, t0, s0, now)
+        V = (np.asarray(result.vertices, np.float64) - t0) @ ((s / s0) * R @ R0.T).T + t
+        return dataclasses.replace(result, vertices=V.astype(np.float32), R=R, t=t, scale=float(s),
+                                   projected=project(V, self.K, self.projection).astype(np.float32))
 
     def _fit(self, pts: np.ndarray, ids: list[str], w: np.ndarray, finite: np.ndarray, now: float) -> FitResult:
         """One frame: points (N, 2 or 3) float64 px, ids (N,) str, weights (N,), finite (N,) bool

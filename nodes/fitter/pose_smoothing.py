@@ -29,16 +29,18 @@ class PoseSmoother:
         for f in self._filters.values():
             f.reset()
 
-    def pose(self, R: np.ndarray, t: np.ndarray, s: float, beta: np.ndarray, now: float):
-        """The smoothed (R (3, 3), t (3,), s, beta (E,)) at time ``now`` (s)."""
+    def rigid(self, R: np.ndarray, t: np.ndarray, s: float, now: float):
+        """The smoothed head pose (R (3, 3), t (3,), s) at time ``now`` (s)."""
         rot = pose.rotation_log(R @ pose.FRONTAL.T)
         rot = self._filters["rot"](rot, now)
         unit = s if self.orthographic else 1.0
         s_new = float(self._filters["s"](np.array([s]), now)[0])
         t = self._filters["t"](t / unit, now) * (s_new if self.orthographic else 1.0)
-        if len(beta):
-            beta = self._filters["beta"](beta, now)
-        return pose.rodrigues(rot) @ pose.FRONTAL, t, s_new, beta
+        return pose.rodrigues(rot) @ pose.FRONTAL, t, s_new
+
+    def expression(self, beta: np.ndarray, now: float) -> np.ndarray:
+        """The smoothed expression coefficients (E,) at time ``now`` (s)."""
+        return self._filters["beta"](beta, now) if len(beta) else beta
 
     def shape(self, vertices: np.ndarray, now: float) -> np.ndarray:
         """The smoothed shape (V, 3), model space (mm), at time ``now`` (s)."""

@@ -167,7 +167,9 @@ class SparseFitter(Fitter):
     def _result(self, alpha, beta, R, t, s, now, residual) -> FitResult:
         """The whole fitted mesh, posed (smoothed when asked) and projected; residual: RMS px."""
         if self.config.smoothing:
-            R, t, s, beta = self.smoother.pose(R, t, s, beta, now)
+            if not self._rigid_smoothing_deferred:
+                R, t, s = self.smoother.rigid(R, t, s, now)
+            beta = self.smoother.expression(beta, now)
         coef = np.r_[alpha, beta].astype(np.float32)
         model_vertices = (self.model.mean.reshape(-1) + self._full_basis @ coef).reshape(-1, 3)
         Cv, proj = self.camera.to_camera(model_vertices.astype(np.float64), R, t, s)

@@ -1,0 +1,138 @@
+"""What a fitter keeps to refine its landmark fits on the frames' pixels (issue 20), frame after frame.
+
+Per person: the appearance template (:class:`.appearance.AppearanceTemplate`), the corners of
+the last frame tied to the mesh (:mod:`.surface_features`) and that frame, and the last
+refinement (where the next one starts). :meth:`AppearanceRefiner.refine` takes a frame's landmark
+fit, *before* its head pose is smoothed, and returns it refined; the fitter smooths the refined
+pose afterwards, so the smoothing filters the better measurement rather than the refinement
+adding unfiltered motion to a smoothed fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from facesculpt.geometry.projection import project
+from facesculpt.geometry.vertex_normals import vertex_normals
+
+from . import appearance
+from .model import MorphableModel
+from .result import FitResult
+from .surface_features import surface_features, track_features
+
+
+class AppearanceRefiner:
+    """AppearanceRefiner(K, projection, learn_frames): ``K`` (3, 3) or None (orthographic),
+    ``projection`` the fitter's; the first ``learn_frames`` frames only learn the appearance."""
+
+    def __init__(self, K: np.ndarray | None, projection: str, learn_frames: int):
+        self.K = K
+        self.projection = projection
+        self.learn_frames = int(learn_frames)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the person: the template, the last frame, its corners and refinement."""
+        self.template: appearance.AppearanceTemplate | None = None
+        self.frames = 0
+        self.last_theta: np.ndarray | None = None
+        self.previous: np.ndarray | None = None          # the last frame, (H, W) uint8
+        self.features = None                             # its corners (SurfaceFeatures) or None
+        # the shape change is the person's, not the frame's: it is averaged over frames
+        self.shape_sum: np.ndarray | None = None
+        self.shape_count = 0.0
+
+    def refine(self, model: MorphableModel, result: FitResult, image: np.ndarray, now: float) -> FitResult:
+        """``result`` (a fit of ``model``) with its pose (and, with a shape basis, leading shape components) refined on
+        ``image`` (H, W, 3) uint8 BGR or (H, W) grey, once the appearance has been learned; the
+        refined fit then teaches the template, and the frame's corners are kept for the next."""
+        grey8 = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
+        grey8 = np.ascontiguousarray(grey8, np.uint8)
+        grey = grey8.astype(np.float32)
+        X = np.asarray(result.vertices, np.float64)
+        if self.template is None or len(self.template.sum) != len(X) or \
+                (self.previous is not None and self.previous.shape != grey8.shape):
+            self.reset()
+            self.template = appearance.AppearanceTemplate(len(X))
+        perspective = self.K is not None
+        normals = vertex_normals(X, model.triangles)
+        R0 = np.asarray(result.R, np.float64)
+        if self.frames >= self.learn_frames:
+            result = self._refined(model, result, grey, X, normals)
+        result = self._motion_filtered(result, grey8)
+        X = np.asarray(result.vertices, np.float64)
+        # the refinement moved the head rigidly (its shape change is slow): the normals turn with it
+        normals = normals @ (np.asarray(result.R, np.float64) @ R0.T).T
+        front = appearance.frontality(X, normals, perspective)
+        projected = np.asarray(result.projected, np.float64)
+        self.template.update(grey, projected, front)
+        self.features = surface_features(grey8, projected, front >= appearance.MIN_FRONTALITY)
+        self.previous = grey8
+        self.frames += 1
+        return result
+
+    def _tracks(self, grey8: np.ndarray) -> tuple | None:
+        """The last frame's corners found in this one, as :func:`.appearance.track_pose` takes them."""
+        if self.features is None or self.previous is None:
+            return None
+        found, ok = track_features(self.previous, grey8, self.features)
+        if ok.sum() < 10:
+            return None
+        f = self.features
+        return f.vertices[ok], f.weights[ok], f.offsets[ok], found[ok]
+
+    def _refined(self, model: MorphableModel, result: FitResult, grey: np.ndarray, X: np.ndarray,
+                 normals: np.ndarray) -> FitResult:
+        """``result`` refined by :func:`.appearance.refine_pose` against the template."""
+        perspective = self.K is not None
+        front = appearance.frontality(X, normals, perspective)
+        floor = appearance.MIN_FRONTALITY
+        w = self.template.confidence * np.clip((front - floor) / (1 - floor), 0, 1)
+        k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), model.num_shape)
+        model_basis = model.shape_basis[:, :, :k].astype(np.float64) * model.shape_std[:k]
+        basis = np.einsum("ij,vjk->vik", result.scale * np.asarray(result.R, np.float64), model_basis) if k else None
+        found = appearance.refine_pose(grey, X, w, self.template.grey, self.K,
+                                       np.asarray(model.landmark_vertices, np.int64), basis=basis,
+                                       start=self.last_theta)
+        self.last_theta = found.theta
+        if k:
+            found = appearance.Refinement(np.r_[found.theta[:6], self._mean_shape(found.shape)])
+        return self._moved(result, found, basis, model_basis)
+
+    def _mean_shape(self, shape: np.ndarray) -> np.ndarray:
+        """The mean (k,) of the refined shape changes so far, the oldest fading once
+        SHAPE_FRAMES are held."""
+        if self.shape_sum is None or len(self.shape_sum) != len(shape):
+            self.shape_sum, self.shape_count = np.zeros(len(shape)), 0.0
+        keep = min(1.0, appearance.SHAPE_FRAMES / (self.shape_count + 1.0))
+        self.shape_sum = (self.shape_sum + shape) * keep
+        self.shape_count = (self.shape_count + 1.0) * keep
+        return self.shape_sum / self.shape_count
+
+    def _motion_filtered(self, result: FitResult, grey8: np.ndarray) -> FitResult:
+        """``result`` moved most of the way to where the corners tracked from the last frame put
+        the face: a complementary filter, the tracked motion (precise from frame to frame) for
+        the fast part and this frame's fit (BLEND of it per frame) for the slow part, so neither
+        its noise nor a smoothing lag reaches the output."""
+        tracks = self._tracks(grey8)
+        if tracks is None:
+            return result
+        toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks)
+        return self._moved(result, appearance.Refinement((1.0 - appearance.BLEND) * toward.theta), None, None)
+
+    def _moved(self, result: FitResult, found: appearance.Refinement, basis, model_basis) -> FitResult:
+        """``result`` with ``found`` applied (its shape change along ``basis`` (V, 3, k), the model's
+        ``model_basis`` (V, 3, k) for the model-space shape)."""
+        X = np.asarray(result.vertices, np.float64)
+        c = X.mean(axis=0)
+        k = len(found.shape)
+        X = found.apply(X, basis)
+        alpha = np.asarray(result.alpha, np.float32).copy()
+        alpha[:k] += found.shape.astype(np.float32)
+        return dataclasses.replace(
+            result, vertices=X.astype(np.float32), projected=project(X, self.K, self.projection).astype(np.float32),
+            R=found.R @ np.asarray(result.R), t=found.R @ (np.asarray(result.t) - c) + c + found.t, alpha=alpha,
+            model_vertices=(result.model_vertices + (model_basis @ found.shape if k else 0)).astype(np.float32))

@@ -1,0 +1,101 @@
+"""Corners on the face tied to the fitted mesh and tracked to the next frame (issue 20, seed 003).
+
+The appearance refinement (:mod:`.appearance`) matches the frame to a learned, blurred template
+of the person: good for where the face is, weak for how it moved since the last frame. Corners
+of the face (eye corners, nostrils, brows, the mouth, skin marks) are tracked from one frame to
+the next with pyramidal Lucas-Kanade, the optical-flow constraint on small windows, to a
+fraction of a pixel; each corner rides on the mesh (a weighted mean of its three nearest
+projected vertices plus a fixed offset), so the tracked corners tell the refinement where those
+vertices went.
+
+Arrays in, arrays out: :func:`surface_features` picks and ties the corners in one frame,
+:func:`track_features` finds them in the next.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+#: Corners picked per frame, at most.
+MAX_FEATURES = 150
+#: A corner must be this far (px) from the face's projected outline (its window stays on the face).
+OUTLINE_MARGIN_PX = 10
+#: Lucas-Kanade window (px) and pyramid levels.
+WINDOW_PX = 15
+LEVELS = 2
+#: A corner tracked forward then backward must come back within this distance (px).
+FORWARD_BACKWARD_PX = 0.3
+
+
+@dataclass
+class SurfaceFeatures:
+    """Corners of one frame: pixels (P, 2) float64; each tied to the mesh by ``vertices`` (P, 3)
+    int, ``weights`` (P, 3) (summing to 1) and ``offsets`` (P, 2) px: pixel = weights @ the
+    vertices' pixels + offset."""
+
+    pixels: np.ndarray
+    vertices: np.ndarray
+    weights: np.ndarray
+    offsets: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pixels)
+
+
+def _face_box(projected: np.ndarray, shape: tuple[int, int], margin: int) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1): the projected vertices' box grown by ``margin`` px, inside the frame."""
+    lo = np.floor(projected.min(axis=0)).astype(int) - margin
+    hi = np.ceil(projected.max(axis=0)).astype(int) + margin
+    h, w = shape
+    return max(lo[0], 0), max(lo[1], 0), min(hi[0], w), min(hi[1], h)
+
+
+def surface_features(grey: np.ndarray, projected: np.ndarray, usable: np.ndarray,
+                     max_features: int = MAX_FEATURES) -> SurfaceFeatures | None:
+    """The corners (Shi-Tomasi) of ``grey`` (H, W) uint8 on the face, tied to the mesh.
+
+    projected: (V, 2) the fitted mesh's vertices in pixels; usable: (V,) bool the vertices the
+    frame sees (the face's region is their convex hull, shrunk by OUTLINE_MARGIN_PX, and corners
+    tie to them only). None when the face offers fewer than 10 corners."""
+    idx = np.flatnonzero(usable)
+    if len(idx) < 10:
+        return None
+    px = np.asarray(projected, np.float64)[idx]
+    x0, y0, x1, y1 = _face_box(px, grey.shape[:2], 1)
+    if x1 - x0 < 16 or y1 - y0 < 16:
+        return None
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull((px - [x0, y0]).astype(np.int32)), 255)
+    mask = cv2.erode(mask, np.ones((2 * OUTLINE_MARGIN_PX + 1,) * 2, np.uint8))
+    corners = cv2.goodFeaturesToTrack(grey[y0:y1, x0:x1], max_features, 0.01, 5, mask=mask)
+    if corners is None or len(corners) < 10:
+        return None
+    pixels = corners.reshape(-1, 2).astype(np.float64) + [x0, y0]
+    dist, nearest = cKDTree(px).query(pixels, k=3)
+    weights = 1.0 / np.maximum(dist, 0.5)
+    weights /= weights.sum(axis=1, keepdims=True)
+    vertices = idx[nearest]
+    offsets = pixels - np.einsum("pk,pkc->pc", weights, np.asarray(projected, np.float64)[vertices])
+    return SurfaceFeatures(pixels, vertices, weights, offsets)
+
+
+def track_features(previous: np.ndarray, grey: np.ndarray, features: SurfaceFeatures) -> tuple[np.ndarray, np.ndarray]:
+    """Where ``features`` of the frame ``previous`` (H, W) uint8 are in ``grey`` (H, W) uint8:
+    (pixels (P, 2) float64, found (P,) bool: tracked both ways and back within
+    FORWARD_BACKWARD_PX, so a corner a hand or a blink covered is not trusted). Only the face's
+    box (grown by the window and the pyramid's reach) is searched."""
+    reach = WINDOW_PX * 2 ** LEVELS
+    x0, y0, x1, y1 = _face_box(features.pixels, grey.shape[:2], reach)
+    a, b = previous[y0:y1, x0:x1], grey[y0:y1, x0:x1]
+    p0 = (features.pixels - [x0, y0]).astype(np.float32).reshape(-1, 1, 2)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
+    lk = dict(winSize=(WINDOW_PX, WINDOW_PX), maxLevel=LEVELS, criteria=criteria)
+    p1, found, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)
+    back, found_back, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, None, **lk)
+    error = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
+    ok = (found.reshape(-1) == 1) & (found_back.reshape(-1) == 1) & (error < FORWARD_BACKWARD_PX)
+    return p1.reshape(-1, 2).astype(np.float64) + [x0, y0], ok
