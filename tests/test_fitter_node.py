@@ -9,18 +9,19 @@ import cv2
 import numpy as np
 import pytest
 
-from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState
+from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState, Image
 from facesculpt.nodes.fitter.node import FitterNode
 
 
 @pytest.fixture(scope="module")
-def frames(models_dir, data_dir):
-    """Real FaceLandmarks messages: the landmark networks on the first 12 frames of d0.mp4."""
+def captured(models_dir, data_dir):
+    """(the frame, its real FaceLandmarks message): the landmark networks on the first 12 frames
+    of d0.mp4 with a face."""
     from facesculpt.nodes.landmarks import LandmarkDetector
 
     detector = LandmarkDetector(models_dir)
     cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
-    msgs = []
+    msgs, images = [], []
     while len(msgs) < 12:
         ok, frame = cap.read()
         assert ok
@@ -34,8 +35,15 @@ def frames(models_dir, data_dir):
             points=np.asarray(faces[0].points, np.float32)[None], scores=np.array([faces[0].score], np.float32),
             rois=np.asarray(faces[0].roi, np.float32).reshape(1, 5), image_size=[w, h], K=K,
         ))
+        images.append(frame)
     cap.release()
-    return msgs
+    return list(zip(images, msgs))
+
+
+@pytest.fixture(scope="module")
+def frames(captured):
+    """Real FaceLandmarks messages (:func:`captured`)."""
+    return [msg for _, msg in captured]
 
 
 def test_facemesh_node_fits_frames_and_publishes_the_learned_neutral(monkeypatch, tmp_path, frames):
@@ -94,6 +102,34 @@ def test_bad_input_is_counted_never_raised(monkeypatch, tmp_path, frames):
         assert node.counters["fitted"] == 1
     finally:
         node.close()
+
+
+def test_refine_appearance_takes_the_frames_and_fits_without_a_missing_one(monkeypatch, tmp_path, captured):
+    """refine=appearance: the node keeps camera/image frames and refines each fit on its own
+    frame; a fit whose frame never came is published unrefined and counted."""
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    states = {}
+    for refine in ("off", "appearance"):
+        node = FitterNode(params={"refine": refine})
+        node.setup()
+        out = states[refine] = []
+        original = node.state_pub.publish
+        node.state_pub.publish = lambda msg, _o=original, _out=out: (_out.append(msg), _o(msg))[1]
+        try:
+            for i, (frame, msg) in enumerate(captured):
+                if refine == "appearance" and i != 5:            # frame 5's image is lost
+                    node.on_image(Image(stamp=msg.stamp, image=frame, K=msg.K))
+                node.on_landmarks(msg)
+            if refine == "appearance":
+                assert node.counters["refine_without_frame"] == 1 and node.errors == 0
+                assert node.fitter.config.refine == "appearance" and len(node.frames) == node.FRAMES_KEPT
+                node.on_image(Image(stamp=1, image=captured[0][0], K=captured[0][1].K, halvings=1))
+                assert node.counters["refine_bad_frame"] == 1
+        finally:
+            node.close()
+    assert len(states["off"]) == len(states["appearance"]) == len(captured)
+    moved = [np.abs(a.projected - b.projected).max() for a, b in zip(states["off"], states["appearance"])]
+    assert 0.0 < max(moved[1:]) < 10.0                    # refined: moved, a little
 
 
 def test_sfm_node_fits_the_68_point_mapping(monkeypatch, tmp_path, frames, data_dir):

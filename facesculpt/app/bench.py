@@ -100,6 +100,9 @@ def register(sub) -> None:
     p.add_argument("--scenario", action="store_true",
                    help="the graph's window starts with its first frames (the neutral is learnt inside it) and "
                         "holds a preset load, nose drags, a reset and a second load (use --window 60)")
+    p.add_argument("--refine", choices=("off", "appearance"), default="off",
+                   help="the fitter refines each fit on its frame's pixels, in-process and in the graph "
+                        "(fitter.refine; README \"Appearance refinement\")")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)
@@ -204,12 +207,14 @@ def _mean(values) -> float | None:
     return round(float(np.mean(values)), 3) if len(values) else None
 
 
-def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dict, drags: int) -> dict:
-    """Per-stage ms of the in-process pipeline over ``frames`` (see the module doc)."""
+def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dict, drags: int,
+                   refine: str | None = None) -> dict:
+    """Per-stage ms of the in-process pipeline over ``frames`` (see the module doc); ``refine``:
+    the fitter's (None: landmarks only)."""
     from facesculpt.app.pipeline import Pipeline
 
     skip = 3  # the first frames create the GL context and warm the caches
-    with Pipeline(model) as pipeline:
+    with Pipeline(model, refine=refine) as pipeline:
         pipeline.calibrate(iter(frames), fps)
         if pipeline.fitted_frames == 0:
             raise RuntimeError(f"no face found in the bench input with the {model} model")
@@ -337,6 +342,7 @@ def cmd_bench(args) -> int:
         "input": description, "size": list(size), "frames": len(frames),
         "edit": [p.stem for p in paths], "pose": preset.get("pose", {}), "camera_fps": args.camera_fps,
         "pairing": "sync", "camera_pace": args.pace, "competing_busy_loops": args.load, "scenario": args.scenario,
+        "refine": args.refine,
         "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
@@ -348,6 +354,8 @@ def cmd_bench(args) -> int:
         shutil.rmtree(preset_file.parent, ignore_errors=True)
     result["machine"]["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]
     print(table(result))
+    if args.refine != "off":
+        print(f"the fitter refines by {args.refine} (--refine)")
     if args.load:
         print(f"with {args.load} competing busy loop(s) running (--load)")
     print(f"load average {result['machine']['load_avg_start'][0]:.2f} -> {result['machine']['load_avg_end'][0]:.2f} "
@@ -363,11 +371,12 @@ def _measure_models(args, models, frames, fps, preset, preset_file, source, size
 
     for model in models:
         print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
-        entry = measure_stages(model, frames, fps, preset, args.drags)
+        refine = None if args.refine == "off" else args.refine
+        entry = measure_stages(model, frames, fps, preset, args.drags, refine)
         if not args.no_graph:
             print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
                   file=sys.stderr, flush=True)
             entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size,
                                        resize="fill" if wanted else "stretch", scenario=args.scenario,
-                                       pace=args.pace))
+                                       pace=args.pace, refine=refine))
         result["models"][model] = entry

@@ -35,15 +35,19 @@ class AppearanceRefiner:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the person: the template, the last frame, its corners and refinement."""
+        """Forget the person: the template, the mean shape change, and :meth:`forget_frame`."""
         self.template: appearance.AppearanceTemplate | None = None
         self.frames = 0
-        self.last_theta: np.ndarray | None = None
-        self.previous: np.ndarray | None = None          # the last frame, (H, W) uint8
-        self.features = None                             # its corners (SurfaceFeatures) or None
+        self.forget_frame()
         # the shape change is the person's, not the frame's: it is averaged over frames
         self.shape_sum: np.ndarray | None = None
         self.shape_count = 0.0
+
+    def forget_frame(self) -> None:
+        """Forget the last frame (the next one is not its successor): its corners and refinement."""
+        self.last_theta: np.ndarray | None = None
+        self.previous: np.ndarray | None = None          # the last frame, (H, W) uint8
+        self.features = None                             # its corners (SurfaceFeatures) or None
 
     def refine(self, model: MorphableModel, result: FitResult, image: np.ndarray, now: float) -> FitResult:
         """``result`` (a fit of ``model``) with its pose (and, with a shape basis, leading shape components) refined on

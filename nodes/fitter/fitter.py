@@ -102,8 +102,10 @@ class Fitter:
         if self._last_time is not None and (now - self._last_time > self.config.warm_start_gap_s or now < self._last_time):
             self._pose = None  # too long since the last frame (or time went back): start cold
             self.smoother.reset()
-        refining = image is not None and self.config.refine == "appearance"
-        # the refinement measures the pose better: the pose is smoothed after it, not before
+            self.refiner.forget_frame()
+        refining = self.config.refine == "appearance"
+        # the refinement measures the pose better: the pose is smoothed after it, not before (and
+        # in the same units for a frame without an image, which is not refined)
         self._rigid_smoothing_deferred = refining and self.config.smoothing
         try:
             result = self._fit(pts, ids, w, finite, now)
@@ -113,10 +115,10 @@ class Fitter:
             raise FitError(f"the fit is numerically degenerate: {exc}") from None
         self._last_time = now
         self._frame += 1
-        if refining:
+        if refining and image is not None:
             result = self.refiner.refine(self.model, result, image, now)
-            if self._rigid_smoothing_deferred:
-                result = self._smoothed_rigid(result, now)
+        if self._rigid_smoothing_deferred:
+            result = self._smoothed_rigid(result, now)
         return result
 
     def _smoothed_rigid(self, result: FitResult, now: float) -> FitResult:

@@ -1,4 +1,6 @@
 """The fitter node: ``face/landmarks`` -> ``face/state`` and ``face/expression``, and ``face/model`` (latched).
+With ``refine=appearance`` it also takes ``camera/image``: each fit is refined on its frame's
+pixels (:mod:`.appearance_refiner`, issue 20); a fit whose frame did not arrive is not refined.
 
 A thin shell over stage 2, :func:`facesculpt.nodes.fitter.fit_landmarks` (docs/architecture.md,
 "Stages"), which the in-process pipeline calls too. The model is the ``model`` param:
@@ -15,14 +17,15 @@ exception. ``face/expression`` is computed and sent only while something subscri
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from functools import partial
 
 import numpy as np
 
-from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState, InputEvent
+from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
-from facesculpt.runtime.qos import EVENTS, LATCHED
+from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
 
 from .config import FitterConfig
 from .corrections import LandmarkCorrections, fit_id, ibug68_points
@@ -63,7 +66,12 @@ class FitterNode(Node):
         "min_score": Param(0.5, "faces below this landmark score are not fitted", range=(0.0, 1.0)),
         "faces": Param("largest", "which faces to fit: largest, all, or a face number from 1 (numbered from the "
                                   "left as first seen; the landmarks node's max_faces must cover them)"),
+        "refine": Param("off", "appearance: refine each fit on its frame's pixels (camera/image): the person's "
+                               "learned appearance and corners tracked from the last frame (README: Appearance "
+                               "refinement); off: landmarks only", choices=("off", "appearance")),
     }
+    #: Frames kept for the landmarks that have not arrived yet (refine=appearance).
+    FRAMES_KEPT = 8
 
     def setup(self):
         self.state_pub = self.advertise("face/state", FaceState)
@@ -71,6 +79,10 @@ class FitterNode(Node):
         self.expression_pub = self.advertise("face/expression", FaceExpression)
         self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
         self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
+        self.frames: OrderedDict[int, np.ndarray] = OrderedDict()   # stamp -> camera frame (refine)
+        if self.params.refine == "appearance":
+            # every frame: the one the landmarks come from must not have been replaced by a newer one
+            self.subscribe("camera/image", Image, self.on_image, qos=EVERY_MESSAGE)
         self.corrections: dict[int, LandmarkCorrections] = {}  # face key -> its landmark corrections
         self.last_fits: dict = {}  # face key -> its last FitResult
         self.last_points: dict = {}  # face key -> its detected points (468, 3) px in that frame
@@ -194,6 +206,27 @@ class FitterNode(Node):
         return min(near)[1]
 
     # -- frames --------------------------------------------------------------------------------
+    def on_image(self, msg: Image) -> None:
+        """Keep the frame (refine=appearance) until its landmarks come, the newest FRAMES_KEPT."""
+        image = msg.image
+        if int(msg.halvings) or not (isinstance(image, np.ndarray) and image.ndim == 3 and image.dtype == np.uint8):
+            self.count("refine_bad_frame")
+            return
+        self.frames[int(msg.stamp)] = image
+        while len(self.frames) > self.FRAMES_KEPT:
+            self.frames.popitem(last=False)
+
+    def frame_for(self, msg: FaceLandmarks, size: tuple[int, int]) -> np.ndarray | None:
+        """The camera frame of ``msg`` (W, H = ``size``) when refining and it arrived, else None
+        (counted)."""
+        if self.params.refine != "appearance":
+            return None
+        image = self.frames.get(int(msg.stamp))
+        if image is None or image.shape[1::-1] != size:
+            self.count("refine_without_frame")
+            return None
+        return image
+
     def fitter_config(self) -> FitterConfig:
         """The fitter's options from this node's params (the others at their defaults)."""
         p = self.params
@@ -201,6 +234,7 @@ class FitterNode(Node):
             projection=p.projection, iterations=p.iterations, tracking_iterations=p.tracking_iterations,
             shape_lambda=p.shape_lambda, expression_lambda=p.expression_lambda, outline=p.outline,
             smoothing=p.smoothing, smooth_min_cutoff=p.min_cutoff, neutral_frames=p.neutral_frames,
+            refine=None if p.refine == "off" else p.refine,
         )
 
     def prepare_fitter(self, size: tuple[int, int], K: np.ndarray | None) -> None:
@@ -263,9 +297,10 @@ class FitterNode(Node):
         # Each face's targets from its points in this frame (the head's pose, not a fit they pulled).
         targets = {k: partial(c.targets, self.last_fits[k]) for k, c in self.corrections.items()
                    if c and k in self.last_fits}
+        image = self.frame_for(msg, size)
         with self.stage("fit"):
             faces = self.faces.fit(msg.points, msg.scores, msg.track_ids, msg.stamp * 1e-9, self.params.min_score,
-                                   targets)
+                                   targets, image=image)
         if not faces:
             self.count("no_face" if np.shape(msg.points)[0] == 0 else "face_not_selected")
         fitted = [f for f in faces if f.outcome.fit is not None]
