@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_landmarks_accuracy import MIN_FACE, _annotations
+from test_landmarks_accuracy import MIN_FACE
 
 from facesculpt.geometry import to_ibug68
+from facesculpt.geometry.ibug68 import dlib_annotations
 from facesculpt.nodes.fitter.corrections import LandmarkCorrections, fit_id
 
 IBUG = [str(i) for i in range(1, 69)]
@@ -30,7 +31,7 @@ def annotated(data_dir, models_dir):
     detector = LandmarkDetector(max_faces=50, min_face=MIN_FACE)
     out, cache = [], {}
     for split in ("training", "testing"):
-        for file, box, truth in _annotations(data_dir / "faces" / f"{split}_with_face_landmarks.xml"):
+        for file, box, truth in dlib_annotations(data_dir / "faces" / f"{split}_with_face_landmarks.xml"):
             if file not in cache:
                 image = cv2.imread(str(data_dir / "faces" / file))
                 cache[file] = (image.shape, detector.detect(image))

@@ -4,30 +4,17 @@ selection; mesh orientation on real faces; the mapping's table."""
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
-
 import cv2
 import numpy as np
 import pytest
 
 from facesculpt.geometry import IBUG68_FROM_MESH, normalised_mean_error, to_ibug68
+from facesculpt.geometry.ibug68 import dlib_annotations
 from facesculpt.nodes.landmarks import LandmarkDetector
 
 # The photos' faces are as small as 37 pixels in 500-pixel images: look for faces down to 5 %
 # of the short side.
 MIN_FACE = 0.05
-
-
-def _annotations(path):
-    faces = []
-    for image in ET.parse(path).getroot().iter("image"):
-        for box in image.iter("box"):
-            points = np.zeros((68, 2))
-            for part in box.iter("part"):
-                points[int(part.get("name"))] = float(part.get("x")), float(part.get("y"))
-            left, top, width, height = (float(box.get(k)) for k in ("left", "top", "width", "height"))
-            faces.append((image.get("file"), np.array([left, top, width, height]), points))
-    return faces
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +23,7 @@ def results(models_dir, data_dir):
     detector = LandmarkDetector(models_dir, max_faces=50, min_face=MIN_FACE)
     cache, out = {}, []
     for split in ("training", "testing"):
-        for file, box, truth in _annotations(data_dir / "faces" / f"{split}_with_face_landmarks.xml"):
+        for file, box, truth in dlib_annotations(data_dir / "faces" / f"{split}_with_face_landmarks.xml"):
             if file not in cache:
                 cache[file] = detector.detect(cv2.imread(str(data_dir / "faces" / file)))
             centre = box[:2] + box[2:] / 2

@@ -1,4 +1,4 @@
-"""`facesculpt model ...`: model-file commands (import-eos, info)."""
+"""`facesculpt model ...`: model-file commands (import-eos, info, train-appearance)."""
 
 from __future__ import annotations
 
@@ -27,6 +27,19 @@ def register(subparsers) -> None:
     info = sub.add_parser("info", help="print a model's sizes, landmarks and units")
     info.add_argument("model", help="'facemesh' or a .npz model file")
     info.set_defaults(func=_info)
+    train = sub.add_parser(
+        "train-appearance",
+        help="learn the appearance model of Fitter.fit_image (a 3D AAM, seed 004) from photos",
+        description="Find the faces in the photos, fit the model to their landmarks, and keep the mean and leading "
+        "components of the frontal ones' grey levels at the model's vertices (README: Appearance refinement).",
+    )
+    train.add_argument("photos", nargs="+", type=Path, help="photos (.jpg, .png) or folders of them")
+    train.add_argument("--model", default="sfm", help="a sparse model: 'sfm' or a .npz (default sfm)")
+    train.add_argument("--components", type=int, default=10, help="components kept (default 10)")
+    train.add_argument("--max-yaw", type=float, default=15.0, help="faces turned further (degrees) are left out "
+                       "(default 15: frontal only)")
+    train.add_argument("-o", "--output", type=Path, required=True, help="output .npz (not overwritten)")
+    train.set_defaults(func=_train_appearance)
     model.set_defaults(func=lambda args: (model.print_help(), 2)[1])
 
 
@@ -40,6 +53,28 @@ def _import_eos(args: argparse.Namespace) -> int:
     save_model(model, output)
     print(describe(model))
     print(f"wrote {output}")
+    return 0
+
+
+def _train_appearance(args: argparse.Namespace) -> int:
+    import sys
+
+    from facesculpt.app.appearance_training import train_from_photos
+
+    if args.output.exists():
+        print(f"facesculpt model train-appearance: {args.output} exists; not overwritten (remove it or choose "
+              f"another name)", file=sys.stderr)
+        return 2
+    photos = [q for p in args.photos for q in (sorted(p.iterdir()) if p.is_dir() else [p])
+              if q.suffix.lower() in (".jpg", ".jpeg", ".png")]
+    try:
+        appearance, faces = train_from_photos(photos, args.model, args.components, args.max_yaw)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"facesculpt model train-appearance: {exc}", file=sys.stderr)
+        return 2
+    appearance.save(args.output)
+    print(f"learned from {faces} frontal faces in {len(photos)} photos: {len(appearance.sd)} components; "
+          f"wrote {args.output}")
     return 0
 
 

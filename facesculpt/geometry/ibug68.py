@@ -84,3 +84,19 @@ def normalised_mean_error(predicted: np.ndarray, truth: np.ndarray) -> float:
     predicted, truth = np.asarray(predicted, np.float64), np.asarray(truth, np.float64)
     inter_ocular = np.linalg.norm(truth[RIGHT_EYE_OUTER] - truth[LEFT_EYE_OUTER])
     return float(np.linalg.norm(predicted - truth, axis=1).mean() / max(inter_ocular, 1e-9))
+
+
+def dlib_annotations(path) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """The faces of a dlib landmark file (``training_with_face_landmarks.xml``): (photo file,
+    box [left, top, width, height] px, points (68, 2) px, 0-based iBUG order) for each."""
+    import xml.etree.ElementTree as ET
+
+    faces = []
+    for image in ET.parse(path).getroot().iter("image"):
+        for box in image.iter("box"):
+            points = np.zeros((68, 2))
+            for part in box.iter("part"):
+                points[int(part.get("name"))] = float(part.get("x")), float(part.get("y"))
+            faces.append((image.get("file"), np.array([float(box.get(k)) for k in ("left", "top", "width", "height")]),
+                          points))
+    return faces

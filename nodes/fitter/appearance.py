@@ -52,6 +52,10 @@ BLEND = 0.1
 SHAPE_COMPONENTS = 20
 #: The refined shape change applied is the mean of the last this many frames' (the person's shape).
 SHAPE_FRAMES = 100
+#: With an appearance model as the template (its mean and components), a component's mix of
+#: one grey level costs as much as a photometric residual of sqrt(COMPONENT_RIDGE) grey levels at
+#: every compared vertex.
+COMPONENT_RIDGE = 0.1
 #: At most this many vertices are compared (every n-th of those with a weight).
 MAX_VERTICES = 1000
 #: The frame is cropped to the face's box grown by this share of its sides.
@@ -207,7 +211,8 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     grey: (H, W) float32 the frame's grey levels; vertices: (V, 3) float64 the landmark fit's
     camera-space mesh (mm with ``K`` (3, 3), else orthographic pixel units); weights: (V,) each
     vertex's weight (template confidence x frontality in this frame; 0: not compared); template:
-    (V,) grey levels; anchors: (L,) int the vertices of the landmarks (the prior keeps them where
+    (V,) grey levels, or (V, 1 + c) an appearance model's mean and components (their mix is solved
+    each step with the lighting, held near the mean by COMPONENT_RIDGE); anchors: (L,) int the vertices of the landmarks (the prior keeps them where
     they are, with ``prior_weight``: PRIOR_WEIGHT's meaning); basis: (V, 3, k) camera-space
     displacement of each vertex per standard deviation of k shape components (None: pose only),
     whose change costs ``shape_weight`` (SHAPE_WEIGHT's meaning); start: (6 + k,) the last frame's
@@ -253,10 +258,13 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
             px = (project(Xm, K, kind) - lo) * scale     # pixels of the cropped level
             values, inside = sample(small, px)
             w = weights[use] * inside
-            # lighting: the frame's grey = gain * template + bias, solved for this step
+            # lighting: the frame's grey = gain * template + bias (+ the components' mix), this step
             A = np.column_stack([template[use], np.ones(len(use))])
-            gain_bias = np.linalg.lstsq(A * np.sqrt(w)[:, None], values * np.sqrt(w), rcond=None)[0]
-            r = values - A @ gain_bias
+            ridge = np.zeros(A.shape[1])
+            ridge[1:-1] = COMPONENT_RIDGE * float(w.sum())   # components: held near the mean face
+            coef = np.linalg.solve(A.T @ (A * w[:, None]) + np.diag(ridge) + 1e-9 * np.eye(A.shape[1]),
+                                   A.T @ (w * values))
+            r = values - A @ coef
             w = w * np.where(np.abs(r) <= HUBER, 1.0, HUBER / np.maximum(np.abs(r), 1e-9))
             grad = np.column_stack([sample(gx, px)[0], sample(gy, px)[0]]) * scale
             J = _image_jacobian(grad, Xm, centre, theta, B_use, K)

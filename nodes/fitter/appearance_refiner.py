@@ -104,7 +104,7 @@ class AppearanceRefiner:
         self.last_theta = found.theta
         if k:
             found = appearance.Refinement(np.r_[found.theta[:6], self._mean_shape(found.shape)])
-        return self._moved(result, found, basis, model_basis)
+        return refined_result(result, found, basis, model_basis, self.K, self.projection)
 
     def _mean_shape(self, shape: np.ndarray) -> np.ndarray:
         """The mean (k,) of the refined shape changes so far, the oldest fading once
@@ -125,18 +125,23 @@ class AppearanceRefiner:
         if tracks is None:
             return result
         toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks)
-        return self._moved(result, appearance.Refinement((1.0 - appearance.BLEND) * toward.theta), None, None)
+        toward = appearance.Refinement((1.0 - appearance.BLEND) * toward.theta)
+        return refined_result(result, toward, None, None, self.K, self.projection)
 
-    def _moved(self, result: FitResult, found: appearance.Refinement, basis, model_basis) -> FitResult:
-        """``result`` with ``found`` applied (its shape change along ``basis`` (V, 3, k), the model's
-        ``model_basis`` (V, 3, k) for the model-space shape)."""
-        X = np.asarray(result.vertices, np.float64)
-        c = X.mean(axis=0)
-        k = len(found.shape)
-        X = found.apply(X, basis)
-        alpha = np.asarray(result.alpha, np.float32).copy()
-        alpha[:k] += found.shape.astype(np.float32)
-        return dataclasses.replace(
-            result, vertices=X.astype(np.float32), projected=project(X, self.K, self.projection).astype(np.float32),
-            R=found.R @ np.asarray(result.R), t=found.R @ (np.asarray(result.t) - c) + c + found.t, alpha=alpha,
-            model_vertices=(result.model_vertices + (model_basis @ found.shape if k else 0)).astype(np.float32))
+
+
+def refined_result(result: FitResult, found: appearance.Refinement, basis: np.ndarray | None,
+                   model_basis: np.ndarray | None, K: np.ndarray | None, projection: str) -> FitResult:
+    """``result`` with ``found`` applied: its shape change along ``basis`` (V, 3, k) camera space
+    (``model_basis`` (V, 3, k) the same in model space, mm), then its rigid motion; pixels by ``K``
+    and ``projection``."""
+    X = np.asarray(result.vertices, np.float64)
+    c = X.mean(axis=0)
+    k = len(found.shape)
+    X = found.apply(X, basis)
+    alpha = np.asarray(result.alpha, np.float32).copy()
+    alpha[:k] += found.shape.astype(np.float32)
+    return dataclasses.replace(
+        result, vertices=X.astype(np.float32), projected=project(X, K, projection).astype(np.float32),
+        R=found.R @ np.asarray(result.R), t=found.R @ (np.asarray(result.t) - c) + c + found.t, alpha=alpha,
+        model_vertices=(result.model_vertices + (model_basis @ found.shape if k else 0)).astype(np.float32))

@@ -121,6 +121,15 @@ class Fitter:
             result = self._smoothed_rigid(result, now)
         return result
 
+    def fit_image(self, image: np.ndarray, init: FitResult, appearance_model) -> FitResult:
+        """``init`` (this fitter's landmark fit of the photo ``image``, (H, W, 3) uint8 BGR) aligned
+        by appearance against ``appearance_model`` (:class:`.appearance_model.AppearanceModel`):
+        a 3D active appearance model fit (seed 004; :func:`.fit_image.fit_image`)."""
+        from .fit_image import fit_image
+
+        return fit_image(image, init, self.model, appearance_model, self.K if self.camera.perspective else None,
+                         self.projection)
+
     def _smoothed_rigid(self, result: FitResult, now: float) -> FitResult:
         """``result`` moved from its head pose to the smoothed one (the subclass deferred that
         smoothing to after the refinement)."""
