@@ -106,7 +106,8 @@ def test_bad_input_is_counted_never_raised(monkeypatch, tmp_path, frames):
 
 def test_refine_appearance_takes_the_frames_and_fits_without_a_missing_one(monkeypatch, tmp_path, captured):
     """refine=appearance: the node keeps camera/image frames and refines each fit on its own
-    frame; a fit whose frame never came is published unrefined and counted."""
+    frame (landmarks that come first wait for it); a fit whose frame never came is published
+    unrefined and counted."""
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     states = {}
     for refine in ("off", "appearance"):
@@ -117,10 +118,18 @@ def test_refine_appearance_takes_the_frames_and_fits_without_a_missing_one(monke
         node.state_pub.publish = lambda msg, _o=original, _out=out: (_out.append(msg), _o(msg))[1]
         try:
             for i, (frame, msg) in enumerate(captured):
-                if refine == "appearance" and i != 5:            # frame 5's image is lost
-                    node.on_image(Image(stamp=msg.stamp, image=frame, K=msg.K))
+                image = Image(stamp=msg.stamp, image=frame, K=msg.K)
+                if refine == "appearance" and i == 7:             # the landmarks come before their frame:
+                    node.on_landmarks(msg)
+                    waited = len(out) == i                        # they wait for it
+                    node.on_image(image)
+                    assert waited and len(out) == i + 1
+                    continue
+                if refine == "appearance" and i != 5:             # frame 5's image is lost
+                    node.on_image(image)
                 node.on_landmarks(msg)
             if refine == "appearance":
+                # frame 5's landmarks waited until frame 6 came, then went out unrefined
                 assert node.counters["refine_without_frame"] == 1 and node.errors == 0
                 assert node.fitter.config.refine == "appearance" and len(node.frames) == node.FRAMES_KEPT
                 node.on_image(Image(stamp=1, image=captured[0][0], K=captured[0][1].K, halvings=1))

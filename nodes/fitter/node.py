@@ -80,6 +80,7 @@ class FitterNode(Node):
         self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
         self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
         self.frames: OrderedDict[int, np.ndarray] = OrderedDict()   # stamp -> camera frame (refine)
+        self.waiting: FaceLandmarks | None = None   # landmarks whose frame has not come (refine)
         if self.params.refine == "appearance":
             # every frame: the one the landmarks come from must not have been replaced by a newer one
             self.subscribe("camera/image", Image, self.on_image, qos=EVERY_MESSAGE)
@@ -215,6 +216,10 @@ class FitterNode(Node):
         self.frames[int(msg.stamp)] = image
         while len(self.frames) > self.FRAMES_KEPT:
             self.frames.popitem(last=False)
+        # the waiting landmarks' frame came, or a later one did (theirs was lost): fit them now
+        if self.waiting is not None and int(msg.stamp) >= int(self.waiting.stamp):
+            waiting, self.waiting = self.waiting, None
+            self.handle_landmarks(waiting)
 
     def frame_for(self, msg: FaceLandmarks, size: tuple[int, int]) -> np.ndarray | None:
         """The camera frame of ``msg`` (W, H = ``size``) when refining and it arrived, else None
@@ -252,7 +257,17 @@ class FitterNode(Node):
         self.camera_key = key
 
     def on_landmarks(self, msg: FaceLandmarks):
-        """One face/state per landmarks message: the fit, or an empty state when there is none."""
+        """One face/state per landmarks message: the fit, or an empty state when there is none.
+        With refine=appearance a message whose frame has not come yet waits for it (one at a time:
+        an older waiting one is fitted unrefined)."""
+        if self.params.refine == "appearance" and int(msg.stamp) not in self.frames:
+            if self.waiting is not None:
+                self.handle_landmarks(self.waiting)
+            self.waiting = msg
+            return
+        self.handle_landmarks(msg)
+
+    def handle_landmarks(self, msg: FaceLandmarks):
         published = self.state_pub.count
         try:
             self.fit_frame(msg)
