@@ -116,6 +116,13 @@ def test_corners_on_the_face_are_tracked_to_a_fraction_of_a_pixel_and_a_covered_
     assert all(cv2.pointPolygonTest(hull, tuple(map(float, p)), True) >= 9 for p in found.pixels)
     mixed = np.einsum("pk,pkc->pc", found.weights, project(X, K)[found.vertices]) + found.offsets
     assert np.allclose(mixed, found.pixels) and np.allclose(found.weights.sum(axis=1), 1.0)
+    # corners tracked into a frame are kept there (those off the face dropped), new ones only
+    # looked for when too few remain
+    kept = np.vstack([found.pixels[:100], [[2.0, 2.0]]])
+    again = surface_features(image, project(X, K), np.ones(len(X), bool), kept=kept)
+    assert len(again) == 100 and np.allclose(again.pixels, found.pixels[:100])
+    topped = surface_features(image, project(X, K), np.ones(len(X), bool), kept=found.pixels[:20])
+    assert np.allclose(topped.pixels[:20], found.pixels[:20]) and len(topped) > 50
     shift = np.float32([[1, 0, 1.3], [0, 1, -0.6]])
     moved = cv2.warpAffine(image, shift, image.shape[::-1], flags=cv2.INTER_CUBIC)
     x0, y0 = found.pixels[0].astype(int)

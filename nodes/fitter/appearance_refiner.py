@@ -48,6 +48,7 @@ class AppearanceRefiner:
         self.last_theta: np.ndarray | None = None
         self.previous: np.ndarray | None = None          # the last frame, (H, W) uint8
         self.features = None                             # its corners (SurfaceFeatures) or None
+        self.kept = None                                 # (K, 2) px of them found in this frame
 
     def refine(self, model: MorphableModel, result: FitResult, image: np.ndarray, now: float) -> FitResult:
         """``result`` (a fit of ``model``) with its pose (and, with a shape basis, leading shape components) refined on
@@ -73,7 +74,8 @@ class AppearanceRefiner:
         front = appearance.frontality(X, normals, perspective)
         projected = np.asarray(result.projected, np.float64)
         self.template.update(grey, projected, front)
-        self.features = surface_features(grey8, projected, front >= appearance.MIN_FRONTALITY)
+        self.features = surface_features(grey8, projected, front >= appearance.MIN_FRONTALITY, kept=self.kept)
+        self.kept = None
         self.previous = grey8
         self.frames += 1
         return result
@@ -83,6 +85,7 @@ class AppearanceRefiner:
         if self.features is None or self.previous is None:
             return None
         found, ok = track_features(self.previous, grey8, self.features)
+        self.kept = found[ok]
         if ok.sum() < 10:
             return None
         f = self.features
@@ -124,7 +127,7 @@ class AppearanceRefiner:
         tracks = self._tracks(grey8)
         if tracks is None:
             return result
-        toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks)
+        toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks, steps=2)
         toward = appearance.Refinement((1.0 - appearance.BLEND) * toward.theta)
         return refined_result(result, toward, None, None, self.K, self.projection)
 

@@ -55,12 +55,14 @@ def _face_box(projected: np.ndarray, shape: tuple[int, int], margin: int) -> tup
 
 
 def surface_features(grey: np.ndarray, projected: np.ndarray, usable: np.ndarray,
-                     max_features: int = MAX_FEATURES) -> SurfaceFeatures | None:
+                     max_features: int = MAX_FEATURES, kept: np.ndarray | None = None) -> SurfaceFeatures | None:
     """The corners (Shi-Tomasi) of ``grey`` (H, W) uint8 on the face, tied to the mesh.
 
     projected: (V, 2) the fitted mesh's vertices in pixels; usable: (V,) bool the vertices the
     frame sees (the face's region is their convex hull, shrunk by OUTLINE_MARGIN_PX, and corners
-    tie to them only). None when the face offers fewer than 10 corners."""
+    tie to them only); kept: (K, 2) px corners tracked into this frame, kept where they are still
+    on the face (new ones are only looked for when fewer than half of ``max_features`` are).
+    None when the face offers fewer than 10 corners."""
     idx = np.flatnonzero(usable)
     if len(idx) < 10:
         return None
@@ -71,10 +73,20 @@ def surface_features(grey: np.ndarray, projected: np.ndarray, usable: np.ndarray
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillConvexPoly(mask, cv2.convexHull((px - [x0, y0]).astype(np.int32)), 255)
     mask = cv2.erode(mask, np.ones((2 * OUTLINE_MARGIN_PX + 1,) * 2, np.uint8))
-    corners = cv2.goodFeaturesToTrack(grey[y0:y1, x0:x1], max_features, 0.01, 5, mask=mask)
-    if corners is None or len(corners) < 10:
+    pixels = np.zeros((0, 2))
+    if kept is not None and len(kept):
+        at = np.round(kept - [x0, y0]).astype(int)
+        on = (at >= 0).all(axis=1) & (at[:, 0] < mask.shape[1]) & (at[:, 1] < mask.shape[0])
+        on[on] = mask[at[on, 1], at[on, 0]] > 0
+        pixels = np.asarray(kept, np.float64)[on]
+    if len(pixels) < max_features // 2:
+        for x, y in np.round(pixels - [x0, y0]).astype(int):   # new corners away from the kept ones
+            cv2.circle(mask, (int(x), int(y)), 5, 0, -1)
+        corners = cv2.goodFeaturesToTrack(grey[y0:y1, x0:x1], max_features - len(pixels), 0.01, 5, mask=mask)
+        if corners is not None:
+            pixels = np.vstack([pixels, corners.reshape(-1, 2).astype(np.float64) + [x0, y0]])
+    if len(pixels) < 10:
         return None
-    pixels = corners.reshape(-1, 2).astype(np.float64) + [x0, y0]
     dist, nearest = cKDTree(px).query(pixels, k=3)
     weights = 1.0 / np.maximum(dist, 0.5)
     weights /= weights.sum(axis=1, keepdims=True)
