@@ -165,3 +165,22 @@ def test_refinement_filters_landmark_noise_on_a_still_face(data_dir, models_dir)
         tracks = np.array([fitter.fit(p, stamp=i / 25.0, image=frame).projected for i, p in enumerate(noisy)])
         jitter[refine] = np.median(np.linalg.norm(np.diff(tracks[15:], axis=0), axis=2))
     assert jitter["appearance"] < 0.5 * jitter[None]
+
+
+def test_the_refined_shape_reaches_the_learned_neutral(data_dir, models_dir):
+    """SFM: the refinement's mean shape change is part of the neutral the deformer gets."""
+    from facesculpt.app.pipeline import Pipeline
+
+    cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
+    frames = [cap.read()[1] for _ in range(16)]
+    cap.release()
+    with Pipeline("sfm", refine="appearance") as pipe:
+        for i, f in enumerate(frames):
+            pipe.fit_frame(f, i / 25.0)
+        fitter = pipe.fitter
+        change = fitter.refiner.shape_change
+        assert change is not None and np.abs(change).max() > 0
+        alpha = fitter._alpha.astype(np.float32).copy()
+        without = fitter.model.instance(alpha)
+        alpha[:len(change)] += change.astype(np.float32)
+        assert np.allclose(fitter.neutral, fitter.model.instance(alpha)) and np.abs(fitter.neutral - without).max() > 0.01

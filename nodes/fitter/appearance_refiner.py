@@ -109,6 +109,12 @@ class AppearanceRefiner:
             found = appearance.Refinement(np.r_[found.theta[:6], self._mean_shape(found.shape)])
         return refined_result(result, found, basis, model_basis, self.K, self.projection)
 
+    @property
+    def shape_change(self) -> np.ndarray | None:
+        """(k,) the mean refined shape change so far (standard deviations of the model's leading
+        shape components), or None before any."""
+        return None if self.shape_sum is None or self.shape_count <= 0 else self.shape_sum / self.shape_count
+
     def _mean_shape(self, shape: np.ndarray) -> np.ndarray:
         """The mean (k,) of the refined shape changes so far, the oldest fading once
         SHAPE_FRAMES are held."""

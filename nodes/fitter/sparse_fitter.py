@@ -79,8 +79,14 @@ class SparseFitter(Fitter):
 
     @property
     def neutral(self) -> np.ndarray:
-        """(V, 3) float32 the model mean plus the accumulated identity, model space (mm)."""
-        return self.model.instance(self._alpha.astype(np.float32))
+        """(V, 3) float32 the model mean plus the accumulated identity (and, refining by
+        appearance, the refinement's mean shape change), model space (mm)."""
+        alpha = self._alpha.astype(np.float32)
+        change = self.refiner.shape_change
+        if change is not None:
+            alpha = alpha.copy()
+            alpha[:len(change)] += change.astype(np.float32)
+        return self.model.instance(alpha)
 
     # ------------------------------------------------------------------ one frame
     def _fit(self, pts, ids, w, finite, now) -> FitResult:
