@@ -1,8 +1,9 @@
 """Training the appearance model of :func:`facesculpt.nodes.fitter.fit_image.fit_image` (seed 004)
 from photos: each face the landmark networks find is fitted by its landmarks (SFM or any sparse
 68-landmark model, perspective with a 53° field of view), and the frontal ones (|yaw| up to
-``max_yaw_deg``) are sampled at the model's vertices (:func:`~facesculpt.nodes.fitter.appearance_model.vertex_appearance`)
-and reduced to their mean and leading components. ``facesculpt model train-appearance`` runs it.
+``max_yaw_deg``) are sampled at the model's vertices
+(:func:`~facesculpt.nodes.fitter.appearance_model.vertex_appearance`) and reduced to their mean
+and leading components. ``facesculpt model train-appearance`` runs it.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """What a fitter keeps to refine its landmark fits on the frames' pixels (issue 20), frame after frame.
 
 Per person: the appearance template (:class:`.appearance.AppearanceTemplate`), the corners of
-the last frame tied to the mesh (:mod:`.surface_features`) and that frame, and the last
-refinement (where the next one starts). :meth:`AppearanceRefiner.refine` takes a frame's landmark
+the last frame tied to the mesh (:mod:`.surface_features`) and that frame, the last refinement
+(where the next one starts) and the mean shape change (:attr:`AppearanceRefiner.shape_change`,
+which a sparse fitter adds to its learned neutral). :meth:`AppearanceRefiner.refine` takes a frame's landmark
 fit, *before* its head pose is smoothed, and returns it refined; the fitter smooths the refined
 pose afterwards, so the smoothing filters the better measurement rather than the refinement
 adding unfiltered motion to a smoothed fit.
@@ -50,10 +51,11 @@ class AppearanceRefiner:
         self.features = None                             # its corners (SurfaceFeatures) or None
         self.kept = None                                 # (K, 2) px of them found in this frame
 
-    def refine(self, model: MorphableModel, result: FitResult, image: np.ndarray, now: float) -> FitResult:
-        """``result`` (a fit of ``model``) with its pose (and, with a shape basis, leading shape components) refined on
-        ``image`` (H, W, 3) uint8 BGR or (H, W) grey, once the appearance has been learned; the
-        refined fit then teaches the template, and the frame's corners are kept for the next."""
+    def refine(self, model: MorphableModel, result: FitResult, image: np.ndarray) -> FitResult:
+        """``result`` (a fit of ``model``) with its pose (and, with a shape basis, leading shape
+        components) refined on ``image`` (H, W, 3) uint8 BGR or (H, W) grey once the appearance
+        has been learned, then passed through the complementary filter; the refined fit teaches
+        the template, and the frame's corners are kept for the next."""
         grey8 = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
         grey8 = np.ascontiguousarray(grey8, np.uint8)
         grey = grey8.astype(np.float32)
@@ -136,7 +138,6 @@ class AppearanceRefiner:
         toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks, steps=2)
         toward = appearance.Refinement((1.0 - appearance.BLEND) * toward.theta)
         return refined_result(result, toward, None, None, self.K, self.projection)
-
 
 
 def refined_result(result: FitResult, found: appearance.Refinement, basis: np.ndarray | None,

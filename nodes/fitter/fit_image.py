@@ -1,10 +1,10 @@
 """A 3D active appearance model fit of one photo (seed 004): the landmark fit, aligned by appearance.
 
 :func:`fit_image` starts from a photo's landmark fit and moves the head's pose (and, with
-SHAPE_COMPONENTS, the shape model's leading components) so the photo, sampled at the projected vertices, matches the
-appearance model (:mod:`.appearance_model`: the mean face plus its components, mixed for this
-face, with the lighting's gain and bias) by the Gauss-Newton of :func:`.appearance.refine_pose`,
-held near the landmarks by its prior. The model is trained on frontal faces only; seed 004's claim
+SHAPE_COMPONENTS, the shape model's leading components) so the photo, sampled at the projected
+vertices, matches the appearance model (:mod:`.appearance_model`: the mean face plus its
+components, mixed for this face, with the lighting's gain and bias) by the Gauss-Newton of
+:func:`.appearance.refine_pose`, held near the landmarks by its prior. The model is trained on frontal faces only; seed 004's claim
 is that turned faces then align too, since the texture lives on the model's vertices.
 
 Arrays in, arrays out: :meth:`.fitter.Fitter.fit_image` calls it with the fitter's model and camera.
@@ -38,8 +38,9 @@ def fit_image(image: np.ndarray, init: FitResult, model: MorphableModel, appeara
     """``init`` (the landmark fit of ``image`` with ``model``) aligned by appearance.
 
     image: (H, W, 3) uint8 BGR or (H, W) grey; K: (3, 3) intrinsics, or None for orthographic
-    (then ``projection`` "orthographic"); prior_weight: the landmark prior (default PRIOR_WEIGHT). Raises :class:`.result.FitError` when the appearance
-    model was made for another face model."""
+    (then ``projection`` "orthographic"); prior_weight: the landmark prior (default
+    PRIOR_WEIGHT). Raises :class:`.result.FitError` when the appearance model was made for
+    another face model."""
     if len(appearance_model.mean) != len(init.vertices):
         raise FitError(f"the appearance model has {len(appearance_model.mean)} vertices, the fit "
                        f"{len(init.vertices)}: it was trained for another face model ({appearance_model.model_id!r})")

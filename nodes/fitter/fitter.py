@@ -116,7 +116,7 @@ class Fitter:
         self._last_time = now
         self._frame += 1
         if refining and image is not None:
-            result = self.refiner.refine(self.model, result, image, now)
+            result = self.refiner.refine(self.model, result, image)
         if self._rigid_smoothing_deferred:
             result = self._smoothed_rigid(result, now)
         return result
