@@ -18,7 +18,6 @@ import numpy as np
 MAX_YAW_DEG = 15.0
 #: Components kept.
 COMPONENTS = 10
-IBUG_IDS = [str(i) for i in range(1, 69)]
 
 
 def photo_fits(image: np.ndarray, model, detector) -> list:
@@ -26,6 +25,7 @@ def photo_fits(image: np.ndarray, model, detector) -> list:
     ``image`` (H, W, 3) uint8 BGR, each by a fresh fitter of ``model`` (a sparse MorphableModel)."""
     from facesculpt.geometry import to_ibug68
     from facesculpt.nodes.fitter import FitError, FitterConfig, make_fitter
+    from facesculpt.nodes.fitter.stage import IBUG68_IDS
 
     h, w = image.shape[:2]
     K = np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1.0]])
@@ -33,7 +33,7 @@ def photo_fits(image: np.ndarray, model, detector) -> list:
     for face in detector.detect(image):
         try:
             fits.append(make_fitter(model, FitterConfig(), (w, h), K).fit(to_ibug68(face.points).astype(np.float64),
-                                                                        IBUG_IDS))
+                                                                        IBUG68_IDS))
         except FitError:
             continue
     return fits

@@ -78,6 +78,12 @@ def frontality(vertices: np.ndarray, normals: np.ndarray, perspective: bool) -> 
     return -cos if cos.sum() < 0 else cos
 
 
+def frontal_weights(front: np.ndarray) -> np.ndarray:
+    """(V,) in [0, 1]: each vertex's weight in a photometric match from its :func:`frontality`
+    ``front`` (V,), rising from 0 at MIN_FRONTALITY to 1 facing the camera."""
+    return np.clip((front - MIN_FRONTALITY) / (1 - MIN_FRONTALITY), 0, 1)
+
+
 class AppearanceTemplate:
     """AppearanceTemplate(n_vertices): the per-vertex grey level (:attr:`grey`) and confidence
     (:attr:`confidence`, summed weights, capped) of one person, learned by :meth:`update`."""

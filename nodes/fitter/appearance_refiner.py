@@ -96,13 +96,10 @@ class AppearanceRefiner:
     def _refined(self, model: MorphableModel, result: FitResult, grey: np.ndarray, X: np.ndarray,
                  normals: np.ndarray) -> FitResult:
         """``result`` refined by :func:`.appearance.refine_pose` against the template."""
-        perspective = self.K is not None
-        front = appearance.frontality(X, normals, perspective)
-        floor = appearance.MIN_FRONTALITY
-        w = self.template.confidence * np.clip((front - floor) / (1 - floor), 0, 1)
+        front = appearance.frontality(X, normals, self.K is not None)
+        w = self.template.confidence * appearance.frontal_weights(front)
         k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), model.num_shape)
-        model_basis = model.shape_basis[:, :, :k].astype(np.float64) * model.shape_std[:k]
-        basis = np.einsum("ij,vjk->vik", result.scale * np.asarray(result.R, np.float64), model_basis) if k else None
+        model_basis, basis = shape_bases(model, result, k)
         found = appearance.refine_pose(grey, X, w, self.template.grey, self.K,
                                        np.asarray(model.landmark_vertices, np.int64), basis=basis,
                                        start=self.last_theta)
@@ -125,7 +122,7 @@ class AppearanceRefiner:
         keep = min(1.0, appearance.SHAPE_FRAMES / (self.shape_count + 1.0))
         self.shape_sum = (self.shape_sum + shape) * keep
         self.shape_count = (self.shape_count + 1.0) * keep
-        return self.shape_sum / self.shape_count
+        return self.shape_change
 
     def _motion_filtered(self, result: FitResult, grey8: np.ndarray) -> FitResult:
         """``result`` moved most of the way to where the corners tracked from the last frame put
@@ -138,6 +135,15 @@ class AppearanceRefiner:
         toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks, steps=2)
         toward = appearance.Refinement((1.0 - appearance.BLEND) * toward.theta)
         return refined_result(result, toward, None, None, self.K, self.projection)
+
+
+def shape_bases(model: MorphableModel, result: FitResult, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The displacement of each vertex per standard deviation of ``model``'s k leading shape
+    components: (V, 3, k) in model space (mm), and (V, 3, k) in ``result``'s camera space (its
+    scale and rotation; None when k is 0)."""
+    model_basis = model.shape_basis[:, :, :k].astype(np.float64) * model.shape_std[:k]
+    basis = np.einsum("ij,vjk->vik", result.scale * np.asarray(result.R, np.float64), model_basis) if k else None
+    return model_basis, basis
 
 
 def refined_result(result: FitResult, found: appearance.Refinement, basis: np.ndarray | None,

@@ -19,7 +19,7 @@ from facesculpt.geometry.vertex_normals import vertex_normals
 
 from . import appearance
 from .appearance_model import AppearanceModel
-from .appearance_refiner import refined_result
+from .appearance_refiner import refined_result, shape_bases
 from .model import MorphableModel
 from .result import FitError, FitResult
 
@@ -48,12 +48,9 @@ def fit_image(image: np.ndarray, init: FitResult, model: MorphableModel, appeara
     grey = np.asarray(image, np.float32) if image.ndim == 2 else \
         cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY).astype(np.float32)
     X = np.asarray(init.vertices, np.float64)
-    front = appearance.frontality(X, vertex_normals(X, model.triangles), K is not None)
-    floor = appearance.MIN_FRONTALITY
-    weights = np.clip((front - floor) / (1 - floor), 0, 1)
+    weights = appearance.frontal_weights(appearance.frontality(X, vertex_normals(X, model.triangles), K is not None))
     k = min(SHAPE_COMPONENTS, len(init.alpha), model.num_shape)
-    model_basis = model.shape_basis[:, :, :k].astype(np.float64) * model.shape_std[:k]
-    basis = np.einsum("ij,vjk->vik", init.scale * np.asarray(init.R, np.float64), model_basis) if k else None
+    model_basis, basis = shape_bases(model, init, k)
     anchors = np.asarray(model.landmark_vertices, np.int64)
     template = appearance_model.basis()
     found = None
@@ -61,4 +58,4 @@ def fit_image(image: np.ndarray, init: FitResult, model: MorphableModel, appeara
         found = appearance.refine_pose(grey, X, weights, template, K, anchors, prior_weight=prior_weight,
                                        basis=basis, start=None if found is None else found.theta,
                                        temporal_weight=0.0)
-    return refined_result(init, found, basis, model_basis if k else None, K, projection)
+    return refined_result(init, found, basis, model_basis, K, projection)
