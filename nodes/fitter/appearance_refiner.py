@@ -38,6 +38,7 @@ class AppearanceRefiner:
     def reset(self) -> None:
         """Forget the person: the template, the mean shape change, and :meth:`forget_frame`."""
         self.template: appearance.AppearanceTemplate | None = None
+        self.model_basis: np.ndarray | None = None   # the model's (V, 3, k) shape basis, mm: made once
         self.frames = 0
         self.forget_frame()
         # the shape change is the person's, not the frame's: it is averaged over frames
@@ -99,14 +100,14 @@ class AppearanceRefiner:
         front = appearance.frontality(X, normals, self.K is not None)
         w = self.template.confidence * appearance.frontal_weights(front)
         k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), model.num_shape)
-        model_basis, basis = shape_bases(model, result, k)
+        self.model_basis, basis = shape_bases(model, result, k, self.model_basis)
         found = appearance.refine_pose(grey, X, w, self.template.grey, self.K,
                                        np.asarray(model.landmark_vertices, np.int64), basis=basis,
                                        start=self.last_theta)
         self.last_theta = found.theta
         if k:
             found = appearance.Refinement(np.r_[found.theta[:6], self._mean_shape(found.shape)])
-        return refined_result(result, found, basis, model_basis, self.K, self.projection)
+        return refined_result(result, found, basis, self.model_basis, self.K, self.projection)
 
     @property
     def shape_change(self) -> np.ndarray | None:
@@ -137,12 +138,15 @@ class AppearanceRefiner:
         return refined_result(result, toward, None, None, self.K, self.projection)
 
 
-def shape_bases(model: MorphableModel, result: FitResult, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+def shape_bases(model: MorphableModel, result: FitResult, k: int,
+                model_basis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """The displacement of each vertex per standard deviation of ``model``'s k leading shape
-    components: (V, 3, k) in model space (mm), and (V, 3, k) in ``result``'s camera space (its
-    scale and rotation; None when k is 0)."""
-    model_basis = model.shape_basis[:, :, :k].astype(np.float64) * model.shape_std[:k]
-    basis = np.einsum("ij,vjk->vik", result.scale * np.asarray(result.R, np.float64), model_basis) if k else None
+    components: (V, 3, k) in model space (mm; ``model_basis`` when given, e.g. kept from an
+    earlier frame), and (V, 3, k) in ``result``'s camera space (its scale and rotation; None when
+    k is 0)."""
+    if model_basis is None or model_basis.shape[2] != k:
+        model_basis = model.shape_basis[:, :, :k].astype(np.float64) * model.shape_std[:k]
+    basis = (result.scale * np.asarray(result.R, np.float64)) @ model_basis if k else None
     return model_basis, basis
 
 
