@@ -184,3 +184,22 @@ def test_the_refined_shape_reaches_the_learned_neutral(data_dir, models_dir):
         without = fitter.model.instance(alpha)
         alpha[:len(change)] += change.astype(np.float32)
         assert np.allclose(fitter.neutral, fitter.model.instance(alpha)) and np.abs(fitter.neutral - without).max() > 0.01
+
+
+def test_the_applied_shape_follows_the_mean_of_the_samples_without_its_wobble():
+    """Each frame's shape sample moves the running mean by its share; the shape the fits carry
+    follows that mean smoothly and reaches it."""
+    from facesculpt.nodes.fitter.appearance_refiner import AppearanceRefiner
+
+    refiner = AppearanceRefiner(K, "perspective", learn_frames=0)
+    rng = np.random.default_rng(3)
+    truth = np.array([1.0, -0.5, 0.25])
+    applied, means = [], []
+    for _ in range(60):
+        applied.append(refiner._mean_shape(truth + rng.normal(0, 0.5, 3)).copy())
+        means.append(refiner.shape_sum / refiner.shape_count)
+    applied, means = np.array(applied), np.array(means)
+    step = lambda a: np.median(np.linalg.norm(np.diff(a[10:], axis=0), axis=1))  # noqa: E731
+    assert step(applied) < 0.5 * step(means)
+    assert np.abs(applied[-1] - means[-1]).max() < 0.1 and np.abs(means[-1] - truth).max() < 0.25
+    assert np.array_equal(refiner.shape_change, applied[-1])

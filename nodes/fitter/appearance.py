@@ -32,13 +32,18 @@ from .pose import projection_jacobian, rodrigues, skew
 #: Image scales of the pyramid, coarse to fine, and Gauss-Newton steps at each.
 LEVELS = (0.5, 1.0)
 STEPS = 2
+#: The pyramid scales of the two solves of :mod:`.appearance_refiner` with a shape basis: the
+#: pose and shape one (whose shape sample joins the person's mean), then the pose-only one, which
+#: starts close enough not to need the coarse level.
+SHAPE_LEVELS = (0.5, 1.0)
+POSE_AFTER_SHAPE_LEVELS = (1.0,)
 #: The prior (the landmark vertices staying where the landmark fit put them): moving every landmark
 #: vertex by 1 px costs as much as a photometric residual of sqrt(PRIOR_WEIGHT) grey levels at every
 #: compared vertex.
 PRIOR_WEIGHT = 0.1
 #: A shape component's change by one standard deviation costs as much as a photometric residual of
 #: sqrt(SHAPE_WEIGHT) grey levels at every compared vertex.
-SHAPE_WEIGHT = 1.0
+SHAPE_WEIGHT = 0.02
 #: Moving every landmark vertex 1 px from where the last frame's refinement would put it costs as
 #: much as a photometric residual of sqrt(TEMPORAL_WEIGHT) grey levels at every compared vertex.
 TEMPORAL_WEIGHT = 1.0
@@ -50,8 +55,10 @@ TRACK_HUBER_PX = 1.0
 BLEND = 0.1
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
-#: The refined shape change applied is the mean of the last this many frames' (the person's shape).
+#: The refined shape change applied is the mean of the last this many frames' (the person's shape),
+#: followed by an exponential average over SHAPE_SMOOTHING_FRAMES frames.
 SHAPE_FRAMES = 100
+SHAPE_SMOOTHING_FRAMES = 5.0
 #: With an appearance model as the template (its mean and components), a component's mix of
 #: one grey level costs as much as a photometric residual of sqrt(COMPONENT_RIDGE) grey levels at
 #: every compared vertex.
@@ -211,7 +218,8 @@ def _pixel_term(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.
 def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
                 K: np.ndarray | None, anchors: np.ndarray, prior_weight: float | None = None,
                 basis: np.ndarray | None = None, shape_weight: float | None = None,
-                start: np.ndarray | None = None, temporal_weight: float | None = None) -> Refinement:
+                start: np.ndarray | None = None, temporal_weight: float | None = None,
+                levels: tuple[float, ...] | None = None) -> Refinement:
     """The rigid motion (and, with a ``basis``, shape change) that best matches the frame to the template.
 
     grey: (H, W) float32 the frame's grey levels; vertices: (V, 3) float64 the landmark fit's
@@ -223,7 +231,8 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     displacement of each vertex per standard deviation of k shape components (None: pose only),
     whose change costs ``shape_weight`` (SHAPE_WEIGHT's meaning); start: (6 + k,) the last frame's
     ``theta``, where the search starts and which the landmark vertices' pixels are held near with
-    ``temporal_weight`` (TEMPORAL_WEIGHT's meaning). The weights default to the module's constants."""
+    ``temporal_weight`` (TEMPORAL_WEIGHT's meaning); levels: the pyramid's scales (LEVELS). The
+    weights default to the module's constants."""
     prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
     temporal_weight = TEMPORAL_WEIGHT if temporal_weight is None else temporal_weight
     shape_weight = SHAPE_WEIGHT if shape_weight is None else shape_weight
@@ -255,7 +264,7 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     if min(grey.shape) < 8:
         return Refinement(np.zeros(6 + k))
     B_use = None if basis is None else basis[use]
-    for scale in LEVELS:
+    for scale in LEVELS if levels is None else levels:
         small = cv2.GaussianBlur(cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), (0, 0), 1.0)
         gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         gy = cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0

@@ -1,9 +1,11 @@
 """What a fitter keeps to refine its landmark fits on the frames' pixels (issue 20), frame after frame.
 
 Per person: the appearance template (:class:`.appearance.AppearanceTemplate`), the corners of
-the last frame tied to the mesh (:mod:`.surface_features`) and that frame, the last refinement
-(where the next one starts) and the mean shape change (:attr:`AppearanceRefiner.shape_change`,
-which a sparse fitter adds to its learned neutral). :meth:`AppearanceRefiner.refine` takes a frame's landmark
+the last frame tied to the mesh (:mod:`.surface_features`) and that frame, the last refinements
+(where the next ones start) and the mean shape change (:attr:`AppearanceRefiner.shape_change`,
+which a sparse fitter adds to its learned neutral). With a shape basis each frame is solved twice:
+pose and shape (the frame's sample of the person's shape, averaged over frames), then the pose
+alone for the mesh with the averaged shape, the one the output carries. :meth:`AppearanceRefiner.refine` takes a frame's landmark
 fit, *before* its head pose is smoothed, and returns it refined; the fitter smooths the refined
 pose afterwards, so the smoothing filters the better measurement rather than the refinement
 adding unfiltered motion to a smoothed fit.
@@ -44,10 +46,12 @@ class AppearanceRefiner:
         # the shape change is the person's, not the frame's: it is averaged over frames
         self.shape_sum: np.ndarray | None = None
         self.shape_count = 0.0
+        self.shape_applied: np.ndarray | None = None    # the mean, smoothed: what the fits are given
 
     def forget_frame(self) -> None:
         """Forget the last frame (the next one is not its successor): its corners and refinement."""
-        self.last_theta: np.ndarray | None = None
+        self.last_theta: np.ndarray | None = None        # the last pose refinement (6,)
+        self.last_sample: np.ndarray | None = None       # the last pose-and-shape solve (6 + k,)
         self.previous: np.ndarray | None = None          # the last frame, (H, W) uint8
         self.features = None                             # its corners (SurfaceFeatures) or None
         self.kept = None                                 # (K, 2) px of them found in this frame
@@ -96,34 +100,47 @@ class AppearanceRefiner:
 
     def _refined(self, model: MorphableModel, result: FitResult, grey: np.ndarray, X: np.ndarray,
                  normals: np.ndarray) -> FitResult:
-        """``result`` refined by :func:`.appearance.refine_pose` against the template."""
+        """``result`` refined against the template (:func:`.appearance.refine_pose`): with a shape
+        basis, a first solve of the pose and the leading shape components gives this frame's
+        sample of the person's shape, whose running mean is applied; then the pose alone is
+        solved for the mesh with that mean shape, so the output's pose fits the shape it is
+        shown with (not the frame's noisier sample)."""
         front = appearance.frontality(X, normals, self.K is not None)
         w = self.template.confidence * appearance.frontal_weights(front)
+        anchors = np.asarray(model.landmark_vertices, np.int64)
         k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), model.num_shape)
-        self.model_basis, basis = shape_bases(model, result, k, self.model_basis)
-        found = appearance.refine_pose(grey, X, w, self.template.grey, self.K,
-                                       np.asarray(model.landmark_vertices, np.int64), basis=basis,
-                                       start=self.last_theta)
-        self.last_theta = found.theta
         if k:
-            found = appearance.Refinement(np.r_[found.theta[:6], self._mean_shape(found.shape)])
-        return refined_result(result, found, basis, self.model_basis, self.K, self.projection)
+            self.model_basis, basis = shape_bases(model, result, k, self.model_basis)
+            sample = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, basis=basis,
+                                            start=self.last_sample, levels=appearance.SHAPE_LEVELS)
+            self.last_sample = sample.theta
+            mean = appearance.Refinement(np.r_[np.zeros(6), self._mean_shape(sample.shape)])
+            result = refined_result(result, mean, basis, self.model_basis, self.K, self.projection)
+            X = np.asarray(result.vertices, np.float64)
+        found = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, start=self.last_theta,
+                                       levels=appearance.POSE_AFTER_SHAPE_LEVELS if k else None)
+        self.last_theta = found.theta
+        return refined_result(result, found, None, None, self.K, self.projection)
 
     @property
     def shape_change(self) -> np.ndarray | None:
-        """(k,) the mean refined shape change so far (standard deviations of the model's leading
-        shape components), or None before any."""
-        return None if self.shape_sum is None or self.shape_count <= 0 else self.shape_sum / self.shape_count
+        """(k,) the person's shape change that the refined fits carry (standard deviations of the
+        model's leading shape components): the mean of the frames' samples, smoothed over
+        SHAPE_SMOOTHING_FRAMES; None before any."""
+        return self.shape_applied
 
     def _mean_shape(self, shape: np.ndarray) -> np.ndarray:
-        """The mean (k,) of the refined shape changes so far, the oldest fading once
-        SHAPE_FRAMES are held."""
+        """The (k,) shape change to apply after this frame's sample ``shape``: the running mean of
+        the samples (the oldest fading once SHAPE_FRAMES are held), followed smoothly (each
+        sample moves the mean by its share, a visible wobble on a still face)."""
         if self.shape_sum is None or len(self.shape_sum) != len(shape):
-            self.shape_sum, self.shape_count = np.zeros(len(shape)), 0.0
+            self.shape_sum, self.shape_count, self.shape_applied = np.zeros(len(shape)), 0.0, np.zeros(len(shape))
         keep = min(1.0, appearance.SHAPE_FRAMES / (self.shape_count + 1.0))
         self.shape_sum = (self.shape_sum + shape) * keep
         self.shape_count = (self.shape_count + 1.0) * keep
-        return self.shape_change
+        mean = self.shape_sum / self.shape_count
+        self.shape_applied = self.shape_applied + (mean - self.shape_applied) / appearance.SHAPE_SMOOTHING_FRAMES
+        return self.shape_applied
 
     def _motion_filtered(self, result: FitResult, grey8: np.ndarray) -> FitResult:
         """``result`` moved most of the way to where the corners tracked from the last frame put
