@@ -207,7 +207,7 @@ def test_the_applied_shape_follows_the_mean_of_the_samples_without_its_wobble():
 
 def test_the_refinement_brings_the_synthetic_heads_outline_and_shape_closer(data_dir, models_dir):
     """SFM on the realism benchmark's synthetic head (true pose and shape known): refined, the
-    vertices at the head's outline land closer to the true ones than the landmark fit's, and the
+    vertices at the head's outline land at least a fifth closer to the true ones than the landmark fit's, and the
     learned neutral is closer to the true shape (the person's size comes from the pixels)."""
     import sys
     from pathlib import Path
@@ -224,5 +224,14 @@ def test_the_refinement_brings_the_synthetic_heads_outline_and_shape_closer(data
     for refine in (None, "appearance"):
         bins, snr, _ = run(frames, truths, scene.background, scene, {"refine": refine})
         got[refine] = (np.mean([b["outline_px"] for b in bins.values()]), snr)
-    assert got["appearance"][0] < 0.85 * got[None][0]
+    assert got["appearance"][0] < 0.8 * got[None][0]
     assert got["appearance"][1] > got[None][1] + 1.0
+
+
+def test_the_complementary_filter_trusts_the_frame_more_while_the_head_moves():
+    from facesculpt.nodes.fitter import appearance
+
+    speeds = [0.0, 0.5, 1.0, 2.0, 5.0]
+    shares = [appearance.blend(v) for v in speeds]
+    assert shares[0] == appearance.BLEND and shares[-1] == appearance.BLEND_MOVING > appearance.BLEND
+    assert all(a < b for a, b in zip(shares[:4], shares[1:4]))

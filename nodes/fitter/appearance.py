@@ -53,6 +53,10 @@ TRACK_HUBER_PX = 1.0
 #: face follows the corners tracked from the last frame, and moves this share of the way back
 #: to the frame's own fit.
 BLEND = 0.1
+#: ... rising to BLEND_MOVING while the tracked corners move MOVING_PX px a frame or more (the
+#: ties of corners to the mesh drift as the head turns; a still face keeps the low blend).
+BLEND_MOVING = 0.4
+MOVING_PX = 2.0
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
 #: The refined shape change applied is the mean of the last this many frames' (the person's shape),
@@ -83,6 +87,12 @@ def frontality(vertices: np.ndarray, normals: np.ndarray, perspective: bool) -> 
         np.broadcast_to([0.0, 0.0, -1.0], X.shape)
     cos = np.einsum("ij,ij->i", normals, to_cam)
     return -cos if cos.sum() < 0 else cos
+
+
+def blend(speed_px: float) -> float:
+    """The complementary filter's share of the way back to the frame's own fit (see BLEND) when
+    the tracked corners moved ``speed_px`` px since the last frame (their median)."""
+    return BLEND + (BLEND_MOVING - BLEND) * min(1.0, max(0.0, speed_px / MOVING_PX))
 
 
 def frontal_weights(front: np.ndarray) -> np.ndarray:

@@ -96,6 +96,7 @@ class AppearanceRefiner:
         if ok.sum() < 10:
             return None
         f = self.features
+        self.speed_px = float(np.median(np.linalg.norm(found[ok] - f.pixels[ok], axis=1)))
         return f.vertices[ok], f.weights[ok], f.offsets[ok], found[ok]
 
     def _refined(self, model: MorphableModel, result: FitResult, grey: np.ndarray, X: np.ndarray,
@@ -151,7 +152,7 @@ class AppearanceRefiner:
         if tracks is None:
             return result
         toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks, steps=2)
-        toward = appearance.Refinement((1.0 - appearance.BLEND) * toward.theta)
+        toward = appearance.Refinement((1.0 - appearance.blend(self.speed_px)) * toward.theta)
         return refined_result(result, toward, None, None, self.K, self.projection)
 
 
