@@ -5,10 +5,11 @@ the last frame tied to the mesh (:mod:`.surface_features`) and that frame, the l
 (where the next ones start) and the mean shape change (:attr:`AppearanceRefiner.shape_change`,
 which a sparse fitter adds to its learned neutral). With a shape basis each frame is solved twice:
 pose and shape (the frame's sample of the person's shape, averaged over frames), then the pose
-alone for the mesh with the averaged shape, the one the output carries. :meth:`AppearanceRefiner.refine` takes a frame's landmark
-fit, *before* its head pose is smoothed, and returns it refined; the fitter smooths the refined
-pose afterwards, so the smoothing filters the better measurement rather than the refinement
-adding unfiltered motion to a smoothed fit.
+alone for the mesh with the averaged shape, the one the output carries.
+:meth:`AppearanceRefiner.refine` takes a frame's landmark fit, *before* its head pose is
+smoothed, and returns it refined; the fitter smooths the refined pose afterwards, so the
+smoothing filters the better measurement rather than the refinement adding unfiltered motion to
+a smoothed fit.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ class AppearanceRefiner:
         self.previous: np.ndarray | None = None          # the last frame, (H, W) uint8
         self.features = None                             # its corners (SurfaceFeatures) or None
         self.kept = None                                 # (K, 2) px of them found in this frame
+        self.speed_px = 0.0                              # their median motion into it, px
 
     def refine(self, model: MorphableModel, result: FitResult, image: np.ndarray) -> FitResult:
         """``result`` (a fit of ``model``) with its pose (and, with a shape basis, leading shape
