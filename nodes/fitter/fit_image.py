@@ -4,8 +4,9 @@
 SHAPE_COMPONENTS, the shape model's leading components) so the photo, sampled at the projected
 vertices, matches the appearance model (:mod:`.appearance_model`: the mean face plus its
 components, mixed for this face, with the lighting's gain and bias) by the Gauss-Newton of
-:func:`.appearance.refine_pose`, held near the landmarks by its prior. The model is trained on frontal faces only; seed 004's claim
-is that turned faces then align too, since the texture lives on the model's vertices.
+:func:`.appearance.refine_pose`, held near the landmarks by its prior. The model is trained on
+frontal faces only; seed 004's claim is that turned faces then align too, since the texture lives
+on the model's vertices.
 
 Arrays in, arrays out: :meth:`.fitter.Fitter.fit_image` calls it with the fitter's model and camera.
 """

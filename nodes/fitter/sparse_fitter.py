@@ -81,10 +81,9 @@ class SparseFitter(Fitter):
     def neutral(self) -> np.ndarray:
         """(V, 3) float32 the model mean plus the accumulated identity (and, refining by
         appearance, the refinement's mean shape change), model space (mm)."""
-        alpha = self._alpha.astype(np.float32)
+        alpha = self._alpha.astype(np.float32)   # a new array: the identity itself stays as it is
         change = self.refiner.shape_change
         if change is not None:
-            alpha = alpha.copy()
             alpha[:len(change)] += change.astype(np.float32)
         return self.model.instance(alpha)
 
