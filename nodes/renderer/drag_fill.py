@@ -16,11 +16,10 @@ Crops (h, w, 3) uint8, masks (h, w), offsets (h, w, 2) float32 pixels (UNCOVERED
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from .source_map import UNCOVERED
-from .warp import INTERPOLATIONS
+from .warp import sample
 
 
 def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np.ndarray,
@@ -47,6 +46,5 @@ def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np
         # as one row: remap works row by row, and a column of single pixels costs thirty times as much
         map_x = (xs + origin[0] + dragged[ys, xs, 0]).astype(np.float32)[None, :]
         map_y = (ys + origin[1] + dragged[ys, xs, 1]).astype(np.float32)[None, :]
-        crop[ys, xs] = cv2.remap(frame, map_x, map_y, INTERPOLATIONS[interpolation],
-                                 borderMode=cv2.BORDER_REPLICATE)[0]
+        crop[ys, xs] = sample(frame, map_x, map_y, interpolation)[0]
     return done

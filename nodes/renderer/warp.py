@@ -7,7 +7,8 @@ frame its colour comes from (``p + d(p)``). This module turns it into pixels:
 * :func:`changed_pixels`: the pixels the mesh covers whose offset is not negligible
   (``|d| >= IDENTITY_PX``); all others keep the input's value, bit for bit;
 * :func:`warp_frame`: the input frame sampled once at those positions with a high-quality
-  kernel (``cv2.remap``, bicubic or Lanczos-4), at full resolution;
+  kernel, at full resolution (:func:`sample`: ``cv2.remap``'s bicubic or Lanczos-4, or a long
+  windowed sinc, :mod:`.sinc_sampling`);
 * :func:`feather_alpha`: the soft edge inside the deformed outline;
 * :func:`fold_edges` and :func:`soften`: where the map jumps (the moved surface folds over
   itself or over the unmoved face, or squeezes the texture more than two to one) the sampled
@@ -22,11 +23,33 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .sinc_sampling import sample_sinc
 from .source_map import UNCOVERED
 
 IDENTITY_PX = 1.0e-3       # offsets shorter than this (pixels) leave the pixel as it is
 FOLD_JUMP_PX = 1.0         # offset change between neighbours (pixels) that marks a fold
-INTERPOLATIONS = {"cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4, "linear": cv2.INTER_LINEAR}
+OPENCV_KERNELS = {"cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4, "linear": cv2.INTER_LINEAR}
+INTERPOLATIONS = ("sinc", *OPENCV_KERNELS)   # the kernels :func:`sample` knows
+#: From this many pixels a frame on, the live renderer is what limits the graph's frame rate, and
+#: its "auto" kernel is the bicubic rather than the sinc (about twice the sampling time).
+AUTO_SINC_BELOW_PIXELS = 1280 * 720
+
+
+def auto_interpolation(interpolation: str, width: int, height: int) -> str:
+    """The kernel for frames of ``width`` x ``height`` pixels: ``interpolation`` itself, or for
+    "auto" the sinc below AUTO_SINC_BELOW_PIXELS pixels and the bicubic from there on."""
+    if interpolation != "auto":
+        return interpolation
+    return "sinc" if width * height < AUTO_SINC_BELOW_PIXELS else "cubic"
+
+
+def sample(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interpolation: str = "cubic") -> np.ndarray:
+    """(h, w, 3) uint8: ``image`` (H, W, 3) uint8 sampled at (``map_x``, ``map_y``), (h, w)
+    float32 pixels (outside the image: its edge pixels, replicated), with the kernel named
+    ``interpolation`` (one of INTERPOLATIONS)."""
+    if interpolation == "sinc":
+        return sample_sinc(image, map_x, map_y)
+    return cv2.remap(image, map_x, map_y, OPENCV_KERNELS[interpolation], borderMode=cv2.BORDER_REPLICATE)
 
 
 def covered_pixels(offsets: np.ndarray) -> np.ndarray:
@@ -64,7 +87,7 @@ def warp_frame(frame: np.ndarray, offsets: np.ndarray, origin: tuple[int, int],
     map_y = np.where(covered, offsets[..., 1], 0.0).astype(np.float32)
     map_x += np.arange(x0, x0 + w, dtype=np.float32)[None, :]
     map_y += np.arange(y0, y0 + h, dtype=np.float32)[:, None]
-    return cv2.remap(frame, map_x, map_y, INTERPOLATIONS[interpolation], borderMode=cv2.BORDER_REPLICATE)
+    return sample(frame, map_x, map_y, interpolation)
 
 
 def feather_alpha(region: np.ndarray, width_px: float) -> np.ndarray:
