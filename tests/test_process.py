@@ -234,15 +234,16 @@ def test_shipped_presets_resolve_by_name_and_a_missing_one_lists_them(tmp_path):
         read_preset("no_such_preset")
 
 
-def test_lanczos_resamples_the_edited_region_only_and_sharper(nose_run, data_dir, tmp_path):
-    """--interpolation lanczos changes only pixels the edit re-rendered, and keeps more detail there."""
+def test_the_sinc_kernel_resamples_the_edited_region_only_and_sharper_than_bicubic(nose_run, data_dir, tmp_path):
+    """The default kernel (sinc) and --interpolation cubic differ only in pixels the edit
+    re-rendered, and the sinc keeps more of the skin's detail there."""
     out, pattern, _ = nose_run
-    lanczos = tmp_path / "%05d.png"
-    result = process(data_dir / "video" / "d12.mp4", "-o", lanczos, "--edits", "nose_longer", "--quiet",
-                     "--max-frames", "60", "--interpolation", "lanczos")
+    bicubic = tmp_path / "%05d.png"
+    result = process(data_dir / "video" / "d12.mp4", "-o", bicubic, "--edits", "nose_longer", "--quiet",
+                     "--max-frames", "60", "--interpolation", "cubic")
     assert result.returncode == 0, result.stderr
     _, inputs = read_video(data_dir / "video" / "d12.mp4", keep={59})
-    before, cubic, sharp = inputs[59], cv2.imread(str(pattern) % 59), cv2.imread(str(lanczos) % 59)
+    before, sharp, cubic = inputs[59], cv2.imread(str(pattern) % 59), cv2.imread(str(bicubic) % 59)
     edited = np.any(cubic != before, axis=2) | np.any(sharp != before, axis=2)
     assert edited.sum() > 500
     assert np.array_equal(cubic[~edited], sharp[~edited])
@@ -251,4 +252,4 @@ def test_lanczos_resamples_the_edited_region_only_and_sharper(nose_run, data_dir
     def detail(img):  # variance of the Laplacian over the edited pixels
         return float(cv2.Laplacian(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), cv2.CV_64F)[edited].var())
 
-    assert detail(sharp) > detail(cubic)
+    assert detail(sharp) > 1.1 * detail(cubic)

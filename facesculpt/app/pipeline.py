@@ -125,7 +125,7 @@ class Pipeline:
     node's); faces: which faces are fitted and edited, "largest", "all" or a face number from 1
     (:func:`facesculpt.nodes.fitter.parse_faces`), each with its own fitter and neutral;
     inpaint, feather_px, dilate_px, interpolation: the compositor's (inpaint "pushpull", "telea", "ns",
-    "patch" or "drag"; interpolation "cubic", "lanczos" or "linear", the kernel the frame is sampled with);
+    "patch" or "drag"; interpolation "sinc", "cubic", "lanczos" or "linear", the kernel the frame is sampled with);
     plate: "on" keeps a background plate and takes what an edit uncovers from it where it was seen
     (issue 16, :mod:`facesculpt.nodes.renderer.background_plate`), "off" not; atlas: the face's texture memory (issue 16),
     "off", "on" (learned and blended where the frame sees the edited surface badly) or "learn"
@@ -150,7 +150,7 @@ class Pipeline:
                  neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "drag",
                  feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
-                 plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "cubic",
+                 plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "sinc",
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,

@@ -20,9 +20,9 @@ Per frame, on a box around the part of the face that moves only:
    (:mod:`.background_plate`: the background seen behind the face in earlier frames, learned
    from every input frame outside the face grown by ``PLATE_MARGIN``, registered when the
    camera moves) replaces the fill where it is known, fading into it at its border;
-5. the input frame is sampled once at the source positions of the changed pixels (bicubic or
-   Lanczos-4, ``cv2.remap``, full resolution; :mod:`.warp`) and blended over the background with
-   a soft edge inside the deformed outline, as wide as ``feather_px`` or ``FEATHER_FRACTION`` of
+5. the input frame is sampled once at the source positions of the changed pixels (full
+   resolution; by default a long windowed sinc, :mod:`.sinc_sampling`; :mod:`.warp`) and
+   blended over the background with a soft edge inside the deformed outline, as wide as ``feather_px`` or ``FEATHER_FRACTION`` of
    the face's size if that is more; where the source map jumps (a fold of the moved surface)
    the changed pixels are anti-aliased. Only changed and inpainted pixels are written: every
    other pixel is the input's, bit for bit, by construction.
@@ -87,12 +87,13 @@ class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
     Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2,
-    telea_radius=3.0, interpolation="cubic", subdivision=None): frame size in pixels; ``ctx`` a
+    telea_radius=3.0, interpolation="sinc", subdivision=None): frame size in pixels; ``ctx`` a
     moderngl context to draw with (default: a headless EGL context of its own); ``inpaint`` the
     fill of what the face uncovers (below); ``feather_px`` least width of the soft edge inside
     the deformed outline (pixels; it grows to ``FEATHER_FRACTION`` of the face's size; 0: a hard
     edge); ``dilate_px`` growth of the region to inpaint (pixels); ``interpolation`` the kernel
-    the frame is sampled with ("cubic", "lanczos", "linear"); ``subdivision`` Loop levels of
+    the frame is sampled with ("sinc": a long windowed sinc, :mod:`.sinc_sampling`; "cubic",
+    "lanczos", "linear": OpenCV's); ``subdivision`` Loop levels of
     the render mesh (None: as many as keep it within 16384 triangles, at most 2); ``atlas`` keep
     and use the face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side,
     ``atlas_every`` update it every N frames (the frames between only read it); ``atlas_blend``
@@ -113,7 +114,7 @@ class Compositor:
 
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
                  inpaint: str = "drag", feather_px: float = 3.0, dilate_px: int = 2,
-                 telea_radius: float = 3.0, interpolation: str = "cubic", subdivision: int | None = None,
+                 telea_radius: float = 3.0, interpolation: str = "sinc", subdivision: int | None = None,
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
                  plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,

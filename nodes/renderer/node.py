@@ -53,6 +53,7 @@ from .pose_edit import (
     PoseEdits,
 )
 from .texture_atlas import uv_layout
+from .warp import auto_interpolation
 
 
 class RendererNode(Node):
@@ -79,9 +80,11 @@ class RendererNode(Node):
         "mouth": Param("off", "paint: where an edit opens a mouth that is closed in the frame, paint a dark "
                               "interior with a soft teeth band instead of stretching the lips (face-mesh "
                               "model; on in launch/reenact.yaml); off: the lips stretch", choices=("off", "paint")),
-        "interpolation": Param("cubic", "kernel the frame is resampled with where the face moved: cubic, or lanczos "
-                                        "(Lanczos-4: sharper, about 6 times the sampling time)",
-                               choices=("cubic", "lanczos")),
+        "interpolation": Param("auto", "kernel the frame is resampled with where the face moved: sinc (a long "
+                                       "windowed sinc: keeps the skin's finest detail), cubic (faster, softer), "
+                                       "lanczos (Lanczos-4), or auto: sinc for frames smaller than 1280x720, "
+                                       "cubic from there on, where the renderer limits the frame rate",
+                               choices=("auto", "sinc", "cubic", "lanczos")),
         "plate": Param("off", "background plate: the background seen behind the face in earlier frames (registered "
                               "when the camera moves) replaces the fill where known", choices=("on", "off")),
         "plate_max_age": Param(150, "background plate: frames after which a pixel's estimate is no longer used",
@@ -292,7 +295,8 @@ class RendererNode(Node):
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
                                      atlas_every=p.atlas_every, atlas_thread=True,
                                      plate=p.plate == "on", plate_max_age=p.plate_max_age,
-                                     interpolation=p.interpolation, keyframes=p.keyframes == "on")
+                                     interpolation=auto_interpolation(p.interpolation, width, height),
+                                     keyframes=p.keyframes == "on")
         return True
 
     def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:
