@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from renderer_scene import read_frames
 
-from facesculpt.geometry import boundary_loops
+from facesculpt.geometry import boundary_loops, point_bounds
 from facesculpt.nodes.renderer.camera import estimate_projection, project
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
-from facesculpt.nodes.renderer.mesh import close_holes
+from facesculpt.nodes.renderer.mesh import close_holes, vertex_rings
 from facesculpt.nodes.renderer.sinc_sampling import sample_sinc, upsample2x
 from facesculpt.nodes.renderer.subdivision import levels_for, loop_subdivision
 from facesculpt.nodes.renderer.video_out import VideoOutput
@@ -227,6 +227,23 @@ def test_close_holes_leaves_only_the_outline(data_dir):
 
 
 # -- subdivision ------------------------------------------------------------------------------
+def test_vertex_rings_reach_as_many_edges_as_asked():
+    """A strip of triangles over vertices 0..9 in a row (and 10: in no triangle)."""
+    strip = np.array([(i, i + 1, i + 2) for i in range(8)])
+    for rings, reach in ((1, set(range(2, 7))), (2, set(range(0, 9)))):   # a triangle spans two steps
+        near = vertex_rings(strip, 11, rings) @ np.eye(11, dtype=np.float32)[4] > 0
+        assert set(np.flatnonzero(near)) == reach
+    alone = vertex_rings(strip, 11, 2) @ np.eye(11, dtype=np.float32)[10] > 0
+    assert not alone.any()   # a vertex of no triangle is near nothing
+
+
+def test_point_bounds_are_the_per_coordinate_extremes():
+    points = np.random.default_rng(0).normal(size=(500, 3)) * [1, 10, 100]
+    lo, hi = point_bounds(points)
+    assert np.array_equal(lo, points.min(axis=0)) and np.array_equal(hi, points.max(axis=0))
+    assert [b.tolist() for b in point_bounds(np.array([[3, -1]]))] == [[3, -1], [3, -1]]
+
+
 def test_loop_subdivision_is_affine_and_keeps_a_plane_planar(data_dir):
     from facesculpt.nodes.fitter import facemesh_model
 

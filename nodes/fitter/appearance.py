@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from facesculpt.geometry.point_bounds import point_bounds
 from facesculpt.geometry.projection import project
 
 from .pose import projection_jacobian, rodrigues, skew
@@ -268,8 +269,8 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
         points.append((share / len(anchors), anchors[:, None], target))
     # the face's box (grown by a margin the motion stays within) is all the pyramid needs
     px0 = project(X[use], K, kind)
-    lo = np.floor(px0.min(axis=0) - CROP_MARGIN * np.ptp(px0, axis=0) - 8).astype(int).clip(0, None)
-    hi = np.ceil(px0.max(axis=0) + CROP_MARGIN * np.ptp(px0, axis=0) + 8).astype(int)
+    lo, hi = point_bounds(px0)
+    lo, hi = np.floor(lo - CROP_MARGIN * (hi - lo) - 8).astype(int).clip(0, None), np.ceil(hi + CROP_MARGIN * (hi - lo) + 8).astype(int)
     grey = grey[lo[1]:hi[1], lo[0]:hi[0]]
     if min(grey.shape) < 8:
         return Refinement(np.zeros(6 + k))

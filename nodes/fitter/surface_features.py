@@ -20,6 +20,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from facesculpt.geometry.point_bounds import point_bounds
+
 #: Corners picked per frame, at most.
 MAX_FEATURES = 150
 #: A corner must be this far (px) from the face's projected outline (its window stays on the face).
@@ -48,8 +50,8 @@ class SurfaceFeatures:
 
 def _face_box(projected: np.ndarray, shape: tuple[int, int], margin: int) -> tuple[int, int, int, int]:
     """(x0, y0, x1, y1): the projected vertices' box grown by ``margin`` px, inside the frame."""
-    lo = np.floor(projected.min(axis=0)).astype(int) - margin
-    hi = np.ceil(projected.max(axis=0)).astype(int) + margin
+    lo, hi = point_bounds(projected)
+    lo, hi = np.floor(lo).astype(int) - margin, np.ceil(hi).astype(int) + margin
     h, w = shape
     return max(lo[0], 0), max(lo[1], 0), min(hi[0], w), min(hi[1], h)
 

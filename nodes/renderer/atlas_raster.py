@@ -27,6 +27,7 @@ import cv2
 import moderngl
 import numpy as np
 
+from facesculpt.geometry import point_bounds
 from facesculpt.geometry.vertex_normals import face_normals, vertex_normals
 
 from .camera import project
@@ -127,8 +128,8 @@ class AtlasRasterizer:
     def _view_depth_map(self, px, depth, tri) -> tuple[np.ndarray, tuple[int, int, int, int]] | None:
         """The mesh's depth as the frame sees it, over its box: ((h, w) float32, FAR where empty;
         box (x0, y0, x1, y1)); None when the mesh is not in the frame."""
-        lo = np.floor(px.min(axis=0)).astype(int) - 1
-        hi = np.ceil(px.max(axis=0)).astype(int) + 2
+        lo, hi = point_bounds(px)
+        lo, hi = np.floor(lo).astype(int) - 1, np.ceil(hi).astype(int) + 2
         x0, y0 = max(0, lo[0]), max(0, lo[1])
         x1, y1 = min(self.width, hi[0]), min(self.height, hi[1])
         if x1 - x0 < 2 or y1 - y0 < 2:

@@ -47,6 +47,8 @@ import cv2
 import moderngl
 import numpy as np
 
+from facesculpt.geometry import point_bounds
+
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate, face_region
 from .camera import estimate_projection, project
@@ -54,7 +56,7 @@ from .drag_fill import drag_fill
 from .gl_context import create_headless_context
 from .inpaint import FILL_METHODS, dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
-from .mesh import close_holes
+from .mesh import close_holes, vertex_rings
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .source_map import UNCOVERED, SourceMapRenderer
 from .subdivision import levels_for, loop_subdivision
@@ -79,7 +81,8 @@ STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "t
 
 def face_size(projected: np.ndarray) -> float:
     """A face's size (px): the geometric mean of the sides of its pixels' (V, 2) bounding box."""
-    side = projected.max(axis=0) - projected.min(axis=0)
+    lo, hi = point_bounds(projected)
+    side = hi - lo
     return float(np.sqrt(max(side[0] * side[1], 0.0)))
 
 
@@ -161,9 +164,9 @@ class Compositor:
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
         self._plate_pool = ThreadPoolExecutor(1, thread_name_prefix="plate") if plate else None
         self._plate_job = None
-        self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles)
+        self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles, two rings)
         self._mesh_key: tuple | None = None
-        self._closed = self._S = self._fine = None
+        self._closed = self._S = self._fine = self._rings = None
         self.timings: dict[str, float] = {}
         self.box: tuple[int, int, int, int] | None = None
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None  # last box's
@@ -189,8 +192,8 @@ class Compositor:
             S, fine = loop_subdivision(closed, n_vertices, levels)
             if len(self._meshes) >= 4:
                 self._meshes.clear()
-            self._meshes[key] = (closed, S, fine)
-        self._closed, self._S, fine = self._meshes[key]
+            self._meshes[key] = (closed, S, fine, vertex_rings(closed, n_vertices, 2))
+        self._closed, self._S, fine, self._rings = self._meshes[key]
         self._fine = fine.reshape(-1, len(self._closed), 3)  # [k, t]: the k-th child of coarse triangle t
         self.maps.set_mesh(self._S.shape[0], len(fine) + len(self._closed))
         self._mesh_key = key
@@ -369,7 +372,7 @@ class Compositor:
         self.plate_region = None
         occluded = keep_box = None
         if len(projected):
-            lo, hi = projected.min(axis=0), projected.max(axis=0)
+            lo, hi = point_bounds(projected)
             size = face_size(projected)
             margin = max(self.dilate_px + 2.0, PLATE_MARGIN * size)
             occluded = face_region((self.height, self.width), projected, margin)
@@ -488,16 +491,11 @@ class Compositor:
         (:func:`.motion_extension.head_box`)."""
         if head_motion:
             return head_box(np.concatenate([projected, dst_px]), self.width, self.height)
-        near = moved
-        for _ in range(2):
-            ring = np.zeros_like(near)
-            corners = near[self._closed]
-            ring[self._closed[corners[:, 0] | corners[:, 1] | corners[:, 2]]] = True
-            near = ring
+        near = self._rings @ moved.astype(np.float32) > 0
         pad = self.dilate_px + 10 + int(np.ceil(self.feather_px)) + self.band_px(projected)
         both = np.concatenate([projected[near], dst_px[near]])
-        lo = np.floor(both.min(axis=0)).astype(int) - pad
-        hi = np.ceil(both.max(axis=0)).astype(int) + pad + 1
+        lo, hi = point_bounds(both)
+        lo, hi = np.floor(lo).astype(int) - pad, np.ceil(hi).astype(int) + pad + 1
         x0, y0 = max(0, lo[0]), max(0, lo[1])
         x1, y1 = min(self.width, hi[0]), min(self.height, hi[1])
         if x1 - x0 < 2 or y1 - y0 < 2:

@@ -19,6 +19,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from facesculpt.geometry import point_bounds
+
 from .source_map import UNCOVERED
 
 #: How far the head region reaches past the face's box: shares of its width (each side) and of its
@@ -32,7 +34,7 @@ _SHIFT = 4
 def _head_extent(pixels: np.ndarray) -> tuple[float, float, float, float]:
     """(left, top, right, bottom) frame px of the head region around the face at ``pixels`` (N, 2):
     their box grown by HEAD_GROWTH."""
-    lo, hi = pixels.min(axis=0), pixels.max(axis=0)
+    lo, hi = point_bounds(pixels)
     w, h = hi - lo
     return (lo[0] - HEAD_GROWTH["side"] * w, lo[1] - HEAD_GROWTH["up"] * h,
             hi[0] + HEAD_GROWTH["side"] * w, hi[1] + HEAD_GROWTH["down"] * h)

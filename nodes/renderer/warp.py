@@ -122,8 +122,17 @@ def soften(crop: np.ndarray, fold: np.ndarray, allowed: np.ndarray) -> None:
     """Blur ``crop`` (h, w, 3) uint8 in place across the ``fold`` pixels (h, w) bool: a 3x3
     Gaussian, faded in over one pixel around them, so the edge is anti-aliased, not smeared;
     only ``allowed`` (h, w) bool pixels are written."""
-    weight = cv2.GaussianBlur(fold.astype(np.float32), (3, 3), 0)
+    near = bounding_slices(fold)
+    if near is None:
+        return
+    # only around the folds (a few short edges, usually): two pixels for the weight's fade and
+    # the blur's reach, one more so the blur reads the same pixels as on the whole crop
+    h, w = fold.shape
+    rows = slice(max(near[0].start - 3, 0), min(near[0].stop + 3, h))
+    cols = slice(max(near[1].start - 3, 0), min(near[1].stop + 3, w))
+    part = crop[rows, cols]
+    weight = cv2.GaussianBlur(fold[rows, cols].astype(np.float32), (3, 3), 0)
     np.minimum(weight * 2.0, 1.0, out=weight)
-    blurred = cv2.GaussianBlur(crop, (3, 3), 0)
-    mixed = cv2.blendLinear(blurred, crop, weight, 1.0 - weight)
-    np.copyto(crop, mixed, where=((weight > 0) & allowed)[..., None])
+    blurred = cv2.GaussianBlur(part, (3, 3), 0)
+    mixed = cv2.blendLinear(blurred, part, weight, 1.0 - weight)
+    np.copyto(part, mixed, where=((weight > 0) & allowed[rows, cols])[..., None])
