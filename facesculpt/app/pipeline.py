@@ -143,7 +143,9 @@ class Pipeline:
     :mod:`facesculpt.nodes.renderer.keyframe_views`), "auto" (the default) does so when a pose edit
     is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never; outline_band: how far
     past the fitted outline an edit's motion is carried (share of the face's size; None: the
-    compositor's ``OUTLINE_BAND``). The GL context is made here; call :meth:`close` (or use ``with``) to free it.
+    compositor's ``OUTLINE_BAND``); expression: give each fit its expression parameters
+    (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`; False: None, and their cost
+    saved). The GL context is made here; call :meth:`close` (or use ``with``) to free it.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
@@ -154,7 +156,7 @@ class Pipeline:
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
-                 outline_band: float | None = None):
+                 outline_band: float | None = None, expression: bool = True):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -178,6 +180,7 @@ class Pipeline:
                                    "interpolation": interpolation}
         if outline_band is not None:
             self.compositor_options["outline_band"] = float(outline_band)
+        self.expression = bool(expression)
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()
@@ -238,7 +241,8 @@ class Pipeline:
             if face.outcome.fit is not None:
                 fit = face.outcome.fit
                 fitter = self.faces.fitters[face.key]
-                fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
+                if self.expression:
+                    fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
                 fits[face.key] = fit
                 self.fitted_per_face[face.key] = self.fitted_per_face.get(face.key, 0) + 1
         timings["fit"] = (time.perf_counter() - t0) * 1e3
