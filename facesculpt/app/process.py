@@ -386,9 +386,8 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "drag"),
                         plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "sinc"),
-                        refine=None if getattr(args, "refine", "off") == "off" else args.refine,
-                        outline_band=getattr(args, "outline_band", None),
-                        expression=bool(getattr(args, "export_params", "")), **pose_options)
+                        refine=None if getattr(args, "refine", "off") == "off" else args.refine, **pose_options,
+                        outline_band=getattr(args, "outline_band", None), expression=export is not None)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 
