@@ -8,7 +8,7 @@
 * :mod:`.ibug68`: the 468 face-mesh points in the iBUG-68 landmark scheme;
 * :mod:`.axes_velocity`: joystick axes to a model-space velocity (and its parameters);
 * :mod:`.hand_regions`: the 21 hand joints by name, a hand's size, the region hands cover;
-* :mod:`.point_bounds`: the bounding box of a point set.
+* :mod:`.point_bounds`: the bounding box and the centroid of a point set.
 
 Nodes import from here instead of from each other (docs/architecture.md "Layers").
 """
@@ -17,7 +17,7 @@ from facesculpt.geometry.axes_velocity import axes_velocity
 from facesculpt.geometry.boundary_loops import boundary_loops
 from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH, normalised_mean_error, to_ibug68
 from facesculpt.geometry.merge_deformation import merge_deformation
-from facesculpt.geometry.point_bounds import point_bounds
+from facesculpt.geometry.point_bounds import centroid, point_bounds
 from facesculpt.geometry.projection import (
     PROJECTIONS,
     pixel_ray,
@@ -31,6 +31,7 @@ __all__ = [
     "PROJECTIONS",
     "axes_velocity",
     "boundary_loops",
+    "centroid",
     "merge_deformation",
     "normalised_mean_error",
     "pixel_ray",

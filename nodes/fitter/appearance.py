@@ -25,9 +25,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from facesculpt.geometry.point_bounds import point_bounds
+from facesculpt.geometry.point_bounds import centroid, point_bounds
 from facesculpt.geometry.projection import project
 
+from .model import basis_combination
 from .pose import projection_jacobian, rodrigues, skew
 
 #: Image scales of the pyramid, coarse to fine, and Gauss-Newton steps at each.
@@ -175,12 +176,12 @@ class Refinement:
     def apply(self, vertices: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
         """(V, 3) float64: ``vertices`` refined (``basis`` (V, 3, k) as given to :func:`refine_pose`)."""
         X = np.asarray(vertices, np.float64)
-        return _moved(X, X.mean(axis=0), self.theta, None if basis is None else np.asarray(basis, np.float64))
+        return _moved(X, centroid(X), self.theta, None if basis is None else np.asarray(basis, np.float64))
 
 
 def _moved(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarray | None) -> np.ndarray:
     if basis is not None and len(theta) > 6:
-        X = X + basis @ theta[6:]
+        X = X + basis_combination(basis, theta[6:])
     return (X - centre) @ rodrigues(theta[:3]).T + centre + theta[3:6]
 
 
@@ -248,7 +249,7 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     temporal_weight = TEMPORAL_WEIGHT if temporal_weight is None else temporal_weight
     shape_weight = SHAPE_WEIGHT if shape_weight is None else shape_weight
     X = np.asarray(vertices, np.float64)
-    centre = X.mean(axis=0)
+    centre = centroid(X)
     k = 0 if basis is None else basis.shape[2]
     theta = np.zeros(6 + k) if start is None or len(start) != 6 + k else np.asarray(start, np.float64).copy()
     use = np.flatnonzero(weights > 0)
@@ -315,7 +316,7 @@ def track_pose(vertices: np.ndarray, K: np.ndarray | None, tracks: tuple, steps:
     (P, 3), offsets (P, 2), found (P, 2) px), each corner at its vertices' mixed pixels plus its
     offset (:mod:`.surface_features`); Huber weights beyond TRACK_HUBER_PX."""
     X = np.asarray(vertices, np.float64)
-    centre = X.mean(axis=0)
+    centre = centroid(X)
     tv, mix, offsets, found = tracks
     theta = np.zeros(6)
     for _ in range(steps):

@@ -19,11 +19,12 @@ import dataclasses
 import cv2
 import numpy as np
 
+from facesculpt.geometry.point_bounds import centroid
 from facesculpt.geometry.projection import project
 from facesculpt.geometry.vertex_normals import vertex_normals
 
 from . import appearance
-from .model import MorphableModel
+from .model import MorphableModel, basis_combination
 from .result import FitResult
 from .surface_features import surface_features, track_features
 
@@ -176,7 +177,7 @@ def refined_result(result: FitResult, found: appearance.Refinement, basis: np.nd
     (``model_basis`` (V, 3, k) the same in model space, mm), then its rigid motion; pixels by ``K``
     and ``projection``."""
     X = np.asarray(result.vertices, np.float64)
-    c = X.mean(axis=0)
+    c = centroid(X)
     k = len(found.shape)
     X = found.apply(X, basis)
     alpha = np.asarray(result.alpha, np.float32).copy()
@@ -184,4 +185,4 @@ def refined_result(result: FitResult, found: appearance.Refinement, basis: np.nd
     return dataclasses.replace(
         result, vertices=X.astype(np.float32), projected=project(X, K, projection).astype(np.float32),
         R=found.R @ np.asarray(result.R), t=found.R @ (np.asarray(result.t) - c) + c + found.t, alpha=alpha,
-        model_vertices=(result.model_vertices + (model_basis @ found.shape if k else 0)).astype(np.float32))
+        model_vertices=(result.model_vertices + (basis_combination(model_basis, found.shape) if k else 0)).astype(np.float32))

@@ -122,20 +122,24 @@ class MorphableModel:
         """Vertices (V, 3) float32, model space, for shape ``alpha`` (S,) and expression ``beta`` (E,)
         coefficients in standard deviations (missing trailing coefficients are zero)."""
         shape = self.mean.astype(np.float32).copy()
-        flat = shape.reshape(-1)
-        # each basis as one (3V, k) matrix times a vector: a (V, 3, k) @ (k,) product is
-        # batched over the vertices, several times slower
         if alpha is not None and len(alpha):
             a = np.asarray(alpha, np.float32)
-            flat += self.shape_basis.reshape(flat.size, -1)[:, : len(a)] @ (self.shape_std[: len(a)] * a)
+            shape += basis_combination(self.shape_basis[:, :, : len(a)], self.shape_std[: len(a)] * a)
         if beta is not None and len(beta):
             b = np.asarray(beta, np.float32)
-            flat += self.expression_basis.reshape(flat.size, -1)[:, : len(b)] @ (self.expression_std[: len(b)] * b)
+            shape += basis_combination(self.expression_basis[:, :, : len(b)], self.expression_std[: len(b)] * b)
         return shape
 
     def with_mean(self, mean: np.ndarray, source: str | None = None) -> MorphableModel:
         """A copy with another neutral mean (V, 3) (e.g. a learned per-person reference)."""
         return replace(self, mean=np.asarray(mean, np.float32), source=self.source if source is None else source)
+
+
+def basis_combination(basis: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """(V, 3): ``basis`` (V, 3, k) weighted by ``coefficients`` (k,), as one (3V, k) matrix times a
+    vector (``basis @ coefficients`` is a product batched over the vertices, several times slower)."""
+    V, _, k = basis.shape
+    return (basis.reshape(3 * V, k) @ coefficients).reshape(V, 3)
 
 
 def _fail(what: str) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facesculpt.geometry.point_bounds import centroid
 from facesculpt.geometry.projection import project_with_matrix
 
 # DLT on a spread-out subset: plenty for 11 unknowns, and cheap per frame.
@@ -78,7 +79,7 @@ def project(P: np.ndarray, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray
     X = np.asarray(vertices, np.float64)
     px, _ = project_with_matrix(P, X)
     M = P[:, :3]
-    centre = X.T @ np.full(len(X), 1.0 / len(X))   # X.mean(axis=0), as one matrix-vector product: a tenth of the time
+    centre = centroid(X)
     hc = M @ centre + P[:, 3]
     u, v = hc[0] / hc[2], hc[1] / hc[2]
     direction = np.cross(M[0] - u * M[2], M[1] - v * M[2])
