@@ -133,13 +133,13 @@ class AppearanceTemplate:
 
 
 def sample(image: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bilinear values (N,) float64 of ``image`` (H, W) float32 at ``pixels`` (N, 2) and which of
-    them lie inside it (N,) bool."""
+    """Bilinear values of ``image`` (H, W) or (H, W, C) float32 at ``pixels`` (N, 2): (N,) or
+    (N, C) float64, and which of them lie inside it (N,) bool."""
     h, w = image.shape[:2]
     p = np.asarray(pixels, np.float32).reshape(1, -1, 2)
     values = cv2.remap(image, p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     inside = (p[0, :, 0] >= 1) & (p[0, :, 1] >= 1) & (p[0, :, 0] < w - 2) & (p[0, :, 1] < h - 2)
-    return values.reshape(-1).astype(np.float64), inside
+    return values.reshape(len(inside), *image.shape[2:]).astype(np.float64), inside
 
 
 def _projection_jacobian(X: np.ndarray, K: np.ndarray | None) -> np.ndarray:
@@ -227,6 +227,15 @@ def _pixel_term(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.
     return J.T @ (J * w[:, None]), J.T @ (w * r.reshape(-1))
 
 
+def _pyramid_level(grey: np.ndarray, scale: float) -> np.ndarray:
+    """(h, w, 3) float32: ``grey`` (H, W) float32 resized by ``scale`` and smoothed, with its x and
+    y gradients (grey levels per pixel of the level) as the second and third channels, so that one
+    lookup gives all three."""
+    small = cv2.GaussianBlur(cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), (0, 0), 1.0)
+    return cv2.merge([small, cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
+                      cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0])
+
+
 def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
                 K: np.ndarray | None, anchors: np.ndarray, prior_weight: float | None = None,
                 basis: np.ndarray | None = None, shape_weight: float | None = None,
@@ -277,13 +286,12 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
         return Refinement(np.zeros(6 + k))
     B_use = None if basis is None else basis[use]
     for scale in LEVELS if levels is None else levels:
-        small = cv2.GaussianBlur(cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), (0, 0), 1.0)
-        gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-        gy = cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        levels_and_gradients = _pyramid_level(grey, scale)
         for _ in range(STEPS):
             Xm = _moved(X[use], centre, theta, B_use)
             px = (project(Xm, K, kind) - lo) * scale     # pixels of the cropped level
-            values, inside = sample(small, px)
+            looked_up, inside = sample(levels_and_gradients, px)
+            values = looked_up[:, 0]
             w = weights[use] * inside
             # lighting: the frame's grey = gain * template + bias (+ the components' mix), this step
             A = np.column_stack([template[use], np.ones(len(use))])
@@ -293,7 +301,7 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
                                    A.T @ (w * values))
             r = values - A @ coef
             w = w * np.where(np.abs(r) <= HUBER, 1.0, HUBER / np.maximum(np.abs(r), 1e-9))
-            grad = np.column_stack([sample(gx, px)[0], sample(gy, px)[0]]) * scale
+            grad = looked_up[:, 1:] * scale
             J = _image_jacobian(grad, Xm, centre, theta, B_use, K)
             H = J.T @ (J * w[:, None])
             g = J.T @ (w * r)
