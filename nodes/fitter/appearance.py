@@ -280,7 +280,8 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     # the face's box (grown by a margin the motion stays within) is all the pyramid needs
     px0 = project(X[use], K, kind)
     lo, hi = point_bounds(px0)
-    lo, hi = np.floor(lo - CROP_MARGIN * (hi - lo) - 8).astype(int).clip(0, None), np.ceil(hi + CROP_MARGIN * (hi - lo) + 8).astype(int)
+    margin = CROP_MARGIN * (hi - lo) + 8
+    lo, hi = np.floor(lo - margin).astype(int).clip(0, None), np.ceil(hi + margin).astype(int)
     grey = grey[lo[1]:hi[1], lo[0]:hi[0]]
     if min(grey.shape) < 8:
         return Refinement(np.zeros(6 + k))

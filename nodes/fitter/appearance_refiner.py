@@ -179,10 +179,11 @@ def refined_result(result: FitResult, found: appearance.Refinement, basis: np.nd
     X = np.asarray(result.vertices, np.float64)
     c = centroid(X)
     k = len(found.shape)
+    model_vertices = result.model_vertices + (basis_combination(model_basis, found.shape) if k else 0)
     X = found.apply(X, basis)
     alpha = np.asarray(result.alpha, np.float32).copy()
     alpha[:k] += found.shape.astype(np.float32)
     return dataclasses.replace(
         result, vertices=X.astype(np.float32), projected=project(X, K, projection).astype(np.float32),
         R=found.R @ np.asarray(result.R), t=found.R @ (np.asarray(result.t) - c) + c + found.t, alpha=alpha,
-        model_vertices=(result.model_vertices + (basis_combination(model_basis, found.shape) if k else 0)).astype(np.float32))
+        model_vertices=model_vertices.astype(np.float32))

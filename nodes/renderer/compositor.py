@@ -22,10 +22,10 @@ Per frame, on a box around the part of the face that moves only:
    camera moves) replaces the fill where it is known, fading into it at its border;
 5. the input frame is sampled once at the source positions of the changed pixels (full
    resolution; by default a long windowed sinc, :mod:`.sinc_sampling`; :mod:`.warp`) and
-   blended over the background with a soft edge inside the deformed outline, as wide as ``feather_px`` or ``FEATHER_FRACTION`` of
-   the face's size if that is more; where the source map jumps (a fold of the moved surface)
-   the changed pixels are anti-aliased. Only changed and inpainted pixels are written: every
-   other pixel is the input's, bit for bit, by construction.
+   blended over the background with a soft edge inside the deformed outline, as wide as
+   ``feather_px`` or ``FEATHER_FRACTION`` of the face's size if that is more; where the source
+   map jumps (a fold of the moved surface) the changed pixels are anti-aliased. Only changed and
+   inpainted pixels are written: every other pixel is the input's, bit for bit, by construction.
 6. with ``atlas`` on (issue 16), the face's texture memory (:mod:`.texture_atlas`) is updated
    from the input frame (every ``atlas_every`` frames; :mod:`.atlas_raster`), and where the
    input sees a changed pixel's surface badly (the source map stretches it more than

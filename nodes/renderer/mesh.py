@@ -38,8 +38,8 @@ def close_holes(triangles: np.ndarray) -> np.ndarray:
 
 def vertex_rings(triangles: np.ndarray, n_vertices: int, rings: int) -> sp.csr_matrix:
     """(V, V) float32 sparse R with R[i, j] > 0 where vertex j lies within ``rings`` edges of
-    vertex i (itself included, if some triangle has it) over ``triangles`` (T, 3) int: ``R @ marked > 0`` marks the
-    vertices near any of the ``marked`` (V,) ones."""
+    vertex i (itself included, if some triangle has it) over ``triangles`` (T, 3) int:
+    ``R @ marked > 0`` marks the vertices near any of the ``marked`` (V,) ones."""
     tri = np.asarray(triangles, np.int64)
     used = np.unique(tri)   # a vertex of no triangle is near nothing, not even itself
     rows = np.concatenate([tri[:, a] for a in (0, 0, 1, 1, 2, 2)] + [used])

@@ -33,11 +33,14 @@ def half_sample_taps(lobes: int = LOBES) -> np.ndarray:
     return (taps / taps.sum()).astype(np.float32)
 
 
+TAPS = half_sample_taps()   # made once: every frame's upsampling uses them
+
+
 def upsample2x(image: np.ndarray, taps: np.ndarray | None = None) -> np.ndarray:
     """(2h, 2w, 3) uint8: ``image`` (h, w, 3) uint8 upsampled by two; its pixel (2y, 2x) is the
     image's pixel (y, x), the others are interpolated by the ``taps`` (:func:`half_sample_taps`)
-    across, down, and both. Edge pixels are replicated."""
-    taps = half_sample_taps() if taps is None else taps
+    across, down, and both (default TAPS). Edge pixels are replicated."""
+    taps = TAPS if taps is None else taps
     a = len(taps) // 2 - 1   # the anchor: the tap of the pixel just before the half-way point
     # four channels, so that a pixel is one uint32 and the interleaving below is one fast copy
     even = cv2.cvtColor(image, cv2.COLOR_BGR2BGRA)
