@@ -33,6 +33,7 @@ def env(tmp_path):
     (("camera", "source=57"), "facesculpt: camera: cannot open webcam 57"),
     (("camera", "source=missing.mp4"), "facesculpt: camera: "),
     (("renderer", "window=true"), "facesculpt: renderer: window=true needs a display"),
+    (("renderer", "outline_band=wide"), "facesculpt: renderer: outline_band must be auto or a share"),
 ])
 def test_a_misconfigured_node_stops_with_its_reason(args, sentence, env, tmp_path):
     result = _cli("run", *args, env=env, cwd=tmp_path)

@@ -78,7 +78,7 @@ def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_pa
 
     # Each frame comes back composited exactly as the library composites it (Eq. 5 merge of the
     # edit into the state's pose, then the compositor); the faceless one unchanged, bit for bit.
-    comp = Compositor(W, H, outline_band=0.0)  # the live renderer's default
+    comp = Compositor(W, H)  # the library's defaults: the live renderer's at this size
     for i, frame in enumerate(frames):
         out = feeder.rendered[(i + 1) * 40 * MS]
         if i == no_face:

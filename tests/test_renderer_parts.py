@@ -9,12 +9,14 @@ from renderer_scene import read_frames
 
 from facesculpt.geometry import boundary_loops, point_bounds
 from facesculpt.nodes.renderer.camera import estimate_projection, project
+from facesculpt.nodes.renderer.compositor import OUTLINE_BAND
+from facesculpt.nodes.renderer.frame_size_defaults import auto_interpolation, auto_outline_band
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
 from facesculpt.nodes.renderer.mesh import close_holes, vertex_rings
 from facesculpt.nodes.renderer.sinc_sampling import sample_sinc, upsample2x
 from facesculpt.nodes.renderer.subdivision import levels_for, loop_subdivision
 from facesculpt.nodes.renderer.video_out import VideoOutput
-from facesculpt.nodes.renderer.warp import auto_interpolation, sample
+from facesculpt.nodes.renderer.warp import sample
 
 
 # -- sampling -------------------------------------------------------------------------------
@@ -65,6 +67,15 @@ def test_the_live_renderers_auto_kernel_is_the_sinc_below_720p():
     assert auto_interpolation("auto", 856, 480) == "sinc"
     assert auto_interpolation("auto", 1280, 720) == auto_interpolation("auto", 1920, 1080) == "cubic"
     assert auto_interpolation("lanczos", 856, 480) == "lanczos"
+
+
+def test_the_live_renderers_auto_outline_band_is_the_offline_one_below_720p():
+    assert auto_outline_band("auto", 856, 480) == OUTLINE_BAND > 0
+    assert auto_outline_band("auto", 1280, 720) == auto_outline_band("auto", 3840, 2160) == 0.0
+    assert auto_outline_band("0.1", 1920, 1080) == auto_outline_band(0.1, 640, 480) == 0.1   # YAML gives either
+    for bad in ("wide", "-0.05", 0.8, "nan", None):
+        with pytest.raises(ValueError, match="outline_band must be auto or a share"):
+            auto_outline_band(bad, 856, 480)
 
 
 # -- fills ------------------------------------------------------------------------------------

@@ -42,6 +42,7 @@ from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
 from .compositor import OUTLINE_BAND, Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
+from .frame_size_defaults import MAX_OUTLINE_BAND, auto_interpolation, auto_outline_band
 from .inpaint import FILL_METHODS
 from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
@@ -53,7 +54,6 @@ from .pose_edit import (
     PoseEdits,
 )
 from .texture_atlas import uv_layout
-from .warp import auto_interpolation
 
 
 class RendererNode(Node):
@@ -91,10 +91,11 @@ class RendererNode(Node):
                                range=(1, 100000)),
         "feather_px": Param(3.0, "soft edge inside the deformed outline, px", range=(0.0, 100.0)),
         "dilate_px": Param(2, "growth of the region to inpaint, px", range=(0, 100)),
-        "outline_band": Param(0.0, f"how far past the fitted outline a shape edit's motion is carried, fading "
-                                   f"out, as a share of the face's size (a real outline the fit lies inside moves "
-                                   f"with the face; {OUTLINE_BAND} as process does; 0, the live default: not at "
-                                   f"all, it costs the renderer about 3 ms a 720p frame)", range=(0.0, 0.5)),
+        "outline_band": Param("auto", f"how far past the fitted outline a shape edit's motion is carried, fading "
+                                      f"out, as a share of the face's size (a real outline the fit lies inside moves "
+                                      f"with the face), in [0, {MAX_OUTLINE_BAND}]; 0: not at all; auto: {OUTLINE_BAND} "
+                                      f"as process does for frames smaller than 1280x720, 0 from there on, where the "
+                                      f"renderer limits the frame rate"),
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),
@@ -139,6 +140,10 @@ class RendererNode(Node):
         if p.window and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
             raise ConfigurationError("renderer: window=true needs a display (DISPLAY is not set); "
                                      "use output=FILE.mp4 or publish=true to run headless")
+        try:
+            auto_outline_band(p.outline_band, 1, 1)
+        except ValueError as exc:
+            raise ConfigurationError(f"renderer: {exc}") from None
         qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))
@@ -291,7 +296,7 @@ class RendererNode(Node):
             ctx = self.window.ctx
         p = self.params
         self.compositor = Compositor(width, height, ctx=ctx, inpaint=p.inpaint, feather_px=p.feather_px,
-                                     outline_band=p.outline_band,
+                                     outline_band=auto_outline_band(p.outline_band, width, height),
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
                                      atlas_every=p.atlas_every, atlas_thread=True,
                                      plate=p.plate == "on", plate_max_age=p.plate_max_age,

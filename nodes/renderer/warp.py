@@ -30,17 +30,6 @@ IDENTITY_PX = 1.0e-3       # offsets shorter than this (pixels) leave the pixel 
 FOLD_JUMP_PX = 1.0         # offset change between neighbours (pixels) that marks a fold
 OPENCV_KERNELS = {"cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4, "linear": cv2.INTER_LINEAR}
 INTERPOLATIONS = ("sinc", *OPENCV_KERNELS)   # the kernels :func:`sample` knows
-#: From this many pixels a frame on, the live renderer is what limits the graph's frame rate, and
-#: its "auto" kernel is the bicubic rather than the sinc (about twice the sampling time).
-AUTO_SINC_BELOW_PIXELS = 1280 * 720
-
-
-def auto_interpolation(interpolation: str, width: int, height: int) -> str:
-    """The kernel for frames of ``width`` x ``height`` pixels: ``interpolation`` itself, or for
-    "auto" the sinc below AUTO_SINC_BELOW_PIXELS pixels and the bicubic from there on."""
-    if interpolation != "auto":
-        return interpolation
-    return "sinc" if width * height < AUTO_SINC_BELOW_PIXELS else "cubic"
 
 
 def sample(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interpolation: str = "cubic") -> np.ndarray:

@@ -1,0 +1,43 @@
+"""The live renderer's "auto" choices, by frame size.
+
+From :data:`LARGE_FRAME_PIXELS` pixels a frame on, the renderer is what limits the live graph's
+frame rate, so its "auto" settings trade a little quality for time there: the bicubic kernel
+instead of the sinc (:func:`auto_interpolation`), and no outline band (:func:`auto_outline_band`).
+Below it every path (window, graph, ``process``, demo) composites alike.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .compositor import OUTLINE_BAND
+
+#: Frames with at least this many pixels (1280x720 and up) get the cheaper "auto" settings.
+LARGE_FRAME_PIXELS = 1280 * 720
+#: The largest outline band a renderer takes (share of the face's size).
+MAX_OUTLINE_BAND = 0.5
+
+
+def auto_interpolation(interpolation: str, width: int, height: int) -> str:
+    """The kernel for frames of ``width`` x ``height`` pixels: ``interpolation`` itself, or for
+    "auto" the sinc below :data:`LARGE_FRAME_PIXELS` pixels and the bicubic from there on."""
+    if interpolation != "auto":
+        return interpolation
+    return "sinc" if width * height < LARGE_FRAME_PIXELS else "cubic"
+
+
+def auto_outline_band(band: str | float, width: int, height: int) -> float:
+    """The outline band (share of the face's size) for frames of ``width`` x ``height`` pixels:
+    ``band`` itself (a number, or its text, in [0, MAX_OUTLINE_BAND]), or for "auto" the
+    compositor's OUTLINE_BAND below :data:`LARGE_FRAME_PIXELS` pixels and 0 (no band) from there
+    on. ValueError, in one sentence, for anything else."""
+    if isinstance(band, str) and band.strip() == "auto":
+        return OUTLINE_BAND if width * height < LARGE_FRAME_PIXELS else 0.0
+    try:
+        value = float(band)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not 0.0 <= value <= MAX_OUTLINE_BAND:
+        raise ValueError(f"outline_band must be auto or a share of the face's size in [0, {MAX_OUTLINE_BAND}], "
+                         f"got {band!r}")
+    return value
