@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import csr_matrix
 
+from facesculpt.geometry import point_bounds
+
 
 def nose_region(mean: np.ndarray, landmarks: dict[str, int]) -> np.ndarray:
     """(V,) bool: the protruding nose — vertices between the nose bridge (iBUG 28) and 3 mm below the
@@ -134,9 +136,9 @@ def occluded(
     ``cell`` px, about one mesh edge) lies more than ``tolerance`` closer to the camera. A coarse
     vertex-splat z-buffer: enough to drop outline candidates hidden behind the nose; the tolerance
     must exceed the depth range a grazing surface spans within one cell (the silhouette itself)."""
-    lo = all_xy.min(axis=0)
+    lo = point_bounds(all_xy)[0]
     gi = np.floor((all_xy - lo) / cell).astype(np.int64)
-    shape = gi.max(axis=0) + 3
+    shape = point_bounds(gi)[1] + 3
     zbuf = np.full(shape[0] * shape[1], np.inf)
     flat = (gi[:, 0] + 1) * shape[1] + (gi[:, 1] + 1)
     np.minimum.at(zbuf, flat, all_depth)

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from facesculpt.geometry import point_bounds
+
 from .warp import covered_pixels, warp_frame
 
 #: A keyframe is used only when its view is this much closer (degrees) than the current frame's.
@@ -91,7 +93,7 @@ class KeyframeViews:
         elif len(self.keyframes) >= self.max_keyframes:
             del self.keyframes[int(np.argmin([k.frame for k in self.keyframes]))]
         px = np.asarray(pixels, np.float64)
-        lo, hi = px.min(axis=0), px.max(axis=0)
+        lo, hi = point_bounds(px)
         pad = CROP_MARGIN * float(np.max(hi - lo)) + 4.0   # the sampling kernel reads a few pixels around
         h, w = image.shape[:2]
         x0, y0 = max(0, int(lo[0] - pad)), max(0, int(lo[1] - pad))
