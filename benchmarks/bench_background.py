@@ -12,7 +12,8 @@ synthetic set, and the plate on a real video.
    calibrate on the first ``--neutral-frames``, the preset solved once, then every frame analysed
    once) and each frame composited by one compositor per method (``pushpull``, ``telea``, ``ns``,
    ``patch``, ``drag`` (the background beside the face carried in by its motion), ``plate``
-   (push-pull under the plate), ``patch+plate``, ``drag+plate``): the fills differ only
+   (push-pull under the plate), ``patch+plate``, ``drag+plate``, and ``plate-face-only``: the plate
+   learning everywhere outside the face, people included, as before the person segmentation): the fills differ only
    in the compositor, so the fits are shared; process --fill/--plate runs the same compositor.
 3. Scored over the frames after the neutral: fill-region PSNR (dB) and SSIM, the region being
    the pixels that were face in the input and are background in the ground truth; "do nothing"
@@ -65,7 +66,8 @@ EDITS = {
 }
 METHODS = {"pushpull": ("pushpull", False), "telea": ("telea", False), "ns": ("ns", False),
            "patch": ("patch", False), "drag": ("drag", False), "plate": ("pushpull", True),
-           "patch+plate": ("patch", True), "drag+plate": ("drag", True)}
+           "patch+plate": ("patch", True), "drag+plate": ("drag", True),
+           "plate-face-only": ("pushpull", "face only")}
 SWAY_PERIOD = 50
 REAL_PRESET = Path(__file__).resolve().parent.parent / "nodes" / "deformer" / "presets" / "cheeks.json"
 
@@ -126,12 +128,15 @@ def cluttered_background(base: np.ndarray, seed: int = 3) -> np.ndarray:
 
 def compositors(names: list[str], size: tuple[int, int]) -> dict:
     from facesculpt.nodes.renderer import Compositor
+    from facesculpt.nodes.renderer.person_segmentation import PersonSegmenter
 
     first = None
     out = {}
+    people = PersonSegmenter() if any(METHODS[m][1] is True for m in names) else None
     for m in names:
-        fill, plate = METHODS[m]
-        out[m] = Compositor(size[0], size[1], ctx=first.ctx if first else None, inpaint=fill, plate=plate)
+        fill, plate = METHODS[m]  # plate True: as process --plate on (no person learned); "face only": as before
+        out[m] = Compositor(size[0], size[1], ctx=first.ctx if first else None, inpaint=fill, plate=bool(plate),
+                            segmenter=people if plate is True else None)
         first = first or out[m]
     return out
 
@@ -240,8 +245,9 @@ def real_video(args, data: Path, out: Path) -> dict:
     pipe = Pipeline("facemesh", neutral_frames=args.neutral_frames)
     pipe.calibrate(frames[: args.neutral_frames], 25.0)
     pipe.set_edits(read_preset(REAL_PRESET))
-    comps = compositors(["pushpull", "plate"], (W, H))
-    share, flick_out, flick_in, best = [], [], [], (-1.0, None)
+    plates = ["plate", "plate-face-only"]
+    comps = compositors(["pushpull"] + plates, (W, H))
+    share, flick_out, flick_in, best = {m: [] for m in plates}, [], [], (-1.0, None)
     prev = None
     for i, frame in enumerate(frames):
         fits, timings = pipe.analyse(frame, i / 25.0)
@@ -249,19 +255,22 @@ def real_video(args, data: Path, out: Path) -> dict:
         for m, comp in comps.items():
             pipe.compositor = comp
             outs[m] = pipe.compose(frame, fits, dict(timings)).image
-        comp = comps["plate"]
-        uncovered = np.zeros((H, W), bool)
-        plate_w = np.zeros((H, W), np.float32)
-        if comp.box is not None and comp.inpainted_region is not None:
-            x0, y0, x1, y1 = comp.box
-            uncovered[y0:y1, x0:x1] = (comp.inpainted_region != 0) & (comp.deformed_region == 0)
-            if comp.plate_region is not None:
-                plate_w[y0:y1, x0:x1] = comp.plate_region
-        n = int(uncovered.sum())
-        s = float((plate_w[uncovered] >= 0.5).mean()) if n else float("nan")
-        share.append(s)
-        if n and s * n > best[0]:  # the frame where the plate gives the most pixels
-            best = (s * n, i, outs, frame, uncovered)
+        for m in plates:
+            comp = comps[m]
+            uncovered = np.zeros((H, W), bool)
+            plate_w = np.zeros((H, W), np.float32)
+            if comp.box is not None and comp.inpainted_region is not None:
+                x0, y0, x1, y1 = comp.box
+                uncovered[y0:y1, x0:x1] = (comp.inpainted_region != 0) & (comp.deformed_region == 0)
+                if comp.plate_region is not None:
+                    plate_w[y0:y1, x0:x1] = comp.plate_region
+            n = int(uncovered.sum())
+            s = float((plate_w[uncovered] >= 0.5).mean()) if n else float("nan")
+            share[m].append(s)
+            if m == "plate":
+                plate_uncovered = uncovered
+            if m == plates[-1] and n and s * n > best[0]:  # the frame where the face-only plate gives the most
+                best = (s * n, i, outs, frame, uncovered)
         face = np.zeros((H, W), np.uint8)
         if fits:
             hull = cv2.convexHull(np.asarray(fits[min(fits)].projected, np.float32)).astype(np.int32)
@@ -270,10 +279,10 @@ def real_video(args, data: Path, out: Path) -> dict:
         if prev is not None:
             g = [cv2.cvtColor(x, cv2.COLOR_BGR2GRAY).astype(float) for x in (frame, prev[0], outs["plate"], prev[1])]
             flick_in.append(float(np.abs(g[0] - g[1])[far & prev[3]].mean()))
-            both = uncovered & prev[2]
+            both = plate_uncovered & prev[2]
             if both.any():
                 flick_out.append(float(np.abs(g[2] - g[3])[both].mean()))
-        prev = (frame, outs["plate"], uncovered, far)
+        prev = (frame, outs["plate"], plate_uncovered, far)
     pipe.compositor = None
     pipe.close()
     for comp in comps.values():
@@ -285,7 +294,8 @@ def real_video(args, data: Path, out: Path) -> dict:
         side = int(min(max(xs.max() - xs.min(), ys.max() - ys.min(), 120) + 80, W, H))
         x0, y0 = int(np.clip(cx - side // 2, 0, W - side)), int(np.clip(cy - side // 2, 0, H - side))
         box = [(x0, y0, x0 + side, y0 + side)]
-        panels = [[(f"input frame {i}", frame), ("push-pull", outs["pushpull"]), ("plate", outs["plate"])]]
+        panels = [[(f"input frame {i}", frame), ("push-pull", outs["pushpull"]), ("plate", outs["plate"]),
+                   ("plate, face only", outs["plate-face-only"])]]
         cv2.imwrite(str(out / f"real_{args.real_video}.png"), side_by_side(panels, box))
     return {"video": args.real_video, "share": share, "best_frame": best[1],
             "flicker_uncovered": float(np.mean(flick_out)) if flick_out else float("nan"),
@@ -322,11 +332,12 @@ def markdown(report: dict, args) -> str:
         for m in args.models)]
     if report.get("real"):
         r = report["real"]
-        s = np.array(r["share"], float)
-        chunks = [f"{i}-{min(i + 15, len(s)) - 1}: {np.nanmean(s[i:i + 15]):.2f}" for i in range(0, len(s), 15)
-                  if np.isfinite(s[i:i + 15]).any()]
-        lines += ["", f"Real video {r['video']}: plate share of the uncovered pixels by frames: " + "; ".join(chunks),
-                  f"flicker in the uncovered region {r['flicker_uncovered']:.2f}, input background "
+        for m, share in r["share"].items():
+            s = np.array(share, float)
+            chunks = [f"{i}-{min(i + 15, len(s)) - 1}: {np.nanmean(s[i:i + 15]):.2f}" for i in range(0, len(s), 15)
+                      if np.isfinite(s[i:i + 15]).any()]
+            lines += ["", f"Real video {r['video']}, {m}: share of the uncovered pixels by frames: " + "; ".join(chunks)]
+        lines += [f"flicker in the uncovered region {r['flicker_uncovered']:.2f}, input background "
                   f"{r['flicker_input_background']:.2f}; picture at frame {r['best_frame']}"]
     return "\n".join(lines) + "\n"
 

@@ -14,7 +14,8 @@ Measured per frame (medians, ms): the compositor's stages (camera recovery with 
 vertices, draw (the source map), readback, masks (regions, uncovered mask, sources), inpaint (the
 fill), texture (the frame sampled through the source map), composite) and its total, with the
 push-pull fill, with Telea on the bounding box, with the drag fill (the default), with Navier-Stokes,
-with the patch fill, with the background plate on (issue 16: push-pull, patch or drag under it), with Lanczos-4 sampling instead of bicubic, and
+with the patch fill, with the background plate on (issue 16: push-pull, patch or drag under it; people kept off it as
+in process, and with drag once learning everywhere outside the face as before), with Lanczos-4 sampling instead of bicubic, and
 the whole render of the baseline compositor (``--baseline``, default the commit before the
 source-map warp: texture round trip, no subdivision), loaded from git; the peer cv2.inpaint(TELEA, radius 3) of the same uncovered mask on the full
 frame; and a GPU variant of the composite step (upload background + alpha, blend in a shader,
@@ -43,12 +44,14 @@ from renderer_scene import issue_edit, place_fitted, place_marked, read_frames  
 
 from facesculpt.geometry import merge_deformation  # noqa: E402
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
+from facesculpt.nodes.renderer.person_segmentation import NETWORK_FILE, PersonSegmenter  # noqa: E402
 from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
 from facesculpt.runtime.process_limits import limit_threads  # noqa: E402
 
 BASELINE_REV = "7c619da"  # the compositor before the source-map warp (issue 15)
 FILL_VARIANTS = (("drag", "drag", False), ("ns", "ns", False), ("patch", "patch", False),
-                 ("pushpull+plate", "pushpull", True), ("patch+plate", "patch", True), ("drag+plate", "drag", True))
+                 ("pushpull+plate", "pushpull", True), ("patch+plate", "patch", True), ("drag+plate", "drag", True),
+                 ("drag+plate-face-only", "drag", "face only"))  # plate True: people kept off it, as in process
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
 SIZE = (856, 480)
@@ -173,8 +176,10 @@ def main(argv=None) -> int:
     comps = {m: Compositor(W, H, inpaint=m) for m in ("pushpull", "telea")}
     comps["lanczos"] = Compositor(W, H, ctx=comps["pushpull"].ctx, interpolation="lanczos")
     # issue 16: the other fills and the background plate (learned every frame, registered)
+    people = PersonSegmenter() if (model_home() / NETWORK_FILE).is_file() else None
     for name, fill, plate in FILL_VARIANTS:
-        comps[name] = Compositor(W, H, ctx=comps["pushpull"].ctx, inpaint=fill, plate=plate)
+        comps[name] = Compositor(W, H, ctx=comps["pushpull"].ctx, inpaint=fill, plate=bool(plate),
+                                 segmenter=people if plate is True else None)
     Baseline = baseline_compositor(args.baseline) if args.baseline else None
     if Baseline is not None:
         comps["baseline"] = Baseline(W, H, ctx=comps["pushpull"].ctx)

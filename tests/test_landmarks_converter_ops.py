@@ -55,6 +55,12 @@ class _ModelWriter:
         o.builtinOptionsType, o.builtinOptions = options_type, options
         self.operators.append(o)
 
+    def conv(self, x, out, weights, bias, padding=None, stride=1):
+        """A CONV_2D of ``x`` into ``out`` (tensor indices), no activation, SAME padding by default."""
+        self.op(OP.CONV_2D, [x, weights, bias], [out], OPT.Conv2DOptions,
+                _options(schema.Conv2DOptionsT, padding=schema.Padding.SAME if padding is None else padding,
+                         strideW=stride, strideH=stride, dilationWFactor=1, dilationHFactor=1))
+
     def finish(self, inputs, outputs) -> bytes:
         sub = schema.SubGraphT()
         sub.tensors, sub.inputs, sub.outputs, sub.operators = self.tensors, inputs, outputs, self.operators
@@ -125,17 +131,25 @@ def test_small_models_match_litert(seed, tmp_path):
     graph = read_tflite(data)
     assert [op.name for op in graph.operators][:2] == ["DEQUANTIZE", "DEPTHWISE_CONV_2D"]
     assert graph.operators[1].options["depth_multiplier"] == 2
-    path = tmp_path / "model.tflite"
-    path.write_bytes(data)
-    interpreter = Interpreter(model_path=str(path))
-    interpreter.allocate_tensors()
-    session = ort.InferenceSession(convert_tflite(data).SerializeToString(), providers=["CPUExecutionProvider"])
     for trial in range(3):
         x = np.random.default_rng(100 + trial).uniform(-2, 2, (1, 9, 11, 3)).astype(np.float32)
-        interpreter.set_tensor(interpreter.get_input_details()[0]["index"], x)
-        interpreter.invoke()
-        ours = session.run(None, {"input": x})
-        for out, detail in zip(ours, interpreter.get_output_details()):
-            ref = interpreter.get_tensor(detail["index"])
-            assert out.shape == ref.shape
-            np.testing.assert_allclose(out, ref, atol=1e-5, rtol=1e-5)
+        assert_matches_litert(data, data, x, tmp_path)
+
+
+def assert_matches_litert(reference: bytes, converted: bytes, x: np.ndarray, tmp_path, tol: float = 1e-5) -> list:
+    """Run ``reference`` (TFLite bytes) in LiteRT and ``converted`` (TFLite bytes, converted to ONNX)
+    in onnxruntime on the input ``x`` (named "input"); assert every output matches within ``tol``
+    (absolute and relative); returns the ONNX outputs."""
+    path = tmp_path / "model.tflite"
+    path.write_bytes(reference)
+    interpreter = Interpreter(model_path=str(path))
+    interpreter.allocate_tensors()
+    session = ort.InferenceSession(convert_tflite(converted).SerializeToString(), providers=["CPUExecutionProvider"])
+    interpreter.set_tensor(interpreter.get_input_details()[0]["index"], x)
+    interpreter.invoke()
+    ours = session.run(None, {"input": x})
+    for out, detail in zip(ours, interpreter.get_output_details()):
+        ref = interpreter.get_tensor(detail["index"])
+        assert out.shape == ref.shape
+        np.testing.assert_allclose(out, ref, atol=tol, rtol=tol)
+    return ours

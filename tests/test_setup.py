@@ -57,7 +57,8 @@ def test_setup_writes_networks_triangles_and_a_manifest_of_hashes(fresh_home):
     manifest = json.loads((fresh_home / MANIFEST_FILE).read_text())
     assert manifest["mediapipe_version"] == "0.10.14"
     assert manifest["wheel_sha256"] == WHEEL_SHA256
-    expected = {f"{name}.{ext}" for name in ("face_detector", "face_landmark", "palm_detector", "hand_landmark")
+    expected = {f"{name}.{ext}" for name in ("face_detector", "face_landmark", "palm_detector", "hand_landmark",
+                                            "person_segmentation")
                 for ext in ("onnx", "tflite")} | {TRIANGLES_FILE}
     assert set(manifest["files"]) == expected
     for name, entry in manifest["files"].items():

@@ -180,6 +180,10 @@ class Pipeline:
                                    "interpolation": interpolation}
         if outline_band is not None:
             self.compositor_options["outline_band"] = float(outline_band)
+        if plate == "on":  # the plate learns nothing where a person is (their hair, neck, shoulders)
+            from facesculpt.nodes.renderer.person_segmentation import PersonSegmenter
+
+            self.compositor_options["segmenter"] = PersonSegmenter(models_dir, threads)
         self.expression = bool(expression)
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
@@ -262,6 +266,8 @@ class Pipeline:
         if not (isinstance(frame_bgr, np.ndarray) and frame_bgr.dtype == np.uint8 and frame_bgr.ndim == 3
                 and frame_bgr.shape[2] == 3):
             raise ValueError("frames must be (H, W, 3) uint8 BGR")
+        if self.compositor is not None:  # what the compositor needs of the frame alone starts now
+            self.compositor.prefetch(frame_bgr)
         timings: dict[str, float] = {}
         fits = self.fit_faces(frame_bgr, stamp_s, timings)
         for key, fit in fits.items():

@@ -115,8 +115,9 @@ def register(sub) -> None:
                         "beside the face carried in by its motion, the default), pushpull (smooth), telea / ns "
                         "(OpenCV inpainting), patch (background copied in from nearby)")
     p.add_argument("--plate", choices=("on", "off"), default="off",
-                   help="keep a background plate (the background seen behind the face in other frames, registered "
-                        "when the camera moves) and take what an edit uncovers from it where known (default off)")
+                   help="keep a background plate (the background seen behind the face and the person in other frames, "
+                        "registered when the camera moves) and take what an edit uncovers from it where known "
+                        "(default off)")
     p.add_argument("--outline-band", type=float, default=None, metavar="S",
                    help="carry an edit's motion this far past the fitted outline, fading out, as a share of the "
                         "face's size, so a real outline the fit lies inside moves with the face (default 0.05; "

@@ -1,7 +1,8 @@
-"""`facesculpt setup`: fetch the face and hand networks once and convert them to ONNX.
+"""`facesculpt setup`: fetch the face, hand and person networks once and convert them to ONNX.
 
 The networks are the face detector (short range), the 468-point face mesh, the palm detector
-(full) and the 21-point hand landmark network (full) that the ``mediapipe==0.10.14`` wheel on
+(full), the 21-point hand landmark network (full) and the selfie (person) segmentation (general,
+256x256) that the ``mediapipe==0.10.14`` wheel on
 PyPI ships as .tflite files (Apache-2.0). Setup downloads that
 exact wheel with ``pip download --no-deps`` (fixed python version and platform, so any
 interpreter fetches the same file), checks its sha256, extracts the networks and the mesh
@@ -11,6 +12,7 @@ tessellation (read as data), converts the networks with the project's own conver
 
     face_detector.onnx, face_landmark.onnx    the converted face networks (run by onnxruntime)
     palm_detector.onnx, hand_landmark.onnx    the converted hand networks
+    person_segmentation.onnx                   the converted person segmentation (the plate's mask)
     *.tflite (same names)                      the originals (reference for tests/benchmarks)
     facemesh_triangles.npy                     (T, 3) int32 triangles of the 468-point mesh
     manifest.json                              versions and the sha256 of every file
@@ -56,6 +58,7 @@ NETWORKS = {
     "face_landmark": "mediapipe/modules/face_landmark/face_landmark.tflite",
     "palm_detector": "mediapipe/modules/palm_detection/palm_detection_full.tflite",
     "hand_landmark": "mediapipe/modules/hand_landmark/hand_landmark_full.tflite",
+    "person_segmentation": "mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite",
 }
 CONNECTIONS_MEMBER = "mediapipe/python/solutions/face_mesh_connections.py"
 TRIANGLES_FILE = "facemesh_triangles.npy"

@@ -44,6 +44,8 @@ BUILTIN_OPERATORS = [
     "SPLIT", "LOG_SOFTMAX", "DELEGATE", "BIDIRECTIONAL_SEQUENCE_LSTM", "CAST", "PRELU", "MAXIMUM",
     "ARG_MAX", "MINIMUM", "LESS", "NEG", "PADV2", "GREATER", "GREATER_EQUAL", "LESS_EQUAL",
 ]
+# Later codes the converted networks use, by name.
+LATER_OPERATORS = {117: "HARD_SWISH"}
 
 # Builtin options tables we decode: operator -> [(field, struct format, default)] in slot order.
 _PADDING = "padding"  # Padding enum: 0 SAME, 1 VALID
@@ -93,13 +95,15 @@ class Tensor:
 
 @dataclass
 class Operator:
-    """One operator: ``name`` is the builtin operator name (or the custom code)."""
+    """One operator: ``name`` is the builtin operator name (or the custom code);
+    ``custom_options`` a custom operator's raw option bytes (its own format)."""
 
     name: str
     inputs: list[int]
     outputs: list[int]
     options: dict = field(default_factory=dict)
     custom: bool = False
+    custom_options: bytes = b""
 
 
 @dataclass
@@ -187,7 +191,7 @@ def _operator_name(code: _Table) -> tuple[str, bool]:
         return code.string(1) or "CUSTOM", True
     if builtin < len(BUILTIN_OPERATORS):
         return BUILTIN_OPERATORS[builtin], False
-    return f"BUILTIN_{builtin}", False
+    return LATER_OPERATORS.get(builtin, f"BUILTIN_{builtin}"), False
 
 
 def _options(name: str, op: _Table) -> dict:
@@ -257,7 +261,8 @@ def read_tflite(data: bytes) -> TfliteGraph:
         tensors.append(Tensor(i, t.string(3), shape, dtype, arr))
     operators = []
     for op in graph.tables(3):
-        # Operator: opcode_index (0), inputs (1), outputs (2), options type (3), options (4).
+        # Operator: opcode_index (0), inputs (1), outputs (2), options type (3), options (4),
+        # custom options (5).
         index = op.scalar(0, "I", 0)
         if index >= len(codes):
             raise TfliteFormatError(f"operator code index {index} out of range")
@@ -268,6 +273,7 @@ def read_tflite(data: bytes) -> TfliteGraph:
             outputs=[int(v) for v in op.vector(2, np.int32)],
             options={} if custom else _options(name, op),
             custom=custom,
+            custom_options=op.vector(5, np.uint8).tobytes() if custom else b"",
         ))
     return TfliteGraph(
         tensors=tensors,

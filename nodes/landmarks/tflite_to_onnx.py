@@ -1,4 +1,5 @@
-"""The project's own TFLite -> ONNX converter, for the operators of mediapipe's face and hand networks.
+"""The project's own TFLite -> ONNX converter, for the operators of mediapipe's face, hand and selfie
+segmentation networks.
 
 Layout: TFLite is NHWC, ONNX convolutions are NCHW. The converted graph keeps the TFLite
 model's NHWC inputs and outputs (so the same arrays feed both runtimes) and runs NCHW
@@ -11,9 +12,10 @@ into a float32 initializer, exactly; weights are permuted to ONNX layouts at con
 
 Supported operators (those of the face networks and of the palm detector and hand landmark
 networks): DEQUANTIZE (float16 constants), CONV_2D, DEPTHWISE_CONV_2D (any depth multiplier),
-PRELU, ADD, MAX_POOL_2D, AVERAGE_POOL_2D, PAD, RELU, RELU6, LOGISTIC, TANH, RESHAPE,
-CONCATENATION, MEAN, FULLY_CONNECTED (constant weights), RESIZE_BILINEAR (constant size; the
-three sampling rules). Anything else raises :class:`UnsupportedOperatorError` naming it.
+PRELU, ADD, MUL, MAX_POOL_2D, AVERAGE_POOL_2D, PAD, RELU, RELU6, HARD_SWISH, LOGISTIC, TANH,
+RESHAPE, CONCATENATION, MEAN, FULLY_CONNECTED (constant weights), RESIZE_BILINEAR (constant size;
+the three sampling rules), and mediapipe's custom Convolution2DTransposeBias (the selfie
+segmentation's last layer). Anything else raises :class:`UnsupportedOperatorError` naming it.
 SAME padding is computed explicitly from the static shapes (TensorFlow's rule: the extra
 pixel goes after), fused activations become separate ONNX nodes.
 
@@ -25,13 +27,15 @@ weights. Both are exact up to float rounding.
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from .tflite_reader import ACTIVATION_NAMES, TfliteGraph, read_tflite
 
-CONVERTER_VERSION = "2"
+CONVERTER_VERSION = "3"
 OPSET = 13
 NHWC_TO_NCHW = (0, 3, 1, 2)
 NCHW_TO_NHWC = (0, 2, 3, 1)
@@ -211,12 +215,19 @@ class _Converter:
             arr = arr.reshape((1,) * (4 - arr.ndim) + arr.shape).transpose(NHWC_TO_NCHW)
         return self.add_const(arr, "operand")
 
-    def op_ADD(self, op):
+    def _binary(self, op, onnx_op: str):
         layout = self._binary_layout(op)
         names = [self._broadcast_const(i, layout) if i in self.consts and i not in self.values
                  else self.value(i, layout) for i in op.inputs]
-        out = self.node("Add", names, "add")
-        self.set(op.outputs[0], self.activation(out, op.options["fused_activation_function"], "add"), layout)
+        out = self.node(onnx_op, names, onnx_op.lower())
+        self.set(op.outputs[0], self.activation(out, op.options["fused_activation_function"], onnx_op.lower()),
+                 layout)
+
+    def op_ADD(self, op):
+        self._binary(op, "Add")
+
+    def op_MUL(self, op):
+        self._binary(op, "Mul")
 
     def op_PRELU(self, op):
         layout = self._binary_layout(op)
@@ -277,6 +288,37 @@ class _Converter:
 
     def op_TANH(self, op):
         self._unary(op, "Tanh")
+
+    def op_HARD_SWISH(self, op):
+        # x * relu6(x + 3) / 6, as x * HardSigmoid(x) (ONNX's HardSwish needs opset 14)
+        index = op.inputs[0]
+        layout = self.values[index][1] if index in self.values else "plain"
+        x = self.value(index, layout)
+        gate = self.node("HardSigmoid", [x], "hard_swish_gate", alpha=1.0 / 6.0, beta=0.5)
+        self.set(op.outputs[0], self.node("Mul", [x, gate], "hard_swish"), layout)
+
+    def custom_Convolution2DTransposeBias(self, op):
+        # mediapipe's transposed convolution; options: padding (1 SAME, 2 VALID), stride w, stride h
+        # (three int32); weights (O, kh, kw, I), bias (O,).
+        if len(op.custom_options) < 12:
+            raise UnsupportedOperatorError("Convolution2DTransposeBias without its padding and strides")
+        padding, stride_w, stride_h = struct.unpack_from("<3i", op.custom_options)
+        x_shape = self.g.tensors[op.inputs[0]].shape
+        out_shape = self.g.tensors[op.outputs[0]].shape
+        w = self.const(op.inputs[1], "Convolution2DTransposeBias weights").astype(np.float32)
+        kh, kw = w.shape[1], w.shape[2]
+        pads = []
+        for size, out, k, stride in ((x_shape[1], out_shape[1], kh, stride_h), (x_shape[2], out_shape[2], kw, stride_w)):
+            total = (size - 1) * stride + k - out   # what the full transposed convolution has beyond the output
+            if total < 0 or (padding == 2 and total):
+                raise UnsupportedOperatorError(f"Convolution2DTransposeBias: {size} -> {out} px with kernel {k}, "
+                                               f"stride {stride}")
+            pads.append((total // 2, total - total // 2))
+        inputs = [self.value(op.inputs[0], "nchw"), self.add_const(w.transpose(3, 0, 1, 2), "weight"),
+                  self.add_const(self.const(op.inputs[2], "bias").astype(np.float32), "bias")]
+        out = self.node("ConvTranspose", inputs, "conv_transpose", kernel_shape=[kh, kw], strides=[stride_h, stride_w],
+                        pads=[pads[0][0], pads[1][0], pads[0][1], pads[1][1]])
+        self.set(op.outputs[0], out, "nchw")
 
     def op_RELU6(self, op):
         index = op.inputs[0]
@@ -361,8 +403,8 @@ class _Converter:
             inputs.append(helper.make_tensor_value_info(t.name, TensorProto.FLOAT, list(t.shape)))
             self.set(index, t.name, "plain")
         for op in g.operators:
-            handler = getattr(self, f"op_{op.name}", None)
-            if handler is None or op.custom:
+            handler = getattr(self, f"custom_{op.name}" if op.custom else f"op_{op.name}", None)
+            if handler is None:
                 raise UnsupportedOperatorError(f"TFLite operator {op.name} is not supported by the converter")
             handler(op)
         outputs = []

@@ -47,6 +47,18 @@ def face_region(shape: tuple[int, int], projected_px: np.ndarray, margin_px: flo
     return mask
 
 
+def occluded_region(shape: tuple[int, int], projected_px: np.ndarray, margin_px: float,
+                    hidden: np.ndarray | None = None) -> np.ndarray | None:
+    """(H, W) uint8 0/1: what the plate must not learn from a frame of ``shape`` (H, W): the face
+    (:func:`face_region` of its (V, 2) ``projected_px`` grown by ``margin_px``) and the ``hidden``
+    (H, W) pixels (non-zero: e.g. a hand in front of it). None when there is neither."""
+    occluded = face_region(shape, projected_px, margin_px) if len(projected_px) else None
+    if hidden is not None:
+        hidden = (np.asarray(hidden) != 0).view(np.uint8)
+        occluded = hidden if occluded is None else occluded | hidden
+    return occluded
+
+
 class BackgroundPlate:
     """Per-pixel background of a (H, W) video, learned where the face is not.
 

@@ -12,14 +12,14 @@ Per frame, on a box around the part of the face that moves only:
    back to its undeformed pixel as attribute: per pixel, where its colour comes from in the
    input (:mod:`.source_map`); and the undeformed mesh: the original face region. Both are
    read back for the box only;
-4. masks: the covered pixels whose offset is not negligible are the changed region (only
-   those are re-rendered); the background the face no longer covers (original minus deformed
-   region, slightly dilated) is filled: by default dragged in (:mod:`.drag_fill`: the
-   background beside the face, carried by its motion), else inpainted from the surrounding
-   background (:mod:`.inpaint`), each connected part on its own small box; with ``plate`` on, the background plate
-   (:mod:`.background_plate`: the background seen behind the face in earlier frames, learned
-   from every input frame outside the face grown by ``PLATE_MARGIN``, registered when the
-   camera moves) replaces the fill where it is known, fading into it at its border;
+4. masks: the covered pixels whose offset is not negligible are the changed region (only those
+   are re-rendered); the background the face no longer covers (original minus deformed region,
+   slightly dilated) is filled: by default dragged in (:mod:`.drag_fill`: the background beside
+   the face, carried by its motion), else inpainted from the surrounding background
+   (:mod:`.inpaint`), each connected part on its own small box; with ``plate`` on, the
+   background plate (:mod:`.background_plate`: the background seen in earlier frames outside the
+   face grown by ``PLATE_MARGIN`` and outside every person the ``segmenter`` finds, registered
+   when the camera moves) replaces the fill where it is known, fading into it at its border;
 5. the input frame is sampled once at the source positions of the changed pixels (full
    resolution; by default a long windowed sinc, :mod:`.sinc_sampling`; :mod:`.warp`) and
    blended over the background with a soft edge inside the deformed outline, as wide as
@@ -27,11 +27,10 @@ Per frame, on a box around the part of the face that moves only:
    map jumps (a fold of the moved surface) the changed pixels are anti-aliased. Only changed and
    inpainted pixels are written: every other pixel is the input's, bit for bit, by construction.
 6. with ``atlas`` on (issue 16), the face's texture memory (:mod:`.texture_atlas`) is updated
-   from the input frame (every ``atlas_every`` frames; :mod:`.atlas_raster`), and where the
-   input sees a changed pixel's surface badly (the source map stretches it more than
-   ``ATLAS_STRETCH`` to one, or the surface is hidden or grazing in the input:
-   ``ATLAS_GRAZING``; :func:`.texture_atlas.blend_atlas`), its sampled colour is blended toward the atlas's, in the frame's
-   lighting, as far as the atlas knows that texel.
+   from the input frame (every ``atlas_every`` frames; :mod:`.atlas_raster`), and where the input
+   sees a changed pixel's surface badly (stretched more than ``ATLAS_STRETCH`` to one, hidden or
+   grazing: ``ATLAS_GRAZING``; :func:`.texture_atlas.blend_atlas`), its sampled colour is blended
+   toward the atlas's, in the frame's lighting, as far as the atlas knows that texel.
 
 Steps 4-5 run on the CPU: on llvmpipe a GPU pass would add an upload and a readback of the same
 crop for work that numpy/OpenCV do cheaply on it (benchmarks/bench_renderer.py measures it).
@@ -50,7 +49,7 @@ import numpy as np
 from facesculpt.geometry import point_bounds
 
 from .atlas_raster import AtlasRasterizer
-from .background_plate import BackgroundPlate, face_region
+from .background_plate import BackgroundPlate
 from .camera import estimate_projection, project
 from .drag_fill import drag_fill
 from .gl_context import create_headless_context
@@ -58,6 +57,7 @@ from .inpaint import FILL_METHODS, dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .mesh import close_holes, vertex_rings
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
+from .plate_learning import PlateLearner
 from .source_map import UNCOVERED, SourceMapRenderer
 from .subdivision import levels_for, loop_subdivision
 from .texture_atlas import TextureAtlas, blend_atlas
@@ -89,25 +89,26 @@ def face_size(projected: np.ndarray) -> float:
 class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
-    Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2,
-    telea_radius=3.0, interpolation="sinc", subdivision=None): frame size in pixels; ``ctx`` a
-    moderngl context to draw with (default: a headless EGL context of its own); ``inpaint`` the
-    fill of what the face uncovers (below); ``feather_px`` least width of the soft edge inside
-    the deformed outline (pixels; it grows to ``FEATHER_FRACTION`` of the face's size; 0: a hard
-    edge); ``dilate_px`` growth of the region to inpaint (pixels); ``interpolation`` the kernel
-    the frame is sampled with ("sinc": a long windowed sinc, :mod:`.sinc_sampling`; "cubic",
-    "lanczos", "linear": OpenCV's); ``subdivision`` Loop levels of
-    the render mesh (None: as many as keep it within 16384 triangles, at most 2); ``atlas`` keep
-    and use the face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side,
-    ``atlas_every`` update it every N frames (the frames between only read it); ``atlas_blend``
-    False: learn the atlas, blend nothing from it (e.g. only to save it); ``atlas_thread``: the CPU
-    work of its updates on a thread of its own (an update is skipped while the last one runs: not
-    deterministic, for live use); ``plate`` keep a background plate
-    (:class:`.background_plate.BackgroundPlate`; ``plate_max_age`` frames an estimate is used,
-    ``plate_register`` follow camera motion) and take uncovered pixels from it; ``keyframes`` keep views
-    of the face at other poses and take turned surface from them (:mod:`.keyframe_views`); ``inpaint``
-    "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag" (:mod:`.drag_fill`); ``outline_band`` how far past the fitted
-    outline (share of the face's size, 0: not at all) a shape edit's motion is carried (:meth:`_read_map`). ``atlases`` holds one
+    Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2, telea_radius=3.0,
+    interpolation="sinc", subdivision=None): frame size in pixels; ``ctx`` a moderngl context to draw
+    with (default: a headless EGL context of its own); ``inpaint`` the fill of what the face uncovers:
+    "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag" (:mod:`.drag_fill`); ``feather_px``
+    least width of the soft edge inside the deformed outline (pixels; it grows to ``FEATHER_FRACTION``
+    of the face's size; 0: a hard edge); ``dilate_px`` growth of the region to inpaint (pixels);
+    ``interpolation`` the kernel the frame is sampled with ("sinc": a long windowed sinc,
+    :mod:`.sinc_sampling`; "cubic", "lanczos", "linear": OpenCV's); ``subdivision`` Loop levels of the
+    render mesh (None: as many as keep it within 16384 triangles, at most 2); ``atlas`` keep and use the
+    face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side, ``atlas_every``
+    update it every N frames (the frames between only read it); ``atlas_blend`` False: learn the atlas,
+    blend nothing from it (e.g. only to save it); ``atlas_thread``: the CPU work of its updates on a
+    thread of its own (an update is skipped while the last one runs: not deterministic, for live use);
+    ``plate`` keep a background plate (:class:`.background_plate.BackgroundPlate`; ``plate_max_age``
+    frames an estimate is used, ``plate_register`` follow camera motion) and take uncovered pixels from
+    it; ``segmenter`` a callable frame -> (H, W) uint8 0/1 mask of people, kept off the plate
+    (:class:`.person_segmentation.PersonSegmenter`; None: only the face is); ``keyframes`` keep views of
+    the face at other poses and take turned surface from them (:mod:`.keyframe_views`);
+    ``outline_band`` how far past the fitted outline (share of the face's size, 0: not at all) a shape
+    edit's motion is carried (:meth:`_read_map`). ``atlases`` holds one
     :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
 
     After each :meth:`render`: ``timings``, the stage times of that frame in ms (:data:`STAGES`;
@@ -121,7 +122,7 @@ class Compositor:
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
                  plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,
-                 keyframes: bool = False, outline_band: float = OUTLINE_BAND):
+                 segmenter=None, keyframes: bool = False, outline_band: float = OUTLINE_BAND):
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -162,8 +163,7 @@ class Compositor:
         self.atlas_region: np.ndarray | None = None   # (h, w) float32 atlas weight of the last box
         self.plate = BackgroundPlate(width, height, max_age=plate_max_age, register=plate_register) if plate else None
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
-        self._plate_pool = ThreadPoolExecutor(1, thread_name_prefix="plate") if plate else None
-        self._plate_job = None
+        self._plate_learner = PlateLearner(self.plate, segmenter) if plate else None
         self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles, two rings)
         self._mesh_key: tuple | None = None
         self._closed = self._S = self._fine = self._rings = None
@@ -362,35 +362,36 @@ class Compositor:
             self.plate_region = self.plate.take(crop, fill, source, box, self.feather_width(projected))
 
     def _learn_plate(self, frame: np.ndarray, projected: np.ndarray, keep_mask: np.ndarray | None) -> float:
-        """With the plate on: take ``frame`` into it outside the face (``projected`` (V, 2) px, its
-        hull grown by PLATE_MARGIN of its size and ``dilate_px`` + 2) and ``keep_mask``; when the camera
-        moves, the plate keeps the face's box grown by half its size; ms taken."""
+        """With the plate on: take ``frame`` into it outside the face (``projected`` (V, 2) px, its hull grown
+        by PLATE_MARGIN of its size and ``dilate_px`` + 2), ``keep_mask`` and the people (``segmenter``); when
+        the camera moves, the plate keeps the face's box grown by half its size; ms taken."""
         if self.plate is None:
             return 0.0
         t0 = time.perf_counter()
-        self.plate_sync()
         self.plate_region = None
-        occluded = keep_box = None
+        keep_box, margin = None, self.dilate_px + 2.0
         if len(projected):
             lo, hi = point_bounds(projected)
             size = face_size(projected)
-            margin = max(self.dilate_px + 2.0, PLATE_MARGIN * size)
-            occluded = face_region((self.height, self.width), projected, margin)
+            margin = max(margin, PLATE_MARGIN * size)
             x0, y0 = np.floor(lo - 0.5 * size).astype(int)  # what the plate keeps when the camera moves
             x1, y1 = np.ceil(hi + 0.5 * size).astype(int)
             keep_box = (int(x0), int(y0), int(x1), int(y1))
-        # On a thread of its own (OpenCV lets go of the GIL), overlapping the drawing; waited for
-        # before the fill uses it, so every frame sees the same plate as without the thread. The
-        # frame is copied: the caller may reuse its buffer while the update runs.
-        self._plate_job = self._plate_pool.submit(self.plate.update, frame.copy(), occluded, keep_box)
+        self._plate_learner.learn(frame, projected, margin, keep_box, keep_mask)
         return (time.perf_counter() - t0) * 1e3
+
+    def prefetch(self, frame_bgr: np.ndarray) -> None:
+        """Start the work of a frame that needs only the frame, before its face is fitted (the
+        plate's people, :meth:`.PlateLearner.prefetch`); ``frame_bgr`` must reach :meth:`render`
+        unchanged. Optional; nothing with the plate off."""
+        if self._plate_learner is not None:
+            self._plate_learner.prefetch(frame_bgr)
 
     def plate_sync(self) -> None:
         """Wait for the background plate's update of the last frame (it runs on a thread of its
         own from :meth:`render` until the fill needs it or the next frame starts)."""
-        if self._plate_job is not None:
-            job, self._plate_job = self._plate_job, None
-            job.result()
+        if self._plate_learner is not None:
+            self._plate_learner.sync()
 
     def _update_atlas(self, frame, fitted, projected, triangles, uv, face_key, keep_mask) -> np.ndarray | None:
         """With the atlas on and ``uv`` given: reset it on a new face, take this frame into it
@@ -569,10 +570,9 @@ class Compositor:
         if self.maps is not None:
             self.maps.release()
             self.maps = None
-        if self._plate_pool is not None:
-            self.plate_sync()
-            self._plate_pool.shutdown(wait=True)
-            self._plate_pool = None
+        if self._plate_learner is not None:
+            self._plate_learner.close()
+            self._plate_learner = None
         if self._atlas_pool is not None:
             self._atlas_pool.shutdown(wait=True)
             self._atlas_pool = None

@@ -46,6 +46,7 @@ from .frame_size_defaults import MAX_OUTLINE_BAND, auto_interpolation, auto_outl
 from .inpaint import FILL_METHODS
 from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
+from .person_segmentation import MissingNetworkError, PersonSegmenter
 from .pinch_markers import PinchMarkers, draw_pinch_markers
 from .pose_edit import (
     FACE_CAMERA_LIMIT_DEG,
@@ -86,7 +87,8 @@ class RendererNode(Node):
                                        "cubic from there on, where the renderer limits the frame rate",
                                choices=("auto", "sinc", "cubic", "lanczos")),
         "plate": Param("off", "background plate: the background seen behind the face in earlier frames (registered "
-                              "when the camera moves) replaces the fill where known", choices=("on", "off")),
+                              "when the camera moves; never the person: `facesculpt setup`'s person segmentation) "
+                              "replaces the fill where known", choices=("on", "off")),
         "plate_max_age": Param(150, "background plate: frames after which a pixel's estimate is no longer used",
                                range=(1, 100000)),
         "feather_px": Param(3.0, "soft edge inside the deformed outline, px", range=(0.0, 100.0)),
@@ -142,7 +144,9 @@ class RendererNode(Node):
                                      "use output=FILE.mp4 or publish=true to run headless")
         try:
             auto_outline_band(p.outline_band, 1, 1)
-        except ValueError as exc:
+            # the plate learns nothing where a person is (their hair, neck, shoulders)
+            self.segmenter = PersonSegmenter() if p.plate == "on" else None
+        except (ValueError, MissingNetworkError) as exc:
             raise ConfigurationError(f"renderer: {exc}") from None
         qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
@@ -204,6 +208,8 @@ class RendererNode(Node):
         return hand_region_mask(msg.points, w, h)
 
     def on_image(self, msg: Image) -> None:
+        if self.compositor is not None:  # what needs only the frame starts while its face is fitted
+            self.compositor.prefetch(msg.image)
         with self.stage("pair"):
             pairs = self.pairer.push_frame(msg.stamp, msg)
         self._render_all(pairs)
@@ -299,7 +305,7 @@ class RendererNode(Node):
                                      outline_band=auto_outline_band(p.outline_band, width, height),
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
                                      atlas_every=p.atlas_every, atlas_thread=True,
-                                     plate=p.plate == "on", plate_max_age=p.plate_max_age,
+                                     plate=p.plate == "on", plate_max_age=p.plate_max_age, segmenter=self.segmenter,
                                      interpolation=auto_interpolation(p.interpolation, width, height),
                                      keyframes=p.keyframes == "on")
         return True

@@ -1,0 +1,97 @@
+"""The background plate's learning on threads of its own (docs/architecture.md "Stages", 4; issue 16).
+
+Each frame's update of the plate (:class:`.background_plate.BackgroundPlate`) runs beside the
+compositor's drawing (OpenCV and onnxruntime let go of the GIL) and is waited for before the fill
+reads the plate, so every frame sees the plate it would see without the threads. With a person
+segmenter the plate learns nothing where a person is (grown by the plate's margin). The people need
+only the frame: :meth:`PlateLearner.prefetch` starts looking for them as soon as the frame is there
+(while its face is fitted), on a second thread; a frame not prefetched is searched when it is learned.
+"""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
+
+from .background_plate import BackgroundPlate, occluded_region
+from .inpaint import dilate
+
+PREFETCHED = 4   # frames whose people may be searched ahead of their learning
+
+
+def grown_in_box(mask: np.ndarray, radius: int, box: tuple[int, int, int, int] | None) -> np.ndarray:
+    """(H, W) uint8 ``mask`` grown by a disk of ``radius`` px inside ``box`` (x0, y0, x1, y1; None: the
+    whole frame), as it is outside (the plate learns only inside the box; its registration looks
+    for the background everywhere)."""
+    if box is None:
+        return dilate(mask, radius)
+    h, w = mask.shape
+    x0, y0, x1, y1 = max(0, box[0]), max(0, box[1]), min(w, box[2]), min(h, box[3])
+    out = mask.copy()
+    if x1 > x0 and y1 > y0:   # grown with the people up to ``radius`` outside the box
+        X0, Y0, X1, Y1 = max(0, x0 - radius), max(0, y0 - radius), min(w, x1 + radius), min(h, y1 + radius)
+        out[y0:y1, x0:x1] = dilate(mask[Y0:Y1, X0:X1], radius)[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0]
+    return out
+
+
+class PlateLearner:
+    """PlateLearner(plate, segmenter=None): learns into ``plate``; ``segmenter`` a callable frame ->
+    (H, W) uint8 0/1 mask of people (None: only the face is kept off the plate).
+
+    :meth:`prefetch` when a frame arrives (optional), :meth:`learn` once a frame, :meth:`sync`
+    before the plate is read, :meth:`close` at the end."""
+
+    def __init__(self, plate: BackgroundPlate, segmenter=None):
+        self.plate, self.segmenter = plate, segmenter
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="plate")
+        self._people_pool = ThreadPoolExecutor(1, thread_name_prefix="people") if segmenter is not None else None
+        self._job = None
+        self._lock = threading.Lock()
+        self._ahead: list[tuple[np.ndarray, Future]] = []   # (frame, its people), oldest first
+
+    def prefetch(self, frame: np.ndarray) -> None:
+        """Start looking for the people of ``frame`` ((H, W, 3) uint8; the same array, unchanged, is
+        later given to :meth:`learn`). Nothing without a segmenter."""
+        if self._people_pool is None:
+            return
+        job = self._people_pool.submit(self.segmenter, frame)
+        with self._lock:
+            self._ahead = self._ahead[-(PREFETCHED - 1):] + [(frame, job)]
+
+    def learn(self, frame: np.ndarray, projected_px: np.ndarray, margin_px: float,
+              keep_box: tuple[int, int, int, int] | None, keep_mask: np.ndarray | None = None) -> None:
+        """Start taking ``frame`` ((H, W, 3) uint8) into the plate outside the face (its (V, 2)
+        ``projected_px`` hull grown by ``margin_px``), ``keep_mask`` ((H, W), non-zero: in front of the
+        background) and the people grown by ``margin_px``; ``keep_box`` (x0, y0, x1, y1): what the plate
+        keeps when the camera moves (:meth:`.BackgroundPlate.update`)."""
+        self.sync()
+        people = None
+        if self._people_pool is not None:
+            with self._lock:
+                found = [job for f, job in self._ahead if f is frame]
+                self._ahead = [(f, job) for f, job in self._ahead if f is not frame]
+            people = found[0] if found else self._people_pool.submit(self.segmenter, frame)
+        occluded = occluded_region((self.plate.height, self.plate.width), projected_px, margin_px, keep_mask)
+        self._job = self._pool.submit(self._update, frame.copy(), occluded, keep_box, margin_px, people)
+
+    def _update(self, frame: np.ndarray, occluded: np.ndarray | None, keep_box, margin_px: float,
+                people: Future | None) -> None:
+        if people is not None:
+            grown = grown_in_box(people.result(), int(np.ceil(margin_px)), keep_box)
+            occluded = grown if occluded is None else occluded | grown
+        self.plate.update(frame, occluded, keep_box)
+
+    def sync(self) -> None:
+        """Wait for the plate's update of the last frame."""
+        if self._job is not None:
+            job, self._job = self._job, None
+            job.result()
+
+    def close(self) -> None:
+        """Wait for the work started and stop the threads."""
+        self.sync()
+        self._pool.shutdown(wait=True)
+        if self._people_pool is not None:
+            self._people_pool.shutdown(wait=True)
