@@ -23,10 +23,11 @@ synthetic set, and the plate on a real video.
    frames, next to the input's over its background in both frames (a still camera: 0). Crops ``crops_EDIT_MODEL.png``: input | each method | ground truth
    at the most turned-left, frontal and most turned-right scored frames, enlarged 2x.
 4. Real video (default d3.mp4; no ground truth) with the shipped ``cheeks`` preset (cheeks
-   pushed 8 mm in toward the midline), model ``facemesh``: the plate's share of the uncovered pixels per frame (pixels it gave at least
-   half the colour), flicker in the uncovered region against the input's background (pixels away
-   from the face), and ``real_VIDEO.png``: input | push-pull | plate at the frame where the plate
-   gives the most pixels.
+   pushed 8 mm in toward the midline), model ``facemesh``, the drag fill (the default): the plate's
+   share of the uncovered pixels per frame (pixels it gave at least half the colour), with people
+   kept off it and learning everywhere outside the face, flicker in the uncovered region against the
+   input's background (pixels away from the face), and ``real_VIDEO.png``: input | drag | drag +
+   plate | drag + plate, face only, at the frame where the face-only plate gives the most pixels.
 
 Writes ``results.md`` and ``results.json`` to ``--out`` (default: a new temporary folder).
 
@@ -67,7 +68,7 @@ EDITS = {
 METHODS = {"pushpull": ("pushpull", False), "telea": ("telea", False), "ns": ("ns", False),
            "patch": ("patch", False), "drag": ("drag", False), "plate": ("pushpull", True),
            "patch+plate": ("patch", True), "drag+plate": ("drag", True),
-           "plate-face-only": ("pushpull", "face only")}
+           "plate-face-only": ("pushpull", "face only"), "drag+plate-face-only": ("drag", "face only")}
 SWAY_PERIOD = 50
 REAL_PRESET = Path(__file__).resolve().parent.parent / "nodes" / "deformer" / "presets" / "cheeks.json"
 
@@ -245,8 +246,8 @@ def real_video(args, data: Path, out: Path) -> dict:
     pipe = Pipeline("facemesh", neutral_frames=args.neutral_frames)
     pipe.calibrate(frames[: args.neutral_frames], 25.0)
     pipe.set_edits(read_preset(REAL_PRESET))
-    plates = ["plate", "plate-face-only"]
-    comps = compositors(["pushpull"] + plates, (W, H))
+    plates = ["drag+plate", "drag+plate-face-only"]
+    comps = compositors(["drag"] + plates, (W, H))
     share, flick_out, flick_in, best = {m: [] for m in plates}, [], [], (-1.0, None)
     prev = None
     for i, frame in enumerate(frames):
@@ -267,7 +268,7 @@ def real_video(args, data: Path, out: Path) -> dict:
             n = int(uncovered.sum())
             s = float((plate_w[uncovered] >= 0.5).mean()) if n else float("nan")
             share[m].append(s)
-            if m == "plate":
+            if m == plates[0]:
                 plate_uncovered = uncovered
             if m == plates[-1] and n and s * n > best[0]:  # the frame where the face-only plate gives the most
                 best = (s * n, i, outs, frame, uncovered)
@@ -277,12 +278,12 @@ def real_video(args, data: Path, out: Path) -> dict:
             cv2.fillConvexPoly(face, hull, 1)
         far = cv2.dilate(face, np.ones((41, 41), np.uint8)) == 0
         if prev is not None:
-            g = [cv2.cvtColor(x, cv2.COLOR_BGR2GRAY).astype(float) for x in (frame, prev[0], outs["plate"], prev[1])]
+            g = [cv2.cvtColor(x, cv2.COLOR_BGR2GRAY).astype(float) for x in (frame, prev[0], outs[plates[0]], prev[1])]
             flick_in.append(float(np.abs(g[0] - g[1])[far & prev[3]].mean()))
             both = plate_uncovered & prev[2]
             if both.any():
                 flick_out.append(float(np.abs(g[2] - g[3])[both].mean()))
-        prev = (frame, outs["plate"], plate_uncovered, far)
+        prev = (frame, outs[plates[0]], plate_uncovered, far)
     pipe.compositor = None
     pipe.close()
     for comp in comps.values():
@@ -294,8 +295,8 @@ def real_video(args, data: Path, out: Path) -> dict:
         side = int(min(max(xs.max() - xs.min(), ys.max() - ys.min(), 120) + 80, W, H))
         x0, y0 = int(np.clip(cx - side // 2, 0, W - side)), int(np.clip(cy - side // 2, 0, H - side))
         box = [(x0, y0, x0 + side, y0 + side)]
-        panels = [[(f"input frame {i}", frame), ("push-pull", outs["pushpull"]), ("plate", outs["plate"]),
-                   ("plate, face only", outs["plate-face-only"])]]
+        panels = [[(f"input frame {i}", frame), ("drag (no plate)", outs["drag"]), ("drag + plate", outs[plates[0]]),
+                   ("drag + plate, face only", outs[plates[1]])]]
         cv2.imwrite(str(out / f"real_{args.real_video}.png"), side_by_side(panels, box))
     return {"video": args.real_video, "share": share, "best_frame": best[1],
             "flicker_uncovered": float(np.mean(flick_out)) if flick_out else float("nan"),

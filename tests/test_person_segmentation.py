@@ -120,3 +120,37 @@ def test_the_renderer_without_the_network_stops_with_one_sentence(tmp_path):
     assert last.startswith("facesculpt: renderer: ") and "person_segmentation.onnx is missing: run `facesculpt " \
         "setup`" in last, result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_the_plate_takes_only_what_the_drag_shows_as_background():
+    """A strip the edit uncovered: pixels dragged onto the learned background take the plate; pixels
+    dragged onto the person (their rim, past the fitted outline) keep the drag; pixels the drag did
+    not fill take it only where the segmenter saw nobody."""
+    from facesculpt.nodes.renderer.background_plate import BackgroundPlate
+    from facesculpt.nodes.renderer.plate_learning import PlateLearner
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    rng = np.random.default_rng(3)
+    bg = rng.integers(0, 255, (40, 60, 3), np.uint8)
+    frame = bg.copy()
+    frame[:, 30:] = (40, 200, 90)                    # a person covers the right half now
+    people = np.zeros((40, 60), np.uint8)
+    people[:, 30:] = 1
+    learner = PlateLearner(BackgroundPlate(60, 40), segmenter=lambda f: people)
+    learner.plate.update(bg, None)                   # the background, seen when nobody was there
+    learner.learn(frame, np.zeros((0, 2)), 0.0, None)
+    learner.sync()
+    box = (10, 5, 50, 35)                            # the strip: box columns 10-22, rows 5-15
+    fill = np.zeros((30, 40), np.uint8)
+    fill[5:15, 10:22] = 1
+    dragged = np.full((30, 40, 2), UNCOVERED, np.float32)
+    done = np.zeros((30, 40), bool)
+    done[5:15, 10:16] = True
+    dragged[5:15, 10:13] = (-8.0, 0.0)               # onto the background (frame columns 12-14)
+    dragged[5:15, 13:16] = (14.0, 0.0)               # onto the person (frame columns 37-39)
+    out = learner.background_pixels(frame, fill, done, dragged, box)
+    assert out[5:15, 10:13].all() and not out[5:15, 13:16].any()
+    assert out[5:15, 16:20].all()                    # not dragged, frame columns 26-29: nobody there
+    assert not out[5:15, 20:22].any()                # not dragged, frame columns 30-31: the person
+    assert not out[fill == 0].any()
+    learner.close()

@@ -359,6 +359,8 @@ class Compositor:
         fill_by_parts(crop, rest, known, method, radius=self.telea_radius, in_place=True)
         if self.plate is not None:
             self.plate_sync()
+            if dragged is not None:  # not where the drag shows a person (their rim the fit lies inside)
+                fill = self._plate_learner.background_pixels(frame, fill, done, dragged, box)
             self.plate_region = self.plate.take(crop, fill, source, box, self.feather_width(projected))
 
     def _learn_plate(self, frame: np.ndarray, projected: np.ndarray, keep_mask: np.ndarray | None) -> float:

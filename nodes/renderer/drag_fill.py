@@ -22,6 +22,27 @@ from .source_map import UNCOVERED
 from .warp import sample
 
 
+def dragged_to(dragged: np.ndarray, ys: np.ndarray, xs: np.ndarray, origin: tuple[int, int],
+               shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the pixels (``ys``, ``xs``) (N,) of a box land, moved by their ``dragged`` offsets
+    (h, w, 2), rounded: (x, y) (N,) int64 in an image of ``shape`` (H, W, ...) whose pixel (0, 0) is
+    the box's pixel -``origin`` (x, y), and (N,) bool, inside it."""
+    sx = np.rint(xs + origin[0] + dragged[ys, xs, 0]).astype(np.int64)
+    sy = np.rint(ys + origin[1] + dragged[ys, xs, 1]).astype(np.int64)
+    return sx, sy, (sx >= 0) & (sx < shape[1]) & (sy >= 0) & (sy < shape[0])
+
+
+def lands_on(mask: np.ndarray, dragged: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+             origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """(N,) bool: whether the pixels (``ys``, ``xs``) (N,) of a box moved by their ``dragged`` offsets
+    land on ``mask`` (non-zero), whose pixel (0, 0) is the box's pixel -``origin``
+    (:func:`dragged_to`); positions outside ``mask`` do not."""
+    sx, sy, inside = dragged_to(dragged, ys, xs, origin, mask.shape)
+    hit = np.zeros(len(ys), bool)
+    hit[inside] = mask[sy[inside], sx[inside]] != 0
+    return hit
+
+
 def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np.ndarray,
               face: np.ndarray, origin: tuple[int, int], interpolation: str = "cubic") -> np.ndarray:
     """Fill the ``fill`` pixels (h, w, nonzero: to fill) of ``crop`` (the frame's box whose top-left
@@ -33,12 +54,7 @@ def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np
     ys, xs = np.nonzero(done)
     if len(ys) == 0:
         return done
-    h, w = done.shape
-    sx = np.rint(xs + dragged[ys, xs, 0]).astype(np.int64)
-    sy = np.rint(ys + dragged[ys, xs, 1]).astype(np.int64)
-    inside = (sx >= 0) & (sx < w) & (sy >= 0) & (sy < h)
-    on_face = np.zeros(len(ys), bool)
-    on_face[inside] = face[sy[inside], sx[inside]] != 0
+    on_face = lands_on(face, dragged, ys, xs)
     done[ys[on_face], xs[on_face]] = False
     keep = ~on_face
     ys, xs = ys[keep], xs[keep]

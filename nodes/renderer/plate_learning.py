@@ -16,9 +16,11 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from .background_plate import BackgroundPlate, occluded_region
+from .drag_fill import dragged_to
 from .inpaint import dilate
 
 PREFETCHED = 4   # frames whose people may be searched ahead of their learning
+MATCH_LEVELS = 24  # a frame pixel within this many grey levels of the plate (every channel) shows the background
 
 
 def grown_in_box(mask: np.ndarray, radius: int, box: tuple[int, int, int, int] | None) -> np.ndarray:
@@ -50,6 +52,7 @@ class PlateLearner:
         self._job = None
         self._lock = threading.Lock()
         self._ahead: list[tuple[np.ndarray, Future]] = []   # (frame, its people), oldest first
+        self._people: Future | None = None   # the people of the frame learned last
 
     def prefetch(self, frame: np.ndarray) -> None:
         """Start looking for the people of ``frame`` ((H, W, 3) uint8; the same array, unchanged, is
@@ -73,6 +76,7 @@ class PlateLearner:
                 found = [job for f, job in self._ahead if f is frame]
                 self._ahead = [(f, job) for f, job in self._ahead if f is not frame]
             people = found[0] if found else self._people_pool.submit(self.segmenter, frame)
+        self._people = people
         occluded = occluded_region((self.plate.height, self.plate.width), projected_px, margin_px, keep_mask)
         self._job = self._pool.submit(self._update, frame.copy(), occluded, keep_box, margin_px, people)
 
@@ -82,6 +86,41 @@ class PlateLearner:
             grown = grown_in_box(people.result(), int(np.ceil(margin_px)), keep_box)
             occluded = grown if occluded is None else occluded | grown
         self.plate.update(frame, occluded, keep_box)
+
+    def people(self) -> np.ndarray | None:
+        """(H, W) uint8 0/1: the people of the frame learned last (as found, not grown); None without
+        a segmenter."""
+        return None if self._people is None else self._people.result()
+
+    def background_at(self, frame: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        """(N,) bool: whether the pixels (``xs``, ``ys``) (N,) int of ``frame`` (the one learned last)
+        show the background: where the plate knows them, the frame matches it (background
+        subtraction: every channel within MATCH_LEVELS); elsewhere, nobody is there (the segmenter's
+        people; without a segmenter, yes)."""
+        known = self.plate.last_seen[ys, xs] >= self.plate.frame - self.plate.max_age
+        same = np.abs(frame[ys, xs].astype(np.float32) - self.plate.colour[ys, xs]).max(axis=1) <= MATCH_LEVELS
+        people = self.people()
+        nobody = np.ones(len(xs), bool) if people is None else people[ys, xs] == 0
+        return np.where(known, same, nobody)
+
+    def background_pixels(self, frame: np.ndarray, fill: np.ndarray, dragged_in: np.ndarray, dragged: np.ndarray,
+                          box: tuple[int, int, int, int]) -> np.ndarray:
+        """(h, w) uint8 0/1: the pixels of ``fill`` ((h, w), non-zero: what an edit uncovered in the frame's
+        ``box``) that show the background, so the plate may take them. ``dragged_in`` (h, w) bool: the
+        drag fill's pixels, with their ``dragged`` (h, w, 2) offsets: those whose dragged source shows
+        the background (:meth:`background_at`; where it shows a person, the pixel is that person's
+        rim, which the fitted outline lay inside). The others: where the segmenter saw nobody (all of
+        them without a segmenter)."""
+        out = (fill != 0) & ~dragged_in
+        people = self.people()
+        if people is not None:
+            x0, y0, x1, y1 = box
+            out &= people[y0:y1, x0:x1] == 0
+        ys, xs = np.nonzero(dragged_in)
+        sx, sy, inside = dragged_to(dragged, ys, xs, box[:2], frame.shape)
+        shown = self.background_at(frame, sx[inside], sy[inside])
+        out[ys[inside][shown], xs[inside][shown]] = True
+        return out.view(np.uint8)
 
     def sync(self) -> None:
         """Wait for the plate's update of the last frame."""
