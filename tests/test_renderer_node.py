@@ -7,6 +7,7 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 from renderer_scene import issue_edit, place_marked, read_frames
 
 from facesculpt.geometry import merge_deformation
@@ -41,8 +42,10 @@ class Feeder(Node):
             self.diagnostics_seen.append(msg.values)
 
 
-def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_path):
+@pytest.mark.parametrize("plate", ["off", "on"])
+def test_renderer_node_pairs_composites_and_writes_video(plate, graph, data_dir, tmp_path, request):
     from facesculpt.nodes.fitter import load_model
+    from facesculpt.nodes.renderer.person_segmentation import PersonSegmenter
 
     model = load_model("sfm")
     pose = place_marked(model, "s18")
@@ -50,7 +53,9 @@ def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_pa
     frames = read_frames(data_dir, "s18", count=5)
     H, W = frames[0].shape[:2]
     video = tmp_path / "out.avi"
-    renderer = graph.spawn("run", "renderer", "pairing=sync", f"output={video}", "fps=25")
+    # with the plate on, the node finds the people of each frame from its arrival (prefetch)
+    segmenter = PersonSegmenter(request.getfixturevalue("models_dir")) if plate == "on" else None
+    renderer = graph.spawn("run", "renderer", "pairing=sync", f"output={video}", "fps=25", f"plate={plate}")
     feeder = graph.node(Feeder())
     for pub in (feeder.image_pub, feeder.state_pub, feeder.deformation_pub):
         assert pub.wait_for_subscribers(1, 30.0), f"the renderer never subscribed to {pub.topic}"
@@ -78,7 +83,7 @@ def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_pa
 
     # Each frame comes back composited exactly as the library composites it (Eq. 5 merge of the
     # edit into the state's pose, then the compositor); the faceless one unchanged, bit for bit.
-    comp = Compositor(W, H)  # the library's defaults: the live renderer's at this size
+    comp = Compositor(W, H, plate=plate == "on", segmenter=segmenter)  # the library's defaults: the live renderer's
     for i, frame in enumerate(frames):
         out = feeder.rendered[(i + 1) * 40 * MS]
         if i == no_face:
@@ -89,6 +94,8 @@ def test_renderer_node_pairs_composites_and_writes_video(graph, data_dir, tmp_pa
                                model.triangles, deformed)
         assert not np.array_equal(out, frame)
         assert np.abs(out.astype(int) - expected).max() <= 1
+    if plate == "on":
+        assert comp.plate.known().any()
     comp.release()
 
     # Diagnostics carry the per-stage times and what happened.
