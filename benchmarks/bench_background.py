@@ -248,7 +248,7 @@ def real_video(args, data: Path, out: Path) -> dict:
     pipe.set_edits(read_preset(REAL_PRESET))
     plates = ["drag+plate", "drag+plate-face-only"]
     comps = compositors(["drag"] + plates, (W, H))
-    share, flick_out, flick_in, best = {m: [] for m in plates}, [], [], (-1.0, None)
+    share, flick_out, flick_in, flick_same, flick_drag, best = {m: [] for m in plates}, [], [], [], [], (-1.0, None)
     prev = None
     for i, frame in enumerate(frames):
         fits, timings = pipe.analyse(frame, i / 25.0)
@@ -278,12 +278,15 @@ def real_video(args, data: Path, out: Path) -> dict:
             cv2.fillConvexPoly(face, hull, 1)
         far = cv2.dilate(face, np.ones((41, 41), np.uint8)) == 0
         if prev is not None:
-            g = [cv2.cvtColor(x, cv2.COLOR_BGR2GRAY).astype(float) for x in (frame, prev[0], outs[plates[0]], prev[1])]
+            g = [cv2.cvtColor(x, cv2.COLOR_BGR2GRAY).astype(float)
+                 for x in (frame, prev[0], outs[plates[0]], prev[1], outs["drag"], prev[4])]
             flick_in.append(float(np.abs(g[0] - g[1])[far & prev[3]].mean()))
             both = plate_uncovered & prev[2]
             if both.any():
                 flick_out.append(float(np.abs(g[2] - g[3])[both].mean()))
-        prev = (frame, outs[plates[0]], plate_uncovered, far)
+                flick_same.append(float(np.abs(g[0] - g[1])[both].mean()))  # the input's own, same pixels
+                flick_drag.append(float(np.abs(g[4] - g[5])[both].mean()))  # the drag's without the plate
+        prev = (frame, outs[plates[0]], plate_uncovered, far, outs["drag"])
     pipe.compositor = None
     pipe.close()
     for comp in comps.values():
@@ -300,7 +303,9 @@ def real_video(args, data: Path, out: Path) -> dict:
         cv2.imwrite(str(out / f"real_{args.real_video}.png"), side_by_side(panels, box))
     return {"video": args.real_video, "share": share, "best_frame": best[1],
             "flicker_uncovered": float(np.mean(flick_out)) if flick_out else float("nan"),
-            "flicker_input_background": float(np.mean(flick_in)) if flick_in else float("nan")}
+            "flicker_input_background": float(np.mean(flick_in)) if flick_in else float("nan"),
+            "flicker_input_same_pixels": float(np.mean(flick_same)) if flick_same else float("nan"),
+            "flicker_drag_alone": float(np.mean(flick_drag)) if flick_drag else float("nan")}
 
 
 def markdown(report: dict, args) -> str:
@@ -338,8 +343,10 @@ def markdown(report: dict, args) -> str:
             chunks = [f"{i}-{min(i + 15, len(s)) - 1}: {np.nanmean(s[i:i + 15]):.2f}" for i in range(0, len(s), 15)
                       if np.isfinite(s[i:i + 15]).any()]
             lines += ["", f"Real video {r['video']}, {m}: share of the uncovered pixels by frames: " + "; ".join(chunks)]
-        lines += [f"flicker in the uncovered region {r['flicker_uncovered']:.2f}, input background "
-                  f"{r['flicker_input_background']:.2f}; picture at frame {r['best_frame']}"]
+        lines += [f"flicker in the uncovered region {r['flicker_uncovered']:.2f} (the drag alone "
+                  f"{r['flicker_drag_alone']:.2f}), the input's at the same pixels "
+                  f"{r['flicker_input_same_pixels']:.2f}, input background {r['flicker_input_background']:.2f}; "
+                  f"picture at frame {r['best_frame']}"]
     return "\n".join(lines) + "\n"
 
 
