@@ -16,30 +16,10 @@ Crops (h, w, 3) uint8, masks (h, w), offsets (h, w, 2) float32 pixels (UNCOVERED
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from .source_map import UNCOVERED
 from .warp import sample
-
-SMOOTH_PX = 3.0   # sigma (px) of the smoothing of the dragged offsets over the gap
-
-
-def smooth_drag(dragged: np.ndarray, gap: np.ndarray, sigma_px: float = SMOOTH_PX) -> np.ndarray:
-    """The ``dragged`` offsets (h, w, 2) float32 (UNCOVERED: none) with those of the ``gap`` pixels
-    (h, w) bool replaced by a normalised Gaussian (``sigma_px``) of every set offset around them.
-    Each gap pixel took its nearest face pixel's offset whole: a mosaic of constant patches, whose
-    seams jump as the outline moves by a fraction of a pixel from frame to frame (flicker), and show
-    as steps where the strip's content changes. Returns a new array (the same when nothing is set)."""
-    known = dragged[..., 0] < 0.5 * UNCOVERED
-    target = gap & known
-    if not target.any() or sigma_px <= 0:
-        return dragged
-    weight = cv2.GaussianBlur(known.astype(np.float32), (0, 0), sigma_px)
-    total = cv2.GaussianBlur(np.where(known[..., None], dragged, 0.0).astype(np.float32), (0, 0), sigma_px)
-    out = dragged.copy()
-    out[target] = total[target] / weight[target][:, None]
-    return out
 
 
 def dragged_to(dragged: np.ndarray, ys: np.ndarray, xs: np.ndarray, origin: tuple[int, int],
