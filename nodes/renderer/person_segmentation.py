@@ -4,8 +4,8 @@
 The background plate (:mod:`.background_plate`) must learn only the background. The face's hull
 alone leaves a person's hair, ears, neck and shoulders to it; the plate then shows them, stale,
 where an edit uncovers the background after the person has moved. The compositor therefore keeps
-the plate off every pixel this network gives to a person (:class:`.compositor.Compositor`'s
-``segmenter``).
+the plate off every pixel this network gives to a person, and takes from the plate only what does
+not show one (:class:`.compositor.Compositor`'s ``segmenter``; :mod:`.plate_learning`).
 """
 
 from __future__ import annotations
