@@ -14,22 +14,9 @@ import cv2
 import numpy as np
 import pytest
 from conftest import free_port
+from renderer_scene import read_frames
 
 from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER
-
-
-def _frames(data_dir, name: str, count: int, step: int = 1) -> list[np.ndarray]:
-    cap = cv2.VideoCapture(str(data_dir / "video" / name))
-    frames = []
-    while len(frames) < count:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        for _ in range(step - 1):
-            cap.grab()
-        frames.append(frame)
-    cap.release()
-    return frames
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +29,7 @@ def segmenter(models_dir):
 def test_the_person_is_in_the_mask_and_the_green_screen_is_not(segmenter, models_dir, data_dir):
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
 
-    frame = _frames(data_dir, "d0.mp4", 1)[0]
+    frame = read_frames(data_dir, "d0")[0]
     H, W = frame.shape[:2]
     faces = LandmarkDetector(models_dir).track(frame)
     assert faces, "no face found in d0's first frame"
@@ -59,7 +46,7 @@ def test_the_person_is_in_the_mask_and_the_green_screen_is_not(segmenter, models
 
 
 def test_a_box_is_the_same_pixels_as_the_whole_frame(segmenter, data_dir):
-    frame = _frames(data_dir, "d3.mp4", 1)[0]
+    frame = read_frames(data_dir, "d3")[0]
     whole = segmenter.probability(frame)
     part = segmenter.probability(frame, (100, 50, 300, 250))
     np.testing.assert_allclose(part, whole[50:250, 100:300], atol=1e-6)
@@ -87,7 +74,7 @@ def test_the_plate_learns_nothing_of_the_person(segmenter, models_dir, data_dir)
     from facesculpt.app.pipeline import Pipeline, read_preset
     from facesculpt.paths import preset_file
 
-    frames = _frames(data_dir, "d3.mp4", 24, step=4)  # the head moves: the face-only plate sees hair
+    frames = read_frames(data_dir, "d3", 96)[::4]  # the head moves: the face-only plate sees hair
     learned = {}
     for people in (True, False):
         with Pipeline("facemesh", plate="on", neutral_frames=8, models_dir=models_dir) as pipe:

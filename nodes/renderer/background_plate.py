@@ -202,6 +202,10 @@ class BackgroundPlate:
         x0, y0, x1, y1 = box if box is not None else (0, 0, self.width, self.height)
         return self.last_seen[y0:y1, x0:x1] >= self.frame - self.max_age
 
+    def known_at(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        """(N,) bool: whether the estimate of each pixel (``xs``, ``ys``) (N,) int is fresh, as :meth:`known`."""
+        return self.last_seen[ys, xs] >= self.frame - self.max_age
+
     def take(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
              blend_px: float = 3.0) -> np.ndarray:
         """Lay the plate over the filled pixels of ``crop`` ((h, w, 3) uint8, the frame's ``box``

@@ -97,7 +97,7 @@ class PlateLearner:
         show the background: where the plate knows them, the frame matches it (background
         subtraction: every channel within MATCH_LEVELS); elsewhere, nobody is there (the segmenter's
         people; without a segmenter, yes)."""
-        known = self.plate.last_seen[ys, xs] >= self.plate.frame - self.plate.max_age
+        known = self.plate.known_at(xs, ys)
         same = np.abs(frame[ys, xs].astype(np.float32) - self.plate.colour[ys, xs]).max(axis=1) <= MATCH_LEVELS
         people = self.people()
         nobody = np.ones(len(xs), bool) if people is None else people[ys, xs] == 0
