@@ -9,11 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from facesculpt.networks import LiteRtNetwork, OnnxNetwork
 from facesculpt.nodes.hands.detector import (
     HAND_SIZE,
     HandDetector,
-    LiteRtNetwork,
-    OnnxNetwork,
     crop_image,
     letterbox_roi,
 )

@@ -11,12 +11,11 @@ import onnx
 import pytest
 
 from facesculpt.app.setup_models import DOWNLOADS_DIR, WHEEL_NAME
+from facesculpt.networks import LiteRtNetwork, OnnxNetwork
 from facesculpt.nodes.landmarks.detector import (
     DETECTOR_SIZE,
     MESH_SIZE,
     LandmarkDetector,
-    LiteRtNetwork,
-    OnnxNetwork,
     crop_image,
 )
 from facesculpt.nodes.landmarks.tflite_reader import TfliteFormatError, read_tflite

@@ -34,6 +34,7 @@ import numpy as np
 
 from facesculpt.geometry.crops import crop_image, rotation_2d
 from facesculpt.geometry.detections import decode_ssd, ssd_anchors
+from facesculpt.networks import LiteRtNetwork, OnnxNetwork
 from facesculpt.paths import MissingModelsError, model_home
 
 from .palm import ANCHOR_STRIDES, NUM_PALM_KEYPOINTS, PALM_SIZE, roi_from_palm, transform_roi, up_angle, weighted_nms
@@ -102,45 +103,6 @@ def roi_from_hand(points_xy: np.ndarray) -> np.ndarray:
 def palm_centre(points_xy: np.ndarray) -> np.ndarray:
     """Mean of the wrist and the four finger knuckles, (2,)."""
     return points_xy[[0, 5, 9, 13, 17]].mean(axis=0)
-
-
-# ---------------------------------------------------------------------------------------------
-# Networks
-# ---------------------------------------------------------------------------------------------
-class OnnxNetwork:
-    """One converted network on onnxruntime: ``run(x)`` with x (1, H, W, 3) float32 returns the
-    outputs in the TFLite model's order."""
-
-    def __init__(self, path: Path, threads: int = 1):
-        import onnxruntime as ort
-
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = max(int(threads), 0)
-        options.inter_op_num_threads = 1
-        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        self.input_name = self.session.get_inputs()[0].name
-
-    def run(self, x: np.ndarray) -> list[np.ndarray]:
-        return self.session.run(None, {self.input_name: x})
-
-
-class LiteRtNetwork:
-    """The original .tflite network on ai-edge-litert (the reference for tests and benchmarks)."""
-
-    def __init__(self, path: Path, threads: int = 1):
-        from ai_edge_litert.interpreter import Interpreter
-
-        self.interpreter = Interpreter(model_path=str(path), num_threads=max(int(threads), 1))
-        self.interpreter.allocate_tensors()
-        self.input_index = self.interpreter.get_input_details()[0]["index"]
-        self.output_indices = [d["index"] for d in self.interpreter.get_output_details()]
-
-    def run(self, x: np.ndarray) -> list[np.ndarray]:
-        self.interpreter.set_tensor(self.input_index, x)
-        self.interpreter.invoke()
-        return [self.interpreter.get_tensor(i).copy() for i in self.output_indices]
 
 
 def as_bgr(image) -> np.ndarray | None:

@@ -37,6 +37,7 @@ import numpy as np
 from facesculpt.geometry.crops import crop_image, rotation_2d
 from facesculpt.geometry.detections import decode_ssd, ssd_anchors
 from facesculpt.geometry.detections import weighted_nms as nms
+from facesculpt.networks import LiteRtNetwork, OnnxNetwork
 from facesculpt.paths import MissingModelsError, model_home
 
 log = logging.getLogger(__name__)
@@ -148,45 +149,6 @@ def project_points(raw: np.ndarray, roi: np.ndarray, size: int = MESH_SIZE) -> n
     xy = local @ rotation_2d(angle).T + np.array([cx, cy])
     z = raw[:, 2:3] / size * w
     return np.hstack([xy, z])
-
-
-# ---------------------------------------------------------------------------------------------
-# Networks
-# ---------------------------------------------------------------------------------------------
-class OnnxNetwork:
-    """One converted network on onnxruntime: ``run(x)`` with x (1, H, W, 3) float32 returns the
-    outputs in the TFLite model's order."""
-
-    def __init__(self, path: Path, threads: int = 1, inter_threads: int = 1):
-        import onnxruntime as ort
-
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = max(int(threads), 0)
-        options.inter_op_num_threads = max(int(inter_threads), 0)
-        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        self.input_name = self.session.get_inputs()[0].name
-
-    def run(self, x: np.ndarray) -> list[np.ndarray]:
-        return self.session.run(None, {self.input_name: x})
-
-
-class LiteRtNetwork:
-    """The original .tflite network on ai-edge-litert (a reference peer for tests/benchmarks)."""
-
-    def __init__(self, path: Path, threads: int = 1):
-        from ai_edge_litert.interpreter import Interpreter
-
-        self.interpreter = Interpreter(model_path=str(path), num_threads=max(int(threads), 1))
-        self.interpreter.allocate_tensors()
-        self.input_index = self.interpreter.get_input_details()[0]["index"]
-        self.output_indices = [d["index"] for d in self.interpreter.get_output_details()]
-
-    def run(self, x: np.ndarray) -> list[np.ndarray]:
-        self.interpreter.set_tensor(self.input_index, x)
-        self.interpreter.invoke()
-        return [self.interpreter.get_tensor(i).copy() for i in self.output_indices]
 
 
 def as_bgr_uint8(image) -> np.ndarray | None:
