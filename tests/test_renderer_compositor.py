@@ -332,3 +332,36 @@ def test_chin_preset_outline_is_a_smooth_curve_not_a_polygon(gl, data_dir, detec
     assert turning[0] > 30.0             # the polygon's corners
     assert turning[None] < 22.0          # a curve
     assert turning[None] < 0.55 * turning[0]
+
+
+def test_the_mesh_follows_the_faces_size_and_renders_as_a_fixed_one(gl, data_dir, detector):
+    """With an edge limit, a large face gets two levels of subdivision and a small one one level,
+    per frame; each frame is the one the compositor gives with that level fixed, and a face that
+    shrinks and grows again is drawn as before (the meshes and GL buffers are reused)."""
+    from facesculpt.app.pipeline import read_preset
+    from facesculpt.nodes.deformer import EditStack
+    from facesculpt.nodes.fitter import facemesh_model
+
+    frame = read_frames(data_dir, "d0")[0]
+    H, W = frame.shape[:2]
+    pose = place_fitted(facemesh_model(), frame, detector)
+    stack = EditStack(pose.rest, pose.triangles, list(pose.landmarks), list(pose.landmarks.values()))
+    stack.apply_preset(read_preset("chin"))
+    deformed = merge_deformation(pose.fitted, pose.R, pose.scale, stack.solve())
+    big_frame = cv2.resize(frame, (2 * W, 2 * H), interpolation=cv2.INTER_CUBIC)
+    # orthographic camera space is in pixels: the face twice as large is every coordinate doubled
+    small = (pose.fitted, pose.projected, deformed)
+    big = tuple(2.0 * a for a in small)
+    comp = Compositor(2 * W, 2 * H, ctx=gl, max_fine_edge_px=8.0)
+    outs, levels = [], []
+    for face in (big, small, big):
+        outs.append(comp.render(big_frame, face[0], face[1], pose.triangles, face[2]))
+        levels.append(comp.meshes.last_levels)
+    comp.release()
+    assert levels == [2, 1, 2]
+    np.testing.assert_array_equal(outs[2], outs[0])
+    for out, face, fixed in ((outs[0], big, 2), (outs[1], small, 1)):
+        comp = Compositor(2 * W, 2 * H, ctx=gl, subdivision=fixed)
+        np.testing.assert_array_equal(out, comp.render(big_frame, face[0], face[1], pose.triangles, face[2]))
+        comp.release()
+    assert not np.array_equal(outs[0], big_frame)   # the chin moved

@@ -10,11 +10,16 @@ from renderer_scene import read_frames
 from facesculpt.geometry import boundary_loops, point_bounds
 from facesculpt.nodes.renderer.camera import estimate_projection, project
 from facesculpt.nodes.renderer.compositor import OUTLINE_BAND
-from facesculpt.nodes.renderer.frame_size_defaults import auto_interpolation, auto_outline_band
+from facesculpt.nodes.renderer.frame_size_defaults import (
+    AUTO_MAX_FINE_EDGE_PX,
+    auto_interpolation,
+    auto_outline_band,
+    auto_subdivision,
+)
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
 from facesculpt.nodes.renderer.mesh import close_holes, vertex_rings
 from facesculpt.nodes.renderer.sinc_sampling import sample_sinc, upsample2x
-from facesculpt.nodes.renderer.subdivision import levels_for, loop_subdivision
+from facesculpt.nodes.renderer.subdivision import levels_for, loop_subdivision, median_edge_px
 from facesculpt.nodes.renderer.video_out import VideoOutput
 from facesculpt.nodes.renderer.warp import sample
 
@@ -76,6 +81,16 @@ def test_the_live_renderers_auto_outline_band_is_the_offline_one_below_720p():
     for bad in ("wide", "-0.05", 0.8, "nan", None):
         with pytest.raises(ValueError, match="outline_band must be auto or a share"):
             auto_outline_band(bad, 856, 480)
+
+
+def test_the_live_renderers_auto_mesh_follows_the_faces_size_from_720p():
+    """The compositor's default below 720p; from there on as fine as the face's size needs."""
+    assert auto_subdivision("auto", 856, 480) == (None, None)
+    assert auto_subdivision("auto", 1280, 720) == (None, AUTO_MAX_FINE_EDGE_PX)
+    assert auto_subdivision(2, 1920, 1080) == auto_subdivision("2", 640, 480) == (2, None)   # YAML gives either
+    for bad in ("4", "-1", "fine", 1.5):
+        with pytest.raises(ValueError, match="subdivision must be auto or 0 to 3"):
+            auto_subdivision(bad, 856, 480)
 
 
 # -- fills ------------------------------------------------------------------------------------
@@ -308,6 +323,15 @@ def test_loop_subdivision_smooths_a_polygon_outline():
 
 def test_subdivision_levels_and_errors():
     assert levels_for(898) == 2 and levels_for(6782) == 0 and levels_for(3000) == 1
+    # by the face's size: the fewest levels, at least one, that make the fine edges 8 px or shorter
+    assert levels_for(898, 12.0, 8.0) == 1 and levels_for(898, 4.0, 8.0) == 1 and levels_for(898, 20.0, 8.0) == 2
+    assert levels_for(898, 100.0, 8.0) == 2 and levels_for(6782, 20.0, 8.0) == 0   # within the budget
+    # near the threshold the last frame's levels stay (no switching back and forth)
+    assert levels_for(898, 17.0, 8.0) == 2 and levels_for(898, 17.0, 8.0, current=1) == 1
+    assert levels_for(898, 19.0, 8.0, current=1) == 2
+    assert levels_for(898, 14.0, 8.0, current=2) == 2 and levels_for(898, 13.0, 8.0, current=2) == 1
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
+    assert median_edge_px(square, np.array([[0, 1, 2], [0, 2, 3]])) == 10.0
     with pytest.raises(ValueError, match="levels"):
         loop_subdivision(np.array([[0, 1, 2]]), 3, -1)
     with pytest.raises(ValueError, match="indices"):

@@ -3,7 +3,9 @@
 Several nodes share a few cores; a library that spreads each small operation over
 every core only adds contention: the fitter's small least squares and the
 renderer's fills of small bands run faster on one thread each than spread over
-cores that the graph's other processes already use.
+cores that the graph's other processes already use. The same holds for Mesa's software
+rasteriser (llvmpipe): its own threads wait for cores the other nodes hold, and the renderer
+waits for them.
 """
 
 from __future__ import annotations
@@ -13,14 +15,17 @@ import os
 
 
 def limit_threads(threads: int = 1) -> list[str]:
-    """Limit the worker threads of OpenBLAS (:func:`limit_blas_threads`) and OpenCV
-    (``cv2.setNumThreads``) in this process to ``threads``; 0 leaves both at their defaults
-    (one per core). Child processes inherit the limit through ``FACESCULPT_THREADS``, which
-    :func:`facesculpt.runtime.node.run_node` reads. Returns the BLAS libraries changed."""
+    """Limit the worker threads of OpenBLAS (:func:`limit_blas_threads`), OpenCV
+    (``cv2.setNumThreads``) and llvmpipe (``LP_NUM_THREADS``: ``threads`` - 1 threads of its own
+    beside the one that draws, for OpenGL contexts made afterwards) in this process to
+    ``threads``; 0 leaves them at their defaults (one per core). Child processes inherit the limit
+    through ``FACESCULPT_THREADS``, which :func:`facesculpt.runtime.node.run_node` reads. Returns
+    the BLAS libraries changed."""
     threads = int(threads)
     os.environ["FACESCULPT_THREADS"] = str(threads)
     if threads <= 0:
         return []
+    os.environ["LP_NUM_THREADS"] = str(threads - 1)
     try:
         import cv2
     except ImportError:  # pragma: no cover - a dependency of the package

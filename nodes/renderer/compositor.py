@@ -38,7 +38,6 @@ crop for work that numpy/OpenCV do cheaply on it (benchmarks/bench_renderer.py m
 
 from __future__ import annotations
 
-import hashlib
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -55,11 +54,10 @@ from .drag_fill import drag_fill
 from .gl_context import create_headless_context
 from .inpaint import FILL_METHODS, dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
-from .mesh import close_holes, vertex_rings
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
+from .render_meshes import RenderMeshes
 from .source_map import UNCOVERED, SourceMapRenderer
-from .subdivision import levels_for, loop_subdivision
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
     IDENTITY_PX,
@@ -90,14 +88,16 @@ class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
     Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2, telea_radius=3.0,
-    interpolation="sinc", subdivision=None): frame size in pixels; ``ctx`` a moderngl context to draw
-    with (default: a headless EGL context of its own); ``inpaint`` the fill of what the face uncovers:
-    "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag" (:mod:`.drag_fill`); ``feather_px``
-    least width of the soft edge inside the deformed outline (pixels; it grows to ``FEATHER_FRACTION``
-    of the face's size; 0: a hard edge); ``dilate_px`` growth of the region to inpaint (pixels);
-    ``interpolation`` the kernel the frame is sampled with ("sinc": a long windowed sinc,
-    :mod:`.sinc_sampling`; "cubic", "lanczos", "linear": OpenCV's); ``subdivision`` Loop levels of the
-    render mesh (None: as many as keep it within 16384 triangles, at most 2); ``atlas`` keep and use the
+    interpolation="sinc", subdivision=None, max_fine_edge_px=None): frame size in pixels; ``ctx`` a
+    moderngl context to draw with (default: a headless EGL context of its own); ``inpaint`` the fill
+    of what the face uncovers: "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag"
+    (:mod:`.drag_fill`); ``feather_px`` least width of the soft edge inside the deformed outline
+    (pixels; it grows to ``FEATHER_FRACTION`` of the face's size; 0: a hard edge); ``dilate_px``
+    growth of the region to inpaint (pixels); ``interpolation`` the kernel the frame is sampled with
+    ("sinc": a long windowed sinc, :mod:`.sinc_sampling`; "cubic", "lanczos", "linear": OpenCV's);
+    ``subdivision`` Loop levels of the render mesh (None: as many as keep it within 16384 triangles,
+    at most 2; with ``max_fine_edge_px``, per frame as few as make its edges that short on screen in
+    pixels: :class:`.RenderMeshes`); ``atlas`` keep and use the
     face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side, ``atlas_every``
     update it every N frames (the frames between only read it); ``atlas_blend`` False: learn the atlas,
     blend nothing from it (e.g. only to save it); ``atlas_thread``: the CPU work of its updates on a
@@ -119,6 +119,7 @@ class Compositor:
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
                  inpaint: str = "drag", feather_px: float = 3.0, dilate_px: int = 2,
                  telea_radius: float = 3.0, interpolation: str = "sinc", subdivision: int | None = None,
+                 max_fine_edge_px: float | None = None,
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
                  plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,
@@ -134,15 +135,13 @@ class Compositor:
             raise ValueError("feather_px and dilate_px must be >= 0")
         if not 0 <= outline_band <= 0.5:
             raise ValueError(f"outline_band must be a share of the face's size in [0, 0.5], got {outline_band}")
-        if subdivision is not None and not 0 <= subdivision <= 3:
-            raise ValueError(f"subdivision must be 0 to 3 levels, got {subdivision}")
         self.width, self.height = width, height
         self.inpaint = inpaint
         self.feather_px, self.outline_band = float(feather_px), float(outline_band)
         self.dilate_px = int(dilate_px)
         self.telea_radius = float(telea_radius)
         self.interpolation = interpolation
-        self.subdivision = subdivision
+        self.meshes = RenderMeshes(subdivision, max_fine_edge_px)
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_headless_context()
         self.maps = SourceMapRenderer(self.ctx, width, height, extras=bool(atlas) or bool(keyframes))
@@ -164,7 +163,6 @@ class Compositor:
         self.plate = BackgroundPlate(width, height, max_age=plate_max_age, register=plate_register) if plate else None
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
         self._plate_learner = PlateLearner(self.plate, segmenter) if plate else None
-        self._meshes: dict[tuple, tuple] = {}   # (triangles hash, V) -> (closed, S, fine triangles, two rings)
         self._mesh_key: tuple | None = None
         self._closed = self._S = self._fine = self._rings = None
         self.timings: dict[str, float] = {}
@@ -172,31 +170,14 @@ class Compositor:
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None  # last box's
         self.deformed_px: np.ndarray | None = None   # (V, 2) pixels of the last deformed mesh
 
-    def _set_triangles(self, triangles: np.ndarray, n_vertices: int) -> None:
-        """Check the triangles and make their closed, subdivided mesh current (built once per
-        triangle set and vertex count, kept by a hash of the triangles)."""
-        tri = np.asarray(triangles)
-        if tri.ndim != 2 or tri.shape[1] != 3 or len(tri) == 0:
-            raise ValueError(f"triangles must be (T, 3) with T > 0, got {tri.shape}")
-        if not np.issubdtype(tri.dtype, np.integer):
-            raise ValueError(f"triangles must be integer indices, got {tri.dtype}")
-        key = (hashlib.blake2b(np.ascontiguousarray(tri, np.int64).tobytes(), digest_size=16).digest(),
-               tri.shape, n_vertices)
-        if key == self._mesh_key:
-            return
-        if tri.min() < 0 or tri.max() >= n_vertices:
-            raise ValueError(f"triangle indices must lie in [0, {n_vertices}), got [{tri.min()}, {tri.max()}]")
-        if key not in self._meshes:
-            closed = close_holes(tri).astype(np.int64)
-            levels = levels_for(len(closed)) if self.subdivision is None else self.subdivision
-            S, fine = loop_subdivision(closed, n_vertices, levels)
-            if len(self._meshes) >= 4:
-                self._meshes.clear()
-            self._meshes[key] = (closed, S, fine, vertex_rings(closed, n_vertices, 2))
-        self._closed, self._S, fine, self._rings = self._meshes[key]
-        self._fine = fine.reshape(-1, len(self._closed), 3)  # [k, t]: the k-th child of coarse triangle t
-        self.maps.set_mesh(self._S.shape[0], len(fine) + len(self._closed))
-        self._mesh_key = key
+    def _set_triangles(self, triangles: np.ndarray, n_vertices: int, px: np.ndarray) -> None:
+        """Make the render mesh of ``triangles`` current (:class:`.RenderMeshes`; the face's vertex
+        pixels ``px`` (V, 2) choose its levels); ValueError for triangles that are not indices."""
+        mesh = self.meshes.get(triangles, n_vertices, px)
+        if mesh.key != self._mesh_key:
+            self._closed, self._rings, self._S, self._fine = mesh.closed, mesh.rings, mesh.S, mesh.fine
+            self.maps.set_mesh(self._S.shape[0], self._fine.size // 3 + len(self._closed))
+            self._mesh_key = mesh.key
 
     def _draw_triangles(self, offset: np.ndarray) -> tuple[np.ndarray, int]:
         """The triangles to draw, given the fine vertices' ``offset`` (Vf, 2) pixels: the fine
@@ -273,7 +254,7 @@ class Compositor:
         if V == 0:  # no face
             self.timings = {"plate": t_plate, "total": (time.perf_counter() - t_start) * 1e3}
             return frame_bgr.copy()
-        self._set_triangles(triangles, V)
+        self._set_triangles(triangles, V, projected)
         t0 = time.perf_counter()
         uvq, chosen = self._update_memory(frame_bgr, fitted, projected, triangles, deformed, uv, face_key, keep_mask)
         t_atlas, t0 = (time.perf_counter() - t0) * 1e3, time.perf_counter()

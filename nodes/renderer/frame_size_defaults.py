@@ -2,7 +2,8 @@
 
 From :data:`LARGE_FRAME_PIXELS` pixels a frame on, the renderer is what limits the live graph's
 frame rate, so its "auto" settings trade a little quality for time there: the bicubic kernel
-instead of the sinc (:func:`auto_interpolation`), and no outline band (:func:`auto_outline_band`).
+instead of the sinc (:func:`auto_interpolation`), no outline band (:func:`auto_outline_band`), and
+a render mesh only as fine as the face's size on screen needs (:func:`auto_subdivision`).
 Below it every path (window, graph, ``process``, demo) composites alike.
 """
 
@@ -16,6 +17,8 @@ from .compositor import OUTLINE_BAND
 LARGE_FRAME_PIXELS = 1280 * 720
 #: The largest outline band a renderer takes (share of the face's size).
 MAX_OUTLINE_BAND = 0.5
+#: From LARGE_FRAME_PIXELS on, "auto" subdivides the render mesh until its edges are this short on screen, px.
+AUTO_MAX_FINE_EDGE_PX = 8.0
 
 
 def auto_interpolation(interpolation: str, width: int, height: int) -> str:
@@ -41,3 +44,17 @@ def auto_outline_band(band: str | float, width: int, height: int) -> float:
         raise ValueError(f"outline_band must be auto or a share of the face's size in [0, {MAX_OUTLINE_BAND}], "
                          f"got {band!r}")
     return value
+
+
+def auto_subdivision(levels: str | int, width: int, height: int) -> tuple[int | None, float | None]:
+    """The compositor's ``(subdivision, max_fine_edge_px)`` for frames of ``width`` x ``height``
+    pixels: ``levels`` itself (0 to 3, a number or its text) with no edge limit, or for "auto"
+    the compositor's default below :data:`LARGE_FRAME_PIXELS` pixels and, from there on, per frame
+    as few levels as make the render mesh's edges :data:`AUTO_MAX_FINE_EDGE_PX` long on screen.
+    ValueError, in one sentence, for anything else."""
+    if isinstance(levels, str) and levels.strip() == "auto":
+        return None, (None if width * height < LARGE_FRAME_PIXELS else AUTO_MAX_FINE_EDGE_PX)
+    text = str(levels).strip()
+    if text not in ("0", "1", "2", "3"):
+        raise ValueError(f"subdivision must be auto or 0 to 3 levels, got {levels!r}")
+    return int(text), None

@@ -12,7 +12,7 @@ output). Writes ``output`` (a video file) when set.
 Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames kept
 for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea" | "ns" | "patch" | "drag"), plate
 ("on" | "off": the background plate, ``background_plate.py``), plate_max_age,
-feather_px, dilate_px, outline_band, output (video path), fps (of the video file), publish, overlay
+feather_px, dilate_px, outline_band, subdivision, output (video path), fps (of the video file), publish, overlay
 (fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
 the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s,
 pinch_markers (a marker at each pinch of the pinch node's input/events, ``pinch_markers.py``),
@@ -42,7 +42,13 @@ from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
 from .compositor import OUTLINE_BAND, Compositor
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
-from .frame_size_defaults import MAX_OUTLINE_BAND, auto_interpolation, auto_outline_band
+from .frame_size_defaults import (
+    AUTO_MAX_FINE_EDGE_PX,
+    MAX_OUTLINE_BAND,
+    auto_interpolation,
+    auto_outline_band,
+    auto_subdivision,
+)
 from .inpaint import FILL_METHODS
 from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
@@ -98,6 +104,10 @@ class RendererNode(Node):
                                       f"with the face), in [0, {MAX_OUTLINE_BAND}]; 0: not at all; auto: {OUTLINE_BAND} "
                                       f"as process does for frames smaller than 1280x720, 0 from there on, where the "
                                       f"renderer limits the frame rate"),
+        "subdivision": Param("auto", f"Loop subdivision levels of the render mesh, 0 to 3 (smooth edited outlines); "
+                                     f"auto: as many as keep it within 16384 triangles (2 for the face mesh) for "
+                                     f"frames smaller than 1280x720, from there on as few as make its edges "
+                                     f"{AUTO_MAX_FINE_EDGE_PX:g} px long on screen"),
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),
@@ -144,6 +154,7 @@ class RendererNode(Node):
                                      "use output=FILE.mp4 or publish=true to run headless")
         try:
             auto_outline_band(p.outline_band, 1, 1)
+            auto_subdivision(p.subdivision, 1, 1)
             # the plate learns nothing where a person is (their hair, neck, shoulders)
             self.segmenter = PersonSegmenter() if p.plate == "on" else None
         except (ValueError, MissingNetworkError) as exc:
@@ -301,13 +312,15 @@ class RendererNode(Node):
                 return False
             ctx = self.window.ctx
         p = self.params
+        subdivision, max_fine_edge_px = auto_subdivision(p.subdivision, width, height)
         self.compositor = Compositor(width, height, ctx=ctx, inpaint=p.inpaint, feather_px=p.feather_px,
                                      outline_band=auto_outline_band(p.outline_band, width, height),
                                      dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
                                      atlas_every=p.atlas_every, atlas_thread=True,
                                      plate=p.plate == "on", plate_max_age=p.plate_max_age, segmenter=self.segmenter,
                                      interpolation=auto_interpolation(p.interpolation, width, height),
-                                     keyframes=p.keyframes == "on")
+                                     keyframes=p.keyframes == "on", subdivision=subdivision,
+                                     max_fine_edge_px=max_fine_edge_px)
         return True
 
     def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:

@@ -105,17 +105,21 @@ class SourceMapRenderer:
             self.map_prog = ctx.program(vertex_shader=_MAP_VS, fragment_shader=_MAP_FS)
         self.mask_prog = ctx.program(vertex_shader=_MASK_VS, fragment_shader=_MASK_FS)
         self._vbo = self._ibo = self._vao_map = self._vao_mask = self._vbo_extra = None
-        self._n_vertices = self._max_triangles = 0
+        self._n_vertices = self._vertex_room = self._max_triangles = 0
 
     def set_mesh(self, n_vertices: int, max_triangles: int) -> None:
-        """Make room for meshes of ``n_vertices`` vertices and up to ``max_triangles`` triangles."""
+        """Make room for meshes of ``n_vertices`` vertices and up to ``max_triangles`` triangles
+        (the buffers are kept when they are large enough: meshes may change from frame to frame)."""
+        if 0 < n_vertices <= self._vertex_room and max_triangles <= self._max_triangles:
+            self._n_vertices = int(n_vertices)
+            return
         for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo", "_vbo_extra"):
             old = getattr(self, name)
             if old is not None:
                 old.release()
         self._ibo = self.ctx.buffer(reserve=max(int(max_triangles), 1) * 3 * 4)
         self._vbo = self.ctx.buffer(reserve=max(int(n_vertices), 1) * 5 * 4)
-        self._n_vertices = int(n_vertices)
+        self._n_vertices = self._vertex_room = int(n_vertices)
         self._max_triangles = int(max_triangles)
         buffers = [(self._vbo, "2f 1f 2f", "in_dst", "in_depth", "in_offset")]
         if self.extras:
