@@ -232,3 +232,22 @@ def test_compositor_drag_fill_continues_the_background_into_the_gap(gl):
     background = np.abs(np.diff(bg[..., 1].astype(int), axis=1)).mean()
     assert contrast["drag"] > 0.6 * background, (contrast, background)   # the stripes, squeezed
     assert contrast["pushpull"] < 0.3 * contrast["drag"], contrast        # a smear
+
+
+def test_the_dragged_offsets_are_smoothed_over_the_gap_only():
+    """Two constant patches of dragged offsets meet in the gap (the nearest-pixel mosaic): smoothed,
+    the jump at their seam spreads over a few pixels; the face's own offsets and unset pixels stay."""
+    from facesculpt.nodes.renderer.drag_fill import smooth_drag
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    dragged = np.full((40, 40, 2), UNCOVERED, np.float32)
+    dragged[:, :20] = (4.0, 0.0)
+    dragged[:, 20:30] = (8.0, 0.0)           # columns 30-39: nothing set
+    gap = np.zeros((40, 40), bool)
+    gap[10:30, 10:36] = True
+    out = smooth_drag(dragged, gap, 3.0)
+    np.testing.assert_array_equal(out[~gap], dragged[~gap])
+    assert (out[10:30, 30:36, 0] == UNCOVERED).all()
+    row = out[20, 10:30, 0]
+    assert np.all(np.diff(row) >= 0) and np.abs(np.diff(row)).max() < 1.5  # 4 -> 8 in steps, not one jump
+    assert abs(row[0] - 4.0) < 0.05 and abs(out[20, 29, 0] - 8.0) < 1.0

@@ -50,7 +50,7 @@ from facesculpt.geometry import point_bounds
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate
 from .camera import estimate_projection, project
-from .drag_fill import drag_fill
+from .drag_fill import drag_fill, smooth_drag
 from .gl_context import create_headless_context
 from .inpaint import FILL_METHODS, dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
@@ -322,7 +322,7 @@ class Compositor:
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
             if gap is not None:
-                dragged, offsets = offsets, offsets.copy()
+                dragged, offsets = smooth_drag(offsets, gap), offsets.copy()
                 offsets[gap] = UNCOVERED
         return offsets, orig_mask, face, dragged
 

@@ -16,10 +16,42 @@ Crops (h, w, 3) uint8, masks (h, w), offsets (h, w, 2) float32 pixels (UNCOVERED
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .source_map import UNCOVERED
-from .warp import sample
+from .warp import bounding_slices, sample
+
+SMOOTH_PX = 3.0   # sigma (px) of the smoothing of the dragged offsets over the gap
+
+
+def smooth_drag(dragged: np.ndarray, gap: np.ndarray, sigma_px: float = SMOOTH_PX) -> np.ndarray:
+    """The ``dragged`` offsets (h, w, 2) float32 (UNCOVERED: none) with those of the ``gap`` pixels
+    (h, w) bool replaced by a normalised smoothing (about a Gaussian of ``sigma_px``) of every set
+    offset around them.
+
+    Each gap pixel took its nearest face pixel's offset whole: a mosaic of constant patches. Where
+    the strip shows the real outline (the fit lies a pixel or two inside it) the patches print it
+    as a staircase, and their seams jump as the outline moves by a fraction of a pixel from frame
+    to frame (flicker). Only the gap's bounding box (grown by three sigmas) is smoothed. Returns a
+    new array (the same when nothing is set)."""
+    known = dragged[..., 0] < 0.5 * UNCOVERED
+    target = gap & known
+    block = bounding_slices(target) if sigma_px > 0 else None
+    if block is None:
+        return dragged
+    reach = int(np.ceil(3.0 * sigma_px))
+    rows, cols = (slice(max(b.start - reach, 0), b.stop + reach) for b in block)
+    k = known[rows, cols].astype(np.float32)
+    part = dragged[rows, cols]
+    stack = cv2.merge([part[..., 0] * k, part[..., 1] * k, k])   # offsets where set (0 elsewhere), and where set
+    # two box filters of 2 sigma + 1 px: nearly a Gaussian of sigma, at a cost that does not grow with it
+    size = (2 * int(round(sigma_px)) + 1,) * 2
+    smooth = cv2.blur(cv2.blur(stack, size, borderType=cv2.BORDER_REPLICATE), size, borderType=cv2.BORDER_REPLICATE)
+    ys, xs = np.nonzero(target[rows, cols])
+    out = dragged.copy()
+    out[ys + rows.start, xs + cols.start] = smooth[ys, xs, :2] / smooth[ys, xs, 2:3]
+    return out
 
 
 def dragged_to(dragged: np.ndarray, ys: np.ndarray, xs: np.ndarray, origin: tuple[int, int],
