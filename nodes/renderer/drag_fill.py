@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from .source_map import UNCOVERED
-from .warp import bounding_slices, sample
+from .warp import sample
 
 SMOOTH_PX = 3.0   # sigma (px) of the smoothing of the dragged offsets over the gap
 
@@ -33,24 +33,33 @@ def smooth_drag(dragged: np.ndarray, gap: np.ndarray, sigma_px: float = SMOOTH_P
     Each gap pixel took its nearest face pixel's offset whole: a mosaic of constant patches. Where
     the strip shows the real outline (the fit lies a pixel or two inside it) the patches print it
     as a staircase, and their seams jump as the outline moves by a fraction of a pixel from frame
-    to frame (flicker). Only the gap's bounding box (grown by three sigmas) is smoothed. Returns a
-    new array (the same when nothing is set)."""
+    to frame (flicker). Parts of the gap side by side are smoothed on boxes of their own (grown by
+    three sigmas). Returns a new array (the same when nothing is set)."""
     known = dragged[..., 0] < 0.5 * UNCOVERED
     target = gap & known
-    block = bounding_slices(target) if sigma_px > 0 else None
-    if block is None:
+    columns = np.flatnonzero(target.any(axis=0))
+    if len(columns) == 0 or sigma_px <= 0:
         return dragged
     reach = int(np.ceil(3.0 * sigma_px))
-    rows, cols = (slice(max(b.start - reach, 0), b.stop + reach) for b in block)
-    k = known[rows, cols].astype(np.float32)
-    part = dragged[rows, cols]
-    stack = cv2.merge([part[..., 0] * k, part[..., 1] * k, k])   # offsets where set (0 elsewhere), and where set
-    # two box filters of 2 sigma + 1 px: nearly a Gaussian of sigma, at a cost that does not grow with it
     size = (2 * int(round(sigma_px)) + 1,) * 2
-    smooth = cv2.blur(cv2.blur(stack, size, borderType=cv2.BORDER_REPLICATE), size, borderType=cv2.BORDER_REPLICATE)
-    ys, xs = np.nonzero(target[rows, cols])
+    # the strip's parts side by side (the two cheeks') each on its own box: far smaller than their common one
+    cuts = np.flatnonzero(np.diff(columns) > 2 * reach) + 1
+    parts = []
+    for run in np.split(columns, cuts):
+        rows = np.flatnonzero(target[:, run[0]:run[-1] + 1].any(axis=1))
+        parts.append((run[0], rows[0], run[-1] + 1 - run[0], rows[-1] + 1 - rows[0]))
     out = dragged.copy()
-    out[ys + rows.start, xs + cols.start] = smooth[ys, xs, :2] / smooth[ys, xs, 2:3]
+    for x, y, w, h in parts:
+        rows = slice(max(y - reach, 0), y + h + reach)
+        cols = slice(max(x - reach, 0), x + w + reach)
+        k = known[rows, cols].astype(np.float32)
+        block = dragged[rows, cols]
+        stack = cv2.merge([block[..., 0] * k, block[..., 1] * k, k])   # offsets where set (else 0), where set
+        # two box filters of 2 sigma + 1 px: nearly a Gaussian of sigma, at a cost that does not grow with it
+        smooth = cv2.blur(cv2.blur(stack, size, borderType=cv2.BORDER_REPLICATE), size,
+                          borderType=cv2.BORDER_REPLICATE)
+        ys, xs = np.nonzero(target[rows, cols])
+        out[ys + rows.start, xs + cols.start] = smooth[ys, xs, :2] / smooth[ys, xs, 2:3]
     return out
 
 
