@@ -113,7 +113,8 @@ class Compositor:
 
     After each :meth:`render`: ``timings``, the stage times of that frame in ms (:data:`STAGES`;
     plate: the main thread's part of its learning); ``box``, the frame rectangle (x0, y0, x1, y1)
-    it worked on (None when nothing changed); ``deformed_px``, the deformed vertices' (V, 2) pixels.
+    it worked on (None when nothing changed); ``deformed_px``, the deformed vertices' (V, 2) pixels;
+    ``meshes.last_levels``, the Loop levels of the mesh it drew.
     """
 
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
