@@ -43,15 +43,11 @@ def smooth_drag(dragged: np.ndarray, gap: np.ndarray, sigma_px: float = SMOOTH_P
     reach = int(np.ceil(3.0 * sigma_px))
     size = (2 * int(round(sigma_px)) + 1,) * 2
     # the strip's parts side by side (the two cheeks') each on its own box: far smaller than their common one
-    cuts = np.flatnonzero(np.diff(columns) > 2 * reach) + 1
-    parts = []
-    for run in np.split(columns, cuts):
-        rows = np.flatnonzero(target[:, run[0]:run[-1] + 1].any(axis=1))
-        parts.append((run[0], rows[0], run[-1] + 1 - run[0], rows[-1] + 1 - rows[0]))
     out = dragged.copy()
-    for x, y, w, h in parts:
-        rows = slice(max(y - reach, 0), y + h + reach)
-        cols = slice(max(x - reach, 0), x + w + reach)
+    for run in np.split(columns, np.flatnonzero(np.diff(columns) > 2 * reach) + 1):
+        used = np.flatnonzero(target[:, run[0]:run[-1] + 1].any(axis=1))
+        rows = slice(max(used[0] - reach, 0), used[-1] + 1 + reach)
+        cols = slice(max(run[0] - reach, 0), run[-1] + 1 + reach)
         k = known[rows, cols].astype(np.float32)
         block = dragged[rows, cols]
         stack = cv2.merge([block[..., 0] * k, block[..., 1] * k, k])   # offsets where set (else 0), where set

@@ -69,10 +69,10 @@ class RenderMeshes:
             self._closed[key] = (closed, vertex_rings(closed, n_vertices, 2), {})
         closed, rings, subdivided = self._closed[key]
         levels = self.levels
-        if levels is None and self.max_fine_edge_px is not None and levels_for(len(closed)) > 0:
-            levels = levels_for(len(closed), median_edge_px(px, closed), self.max_fine_edge_px, self.last_levels)
-        elif levels is None:
-            levels = levels_for(len(closed))
+        if levels is None:
+            levels = levels_for(len(closed))   # the triangle budget's
+            if levels > 0 and self.max_fine_edge_px is not None:   # fewer, by the face's size
+                levels = levels_for(len(closed), median_edge_px(px, closed), self.max_fine_edge_px, self.last_levels)
         if levels not in subdivided:
             subdivided[levels] = loop_subdivision(closed, n_vertices, levels)
         S, fine = subdivided[levels]
