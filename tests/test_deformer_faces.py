@@ -28,7 +28,7 @@ def two_faces(monkeypatch, tmp_path, data_dir):
 
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     m = load_model("sfm")
-    node = DeformerNode(params={"round_s": 1.0})
+    node = DeformerNode(params={"round_s": 1.0, "solve_share": 1.0})
     node.setup()
     node.running = True
     model = face_model(m)

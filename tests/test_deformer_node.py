@@ -56,7 +56,7 @@ def ev(kind, **kw):
 @pytest.fixture
 def node(monkeypatch, tmp_path):
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
-    n = DeformerNode(params={"preset_dir": str(tmp_path)})
+    n = DeformerNode(params={"preset_dir": str(tmp_path), "solve_share": 1.0})
     n.setup()
     n.running = True
     yield n
@@ -320,10 +320,46 @@ def test_real_process_receives_every_event_and_publishes(graph, sfm):
 
 def make_node(monkeypatch, tmp_path, **params):
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
-    n = DeformerNode(params={"preset_dir": str(tmp_path), **params})
+    n = DeformerNode(params={"preset_dir": str(tmp_path), "solve_share": 1.0, **params})
     n.setup()
     n.running = True
     return n
+
+
+def test_rounds_rest_after_a_solve_so_solving_keeps_to_its_share_of_a_core(monkeypatch, tmp_path, sfm):
+    """solve_share 0.25: after a solve of t s the rounds wait 3 t (at most MAX_REST_S); an event
+    sent meanwhile waits in the queue and is solved by the first round after the rest."""
+    from facesculpt.nodes.deformer.node import MAX_REST_S
+
+    n = make_node(monkeypatch, tmp_path, solve_share=0.25)
+    try:
+        nose = sfm.landmark_index()["nose_tip"]
+        n.on_model(face_model(sfm))
+        n.on_state(face_state(sfm))
+        n.on_event(ev("move", landmark="nose_tip", vector=np.array([0.0, 0.0, 4.0], np.float32)))
+        t0 = time.monotonic()
+        n.on_round()
+        spent = time.monotonic() - t0
+        solved = n.last
+        rest = n.rest_until - time.monotonic()
+        assert solved is not None and 0 < rest <= min(MAX_REST_S, 3 * spent)
+        n.on_event(ev("move", landmark="nose_tip", vector=np.array([0.0, 0.0, 4.0], np.float32), stamp=101))
+        n.on_round()  # resting: the move waits
+        assert n.last is solved and len(n.pending) == 1
+        time.sleep(max(0.0, n.rest_until - time.monotonic()) + 0.001)
+        n.on_round()
+        assert n.last is not solved and not n.pending
+        assert np.allclose(n.last.displacement[nose], [0.0, 0.0, 8.0], atol=1e-4)
+    finally:
+        n.close()
+    n = make_node(monkeypatch, tmp_path)  # solve_share 1: no rest
+    try:
+        n.on_model(face_model(sfm))
+        n.on_event(ev("move", landmark="nose_tip", vector=np.array([0.0, 0.0, 4.0], np.float32)))
+        n.on_round()
+        assert n.last is not None and n.rest_until <= time.monotonic()
+    finally:
+        n.close()
 
 
 def test_preset_param_applies_on_the_first_model_and_follows_model_changes(monkeypatch, tmp_path, sfm):

@@ -3,7 +3,8 @@
 
 Events are queued on arrival and applied in rounds (every ``round_s``): the paper empties the
 event queue each round, so any number of drags of a handle become one ARAP solve. Rounds run
-on the node's own thread, independent of the frame rate. Bad input (a miss, an unknown
+on the node's own thread, independent of the frame rate; after a solve the rounds rest so that
+solving takes at most ``solve_share`` of one core. Bad input (a miss, an unknown
 landmark, NaN, a preset that does not fit) is counted in diagnostics and the last good
 deformation stays. The ``preset`` param is checked at start (a missing or malformed file stops
 the node with one sentence) and applied as soon as the first ``face/model`` arrives.
@@ -39,6 +40,7 @@ from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_
 
 MAX_PENDING_WITHOUT_MODEL = 10000
 MAX_FACES = 16  # editors kept; the face edited longest ago is dropped first
+MAX_REST_S = 0.1  # the longest wait solve_share puts after a solve (a preset's factorisation)
 POINTER_KINDS = ("drag", "release", "depth", "move")
 SELECTED_KINDS = ("depth", "move", "axes", "pose")
 
@@ -58,6 +60,9 @@ class DeformerNode(Node):
                               choices=("anderson", "none")),
         "clamp_weights": Param(True, "clamp obtuse-angle cotangents at 0"),
         "round_s": Param(0.005, "how often queued events are applied and solved, s", range=(0.001, 1.0)),
+        "solve_share": Param(0.3, "share of one core the solves may take: after a solve of t seconds the "
+                                  "next round waits t x (1/share - 1), at most 0.1 s (1: no wait)",
+                             range=(0.05, 1.0)),
         "joystick_speed": Param(SPEED_MM_S, "axes events: mm/s of the handle at full deflection",
                                 range=SPEED_MM_S_RANGE),
         "joystick_deadzone": Param(DEADZONE, "axes events: fraction of full deflection read as 0",
@@ -83,6 +88,7 @@ class DeformerNode(Node):
         self.selected_face: int | None = None  # the face last pressed or selected
         self.displacements: dict[int, np.ndarray] = {}  # face -> last solved (V, 3) mm
         self.stamp = 0
+        self.rest_until = 0.0  # time.monotonic() before which rounds wait (solve_share)
         self.last: Deformation | None = None  # last published (the last good deformation)
         self.initial_preset: dict | None = None
         self.last_diagnostic = ""  # the last problem of any face
@@ -174,6 +180,8 @@ class DeformerNode(Node):
                 self.count("events_without_model", len(self.pending) - MAX_PENDING_WITHOUT_MODEL)
                 del self.pending[:-MAX_PENDING_WITHOUT_MODEL]
             return
+        if time.monotonic() < self.rest_until:
+            return  # the last solve's rest: events wait and are solved together next round
         events, self.pending = self.pending, []
         routed: dict[int, list[InputEvent]] = {k: [] for k in self.editors}
         for ev in events:
@@ -181,6 +189,7 @@ class DeformerNode(Node):
             for face_id in self._faces_of(ev):
                 routed[face_id].append(ev)
         changed = False
+        t0 = time.monotonic()
         for face_id, editor in self.editors.items():
             displacement = editor.round(routed.get(face_id, []))
             if displacement is not None:
@@ -191,6 +200,15 @@ class DeformerNode(Node):
                 changed = True
         if changed:
             self.publish()
+        self._rest_after(time.monotonic() - t0)
+
+    def _rest_after(self, spent_s: float) -> None:
+        """Keep the rounds' solves within ``solve_share`` of one core. A drag solves every round
+        while it moves and settles; with a large mesh and several edits that took half a core,
+        which the frame path (fitter, renderer) on a two-core machine needs: the frames' latency
+        rose by half during drags. Waiting merges the drag's events into fewer solves."""
+        share = self.params.solve_share
+        self.rest_until = time.monotonic() + min(MAX_REST_S, spent_s * (1.0 / share - 1.0))
 
     def _faces_of(self, ev: InputEvent) -> list[int]:
         """The faces an event edits (see the module docstring)."""
