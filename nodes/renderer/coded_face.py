@@ -20,7 +20,17 @@ from facesculpt.geometry.projection import project
 from facesculpt.geometry.similarity import apply_similarity_vector
 
 from .compositor import Compositor
+from .frame_size_defaults import AUTO_MAX_FINE_EDGE_PX
 from .mouth_interior import CLOSED_MOUTH_PX, INNER_LIP_FACEMESH, opening_px, paint_mouth_interior
+
+
+def coded_compositor(width: int, height: int, ctx=None) -> Compositor:
+    """The compositor a coded face is drawn with (``ctx``: a window's GL context, else its own):
+    the bicubic kernel and a render mesh only as fine as the face's size needs. The whole head
+    moves in every frame, so a decoder warps the head's region, not an edit's; the sinc and the
+    finer mesh cost it much of its frame time for no change in the decoded face that the
+    coding benchmark sees (README "Model-based coding")."""
+    return Compositor(width, height, ctx=ctx, interpolation="cubic", max_fine_edge_px=AUTO_MAX_FINE_EDGE_PX)
 
 
 class CodedFace:
@@ -30,7 +40,8 @@ class CodedFace:
     JPEG); arrays: the key's arrays (key_vertices (V, 3) camera space, key_projected (V, 2) px, neutral (V, 3) mm, mean (3V,),
     basis (C, 3V)); triangles (T, 3) int; key_pose (7,) and key_coeffs (C,): the keyframe's own
     record; lips: inner-lip vertex ids (default: the face mesh's for V = 468, else no painted
-    mouth); compositor: one to draw with (e.g. on a window's GL context), else a new one;
+    mouth); compositor: one to draw with (e.g. :func:`coded_compositor` on a window's GL context),
+    else a new :func:`coded_compositor`;
     head_motion: carry the face's motion over the hair and neck around it (else only the face moves)."""
 
     def __init__(self, header: dict, keyframe: bytes, arrays: dict, triangles: np.ndarray,
@@ -49,7 +60,7 @@ class CodedFace:
         V = len(arrays["key_vertices"])
         self.lips = (np.asarray(INNER_LIP_FACEMESH) if V == 468 else None) if lips is None else np.asarray(lips)
         self.key_opening = opening_px(arrays["key_projected"][self.lips]) if self.lips is not None else np.inf
-        self.compositor = compositor if compositor is not None else Compositor(self.width, self.height)
+        self.compositor = compositor if compositor is not None else coded_compositor(self.width, self.height)
         self._own_compositor = compositor is None
         self.head_motion = bool(head_motion)
         self.anchor = self.posed(key_pose, key_coeffs)

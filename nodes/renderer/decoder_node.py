@@ -21,7 +21,7 @@ from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import LATCHED
 
-from .coded_face import CodedFace
+from .coded_face import CodedFace, coded_compositor
 from .compositor import Compositor
 
 
@@ -120,7 +120,7 @@ class DecoderNode(Node):
 
             self.window = Window(width, height, self.params.title)
             ctx = self.window.ctx
-        return Compositor(width, height, ctx=ctx)
+        return coded_compositor(width, height, ctx=ctx)
 
     def on_frame(self, msg: CodedFrame) -> None:
         if self.face is None or (msg.key_version, msg.basis_version) != self.versions:
