@@ -36,9 +36,15 @@ def test_short_bench_writes_every_figure(data_dir, models_dir, tmp_path):
         # The sequential total is the measured frame time plus one drag update: never less than its parts.
         assert m["stages_ms"]["sequential_total"] >= 0.99 * parts, name
         assert m["nodes"]["fitter"]["stages_ms"]["fit"] > 0  # the graph's own diagnostics came in
+        # the timeline: slices that hold every output frame, each with the nodes' CPU use
+        timeline = m["timeline"]
+        assert sum(t["frames"] for t in timeline) == m["frames_out"], name
+        assert max(t.get("p99_ms", 0) for t in timeline) >= m["latency_ms"]["p99"] * 0.99, name
+        assert all(t["cpu_percent"]["renderer"] > 0 for t in timeline if "cpu_percent" in t), name
     assert doc["models"]["sfm"]["vertices"] == 3448
     # The table names the paper's column beside the measured one.
     assert "36.28" in result.stdout and "pipelined rate (fps)" in result.stdout
+    assert "slowest slices of the window" in result.stdout
 
 
 def test_bench_at_a_chosen_size(data_dir, models_dir, tmp_path):

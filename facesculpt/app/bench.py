@@ -18,7 +18,9 @@ photo under a moving virtual camera; frames resized to 856x480, the paper's size
   as a ``load_preset`` command); an in-process subscriber counts ``render/image`` messages over a
   fixed window (frames out per second) and takes each one's age at arrival (camera stamp ->
   composited frame: end-to-end latency p50/p99). Each node's stage times and rate come from
-  the ``diagnostics`` topic, and its CPU use from the OS, to show where the time goes.
+  the ``diagnostics`` topic, and its CPU use from the OS, to show where the time goes; the
+  window's timeline (2-s slices: frames, latency p50/p99/max, each node's CPU) shows when, and the
+  table lists its slowest slices.
 
 The machine is what it is (2 cores, no GPU here): the load average is reported with the figures.
 """
@@ -302,7 +304,20 @@ def table(result: dict) -> str:
             stages = ", ".join(f"{k} {v:.1f}" for k, v in info.get("stages_ms", {}).items())
             rates = ", ".join(f"{k} {v:.1f}" for k, v in info.get("rate_hz", {}).items() if k != "diagnostics")
             lines.append(f"  {name:<10} cpu {info.get('cpu_percent', 0):5.1f}%   {stages}   {rates}")
+        lines += _worst_slices(result["models"][m].get("timeline") or [])
     return "\n".join(lines)
+
+
+def _worst_slices(timeline: list[dict], count: int = 3) -> list[str]:
+    """The ``count`` slices of the window with the highest latency p99, with the nodes' CPU then."""
+    slices = sorted((t for t in timeline if "p99_ms" in t), key=lambda t: -t["p99_ms"])[:count]
+    if not slices:
+        return []
+    lines = ["  slowest slices of the window (latency p50 / p99 / max ms; cpu % of a core):"]
+    for t in slices:
+        cpu = ", ".join(f"{n} {v:.0f}" for n, v in sorted((t.get("cpu_percent") or {}).items(), key=lambda x: -x[1]))
+        lines.append(f"    {t['start_s']:5.1f} s: {t['p50_ms']:.0f} / {t['p99_ms']:.0f} / {t['max_ms']:.0f}   {cpu}")
+    return lines
 
 
 def cmd_bench(args) -> int:

@@ -21,6 +21,10 @@ import numpy as np
 
 from facesculpt.app.bench import SIZE
 
+#: The bench's timeline: the window cut into slices of this many seconds, each node's CPU sampled this often.
+TIMELINE_SLICE_S = 2.0
+CPU_SAMPLE_S = 0.5
+
 
 def free_port() -> int:
     with socket.socket() as s:
@@ -179,10 +183,14 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         events = listener.advertise("input/events", InputEvent, qos=EVENTS)
         listener.start()
 
+        ticks: list = []  # called on every spin (the window's CPU sampler)
+
         def spin_for(seconds: float, until=lambda: False):
             end = time.monotonic() + seconds
             while time.monotonic() < end and not until():
                 listener.spin_once(0.02)
+                for tick in ticks:
+                    tick()
                 if proc.poll() is not None:
                     raise RuntimeError(f"the graph stopped (exit code {proc.returncode}; see {log_path})")
 
@@ -198,10 +206,18 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         cpu0 = _cpu_seconds(procs)
         for kept in (arrivals, diagnostics, camera_sent):
             kept.clear()
-        t0 = time.monotonic()
+        t0, t0_ns = time.monotonic(), time.time_ns()
+        cpu_samples: list[tuple[int, dict]] = [(t0_ns, cpu0)]  # (ns, node -> CPU s) every CPU_SAMPLE_S
+
+        def sample_cpu():
+            if time.time_ns() - cpu_samples[-1][0] >= CPU_SAMPLE_S * 1e9:
+                cpu_samples.append((time.time_ns(), _cpu_seconds(procs)))
+
+        ticks.append(sample_cpu)
         _window(spin_for, events, window_s, preset_file if scenario else None)
         elapsed = time.monotonic() - t0
         cpu1 = _cpu_seconds(procs)
+        cpu_samples.append((time.time_ns(), cpu1))
         window = list(arrivals)
     finally:
         if listener is not None:
@@ -215,7 +231,8 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     for name in cpu1:
         if name in cpu0:
             nodes.setdefault(name, {})["cpu_percent"] = round(100.0 * (cpu1[name] - cpu0[name]) / elapsed, 1)
-    return {**output_figures(window, camera_sent), "window_s": round(elapsed, 2), "nodes": nodes}
+    return {**output_figures(window, camera_sent), "window_s": round(elapsed, 2), "nodes": nodes,
+            "timeline": timeline_figures(window, cpu_samples, t0_ns)}
 
 
 def _bring_up(spin_for, arrivals: list, deformed: list | None, load_preset, timeout_s: float, diagnostics: dict,
@@ -271,6 +288,32 @@ def output_figures(window: list[tuple[int, int]], camera_sent: list[tuple[int, i
         "longest_stall_ms": round(float(gaps_ms.max()), 2),
         "frames_dropped": dropped,
     }
+
+
+def timeline_figures(window: list[tuple[int, int]], cpu_samples: list[tuple[int, dict]], t0_ns: int,
+                     slice_s: float = TIMELINE_SLICE_S) -> list[dict]:
+    """The window in slices of ``slice_s`` seconds from ``t0_ns``: per slice the output frames that
+    arrived in it (``window``: (arrival ns, capture stamp ns)), their latency p50 / p99 / max (ms)
+    and each node's CPU use (% of one core) between the CPU samples (ns, node -> CPU seconds)
+    nearest its ends: where in the window a latency tail comes from, and which node was busy then."""
+    arrival = np.array([a for a, _ in window], np.float64)
+    latency = np.array([(a - s) / 1e6 for a, s in window])
+    times = np.array([t for t, _ in cpu_samples], np.float64)
+    out = []
+    for start in np.arange(0.0, (arrival.max() - t0_ns) / 1e9, slice_s):
+        lo, hi = t0_ns + start * 1e9, t0_ns + (start + slice_s) * 1e9
+        inside = (arrival >= lo) & (arrival < hi)
+        row = {"start_s": round(float(start), 2), "frames": int(inside.sum())}
+        if inside.any():
+            lat = latency[inside]
+            row.update(p50_ms=round(float(np.median(lat)), 1), p99_ms=round(float(np.percentile(lat, 99)), 1),
+                       max_ms=round(float(lat.max()), 1))
+        i, j = int(np.abs(times - lo).argmin()), int(np.abs(times - hi).argmin())
+        if j > i:
+            (ta, ca), (tb, cb) = cpu_samples[i], cpu_samples[j]
+            row["cpu_percent"] = {n: round(100.0 * (cb[n] - ca[n]) / ((tb - ta) / 1e9), 1) for n in cb if n in ca}
+        out.append(row)
+    return out
 
 
 # -- report -------------------------------------------------------------------------------------------
