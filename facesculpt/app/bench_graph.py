@@ -204,9 +204,9 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
             spin_for(warmup_s)
         procs = _node_processes(proc.pid)
         cpu0 = _cpu_seconds(procs)
+        t0, t0_ns = time.monotonic(), time.time_ns()  # before the clear: every frame kept arrives after t0_ns
         for kept in (arrivals, diagnostics, camera_sent):
             kept.clear()
-        t0, t0_ns = time.monotonic(), time.time_ns()
         cpu_samples: list[tuple[int, dict]] = [(t0_ns, cpu0)]  # (ns, node -> CPU s) every CPU_SAMPLE_S
 
         def sample_cpu():
@@ -300,7 +300,7 @@ def timeline_figures(window: list[tuple[int, int]], cpu_samples: list[tuple[int,
     latency = np.array([(a - s) / 1e6 for a, s in window])
     times = np.array([t for t, _ in cpu_samples], np.float64)
     out = []
-    for start in np.arange(0.0, (arrival.max() - t0_ns) / 1e9, slice_s):
+    for start in slice_s * np.arange(int((arrival.max() - t0_ns) / 1e9 // slice_s) + 1):
         lo, hi = t0_ns + start * 1e9, t0_ns + (start + slice_s) * 1e9
         inside = (arrival >= lo) & (arrival < hi)
         row = {"start_s": round(float(start), 2), "frames": int(inside.sum())}
