@@ -258,6 +258,27 @@ def test_the_edit_moves_a_real_outline_that_lies_past_the_fitted_one(gl):
     assert bottom + 7 <= edges[0.05] <= bottom + 13 and edges[0.05] >= edges[0.0] + 3, edges
 
 
+def test_a_narrowed_outline_is_as_sharp_as_a_filmed_one(gl):
+    """Pushing the right side of a face in 12 px: where the new outline meets the background it
+    uncovered, the face is opaque 2 px inside it (a filmed silhouette's anti-aliasing), not
+    feathered over the fill for the seam's width, which left a pale band along a narrowed jaw."""
+    from facesculpt.nodes.renderer.compositor import SILHOUETTE_FEATHER_PX
+
+    H, W = 480, 640
+    vertices, projected, triangles = plane_mesh((320, 240), 160)
+    frame = np.full((H, W, 3), 40, np.uint8)
+    frame[160:321, 240:401] = 200                                 # the true face: the fit's square
+    ramp = np.clip((vertices[:, 0] - 320) / 80, 0, 1)             # the right half pushed in
+    moved = vertices - np.column_stack([12 * ramp, 0 * ramp, 0 * ramp])
+    with Compositor(W, H, ctx=gl) as comp:
+        out = comp.render(frame, vertices, projected, triangles, moved)
+        assert comp.feather_width(projected) > SILHOUETTE_FEATHER_PX + 0.5  # the seam's feather is wider
+    row = out[200:281, :, 0].astype(int)
+    edge = 400 - 12
+    assert (row[:, edge - 12:edge - 1] >= 190).all(), row[0, edge - 14:edge + 4]
+    assert (row[:, edge + 3:edge + 12] <= 60).all(), row[0, edge - 4:edge + 14]   # the background it uncovered
+
+
 def test_carry_past_outline_fades_the_band_out_and_fills_the_gap_unfaded():
     """The face (a disc moving 5 px right) shrank from a larger disc: past the old outline the
     offsets fade from almost 5 px to nothing at the reach; the gap between the outlines takes the

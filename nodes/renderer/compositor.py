@@ -72,6 +72,10 @@ from .warp import (
 )
 
 FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's size
+# Where the face's outline meets what it uncovered, its soft edge is only this wide (px): the
+# anti-aliasing of a filmed silhouette. The wider feather blended the outline over the fill and
+# left a pale band along a narrowed jaw.
+SILHOUETTE_FEATHER_PX = 2.0
 OUTLINE_BAND = 0.05  # a shape edit's motion reaches this far past the fitted outline (share of the face's size)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
@@ -292,7 +296,7 @@ class Compositor:
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
         t6 = time.perf_counter()
         if block is not None:
-            self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected))
+            self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected), fill)
         if keep_mask is not None:  # what is in front of the face is the input's, bit for bit
             np.copyto(crop, frame_bgr[y0:y1, x0:x1], where=np.asarray(keep_mask[y0:y1, x0:x1], bool)[..., None])
         t7 = time.perf_counter()
@@ -522,12 +526,19 @@ class Compositor:
 
     def _composite(self, crop: np.ndarray, warped: np.ndarray, block: tuple[slice, slice],
                    offsets: np.ndarray, covered: np.ndarray, changed: np.ndarray, write: np.ndarray,
-                   feather: float) -> None:
+                   feather: float, fill: np.ndarray | None = None) -> None:
         """Blend the sampled face (``warped``, the (h', w', 3) uint8 ``block`` of the box) over the
         background ``crop`` (h, w, 3) uint8, in place, with a soft edge ``feather`` pixels wide
-        inside the deformed outline; only the ``write`` pixels are written; then anti-alias the
-        folds (changed pixels only)."""
-        alpha = feather_alpha(covered.view(np.uint8), feather)[block]
+        inside the deformed outline, SILHOUETTE_FEATHER_PX beside the ``fill`` (h, w) uint8 (what
+        the face uncovered); only the ``write`` pixels are written; then anti-alias the folds
+        (changed pixels only)."""
+        alpha = feather_alpha(covered.view(np.uint8), feather)
+        if fill is not None and feather > SILHOUETTE_FEATHER_PX and cv2.countNonZero(fill):
+            # beside what the face uncovered, its outline is a silhouette: as sharp as a filmed one
+            filled = ((fill != 0) & ~covered).view(np.uint8)
+            near = cv2.dilate(filled, None, iterations=int(np.ceil(feather)) + 1).view(bool)
+            alpha[near] = feather_alpha(covered.view(np.uint8), SILHOUETTE_FEATHER_PX)[near]
+        alpha = alpha[block]
         part = crop[block]
         blended = cv2.blendLinear(warped, part, alpha, 1.0 - alpha)
         np.copyto(part, blended, where=write[block][..., None])
