@@ -67,6 +67,7 @@ from .warp import (
     covered_pixels,
     feather_alpha,
     fold_edges,
+    sharpen_silhouette,
     soften,
     warp_frame,
 )
@@ -533,11 +534,8 @@ class Compositor:
         the face uncovered); only the ``write`` pixels are written; then anti-alias the folds
         (changed pixels only)."""
         alpha = feather_alpha(covered.view(np.uint8), feather)
-        if fill is not None and feather > SILHOUETTE_FEATHER_PX and cv2.countNonZero(fill):
-            # beside what the face uncovered, its outline is a silhouette: as sharp as a filmed one
-            filled = ((fill != 0) & ~covered).view(np.uint8)
-            near = cv2.dilate(filled, None, iterations=int(np.ceil(feather)) + 1).view(bool)
-            alpha[near] = feather_alpha(covered.view(np.uint8), SILHOUETTE_FEATHER_PX)[near]
+        if fill is not None and feather > SILHOUETTE_FEATHER_PX:
+            sharpen_silhouette(alpha, cv2.subtract(fill, covered.view(np.uint8)), feather, SILHOUETTE_FEATHER_PX)
         alpha = alpha[block]
         part = crop[block]
         blended = cv2.blendLinear(warped, part, alpha, 1.0 - alpha)
