@@ -70,6 +70,18 @@ def _node_processes(launch_pid: int) -> dict:
     return out
 
 
+class _CpuSamples:
+    """Each node's CPU seconds (``samples``: (ns, node -> s)), taken by :meth:`tick` at most every
+    CPU_SAMPLE_S."""
+
+    def __init__(self, procs: dict, t0_ns: int, first: dict):
+        self.procs, self.samples = procs, [(t0_ns, first)]
+
+    def tick(self) -> None:
+        if time.time_ns() - self.samples[-1][0] >= CPU_SAMPLE_S * 1e9:
+            self.samples.append((time.time_ns(), _cpu_seconds(self.procs)))
+
+
 def _cpu_seconds(procs: dict) -> dict:
     import psutil
 
@@ -207,17 +219,12 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         t0, t0_ns = time.monotonic(), time.time_ns()  # before the clear: every frame kept arrives after t0_ns
         for kept in (arrivals, diagnostics, camera_sent):
             kept.clear()
-        cpu_samples: list[tuple[int, dict]] = [(t0_ns, cpu0)]  # (ns, node -> CPU s) every CPU_SAMPLE_S
-
-        def sample_cpu():
-            if time.time_ns() - cpu_samples[-1][0] >= CPU_SAMPLE_S * 1e9:
-                cpu_samples.append((time.time_ns(), _cpu_seconds(procs)))
-
-        ticks.append(sample_cpu)
+        cpu = _CpuSamples(procs, t0_ns, cpu0)
+        ticks.append(cpu.tick)
         _window(spin_for, events, window_s, preset_file if scenario else None)
         elapsed = time.monotonic() - t0
         cpu1 = _cpu_seconds(procs)
-        cpu_samples.append((time.time_ns(), cpu1))
+        cpu.samples.append((time.time_ns(), cpu1))
         window = list(arrivals)
     finally:
         if listener is not None:
@@ -232,7 +239,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
         if name in cpu0:
             nodes.setdefault(name, {})["cpu_percent"] = round(100.0 * (cpu1[name] - cpu0[name]) / elapsed, 1)
     return {**output_figures(window, camera_sent), "window_s": round(elapsed, 2), "nodes": nodes,
-            "timeline": timeline_figures(window, cpu_samples, t0_ns)}
+            "timeline": timeline_figures(window, cpu.samples, t0_ns)}
 
 
 def _bring_up(spin_for, arrivals: list, deformed: list | None, load_preset, timeout_s: float, diagnostics: dict,
