@@ -56,7 +56,7 @@ from .inpaint import FILL_METHODS, dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
-from .render_meshes import RenderMeshes
+from .render_meshes import RenderMesh, RenderMeshes
 from .source_map import UNCOVERED, SourceMapRenderer
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
@@ -169,8 +169,7 @@ class Compositor:
         self.plate = BackgroundPlate(width, height, max_age=plate_max_age, register=plate_register) if plate else None
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
         self._plate_learner = PlateLearner(self.plate, segmenter) if plate else None
-        self._mesh_key: tuple | None = None
-        self._closed = self._S = self._fine = self._rings = None
+        self._mesh: RenderMesh | None = None   # the render mesh of the last frame
         self.timings: dict[str, float] = {}
         self.box: tuple[int, int, int, int] | None = None
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None  # last box's
@@ -180,10 +179,9 @@ class Compositor:
         """Make the render mesh of ``triangles`` current (:class:`.RenderMeshes`; the face's vertex
         pixels ``px`` (V, 2) choose its levels); ValueError for triangles that are not indices."""
         mesh = self.meshes.get(triangles, n_vertices, px)
-        if mesh.key != self._mesh_key:
-            self._closed, self._rings, self._S, self._fine = mesh.closed, mesh.rings, mesh.S, mesh.fine
-            self.maps.set_mesh(self._S.shape[0], self._fine.size // 3 + len(self._closed))
-            self._mesh_key = mesh.key
+        if self._mesh is None or mesh.key != self._mesh.key:
+            self.maps.set_mesh(mesh.S.shape[0], mesh.fine.size // 3 + len(mesh.closed))
+        self._mesh = mesh
 
     def _draw_triangles(self, offset: np.ndarray) -> tuple[np.ndarray, int]:
         """The triangles to draw, given the fine vertices' ``offset`` (Vf, 2) pixels: the fine
@@ -192,10 +190,10 @@ class Compositor:
         first V vertices (their pixels do not move; drawn for occlusion only). Returns
         ((N, 3) int, how many of them are the moving fine ones)."""
         moving = np.einsum("ij,ij->i", offset, offset) >= (0.5 * IDENTITY_PX) ** 2
-        corners = moving[self._fine]
+        corners = moving[self._mesh.fine]
         active = np.logical_or.reduce(corners[..., 0] | corners[..., 1] | corners[..., 2], axis=0)
-        children = self._fine[:, active].reshape(-1, 3)
-        return np.concatenate([children, self._closed[~active]]), len(children)
+        children = self._mesh.fine[:, active].reshape(-1, 3)
+        return np.concatenate([children, self._mesh.closed[~active]]), len(children)
 
     def _check(self, frame, fitted, projected, deformed, keep_mask=None):
         if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8
@@ -274,7 +272,7 @@ class Compositor:
             self.timings = {**dict.fromkeys(STAGES, 0.0), "camera": (time.perf_counter() - t0) * 1e3,
                             "atlas": t_atlas, "plate": t_plate, "total": (time.perf_counter() - t_start) * 1e3}
             return out
-        fine = self._S @ np.column_stack([dst_px, depth, offset] + ([uvq] if uvq is not None else [])).astype(np.float32)
+        fine = self._mesh.S @ np.column_stack([dst_px, depth, offset] + ([uvq] if uvq is not None else [])).astype(np.float32)
         draw_tris, n_moving = self._draw_triangles(fine[:, 3:5])
         t1 = time.perf_counter()
         self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
@@ -446,7 +444,7 @@ class Compositor:
         self._blend_atlas(warped, block, offsets, changed, box, has_uv)
         fine, draw_tris, n_moving, chosen = draw
         if chosen is not None:
-            self.keyframe_used = blend_keyframe(warped, self.maps, self._S, fine, draw_tris, n_moving, box, block,
+            self.keyframe_used = blend_keyframe(warped, self.maps, self._mesh.S, fine, draw_tris, n_moving, box, block,
                                                 changed, chosen, self.interpolation)
 
     def _extras(self, fine: np.ndarray) -> np.ndarray | None:
@@ -481,7 +479,7 @@ class Compositor:
         (:func:`.motion_extension.head_box`)."""
         if head_motion:
             return head_box(np.concatenate([projected, dst_px]), self.width, self.height)
-        near = self._rings @ moved.astype(np.float32) > 0
+        near = self._mesh.rings @ moved.astype(np.float32) > 0
         pad = self.dilate_px + 10 + int(np.ceil(self.feather_px)) + self.band_px(projected)
         both = np.concatenate([projected[near], dst_px[near]])
         lo, hi = point_bounds(both)
@@ -527,14 +525,14 @@ class Compositor:
 
     def _composite(self, crop: np.ndarray, warped: np.ndarray, block: tuple[slice, slice],
                    offsets: np.ndarray, covered: np.ndarray, changed: np.ndarray, write: np.ndarray,
-                   feather: float, fill: np.ndarray | None = None) -> None:
+                   feather: float, fill: np.ndarray) -> None:
         """Blend the sampled face (``warped``, the (h', w', 3) uint8 ``block`` of the box) over the
         background ``crop`` (h, w, 3) uint8, in place, with a soft edge ``feather`` pixels wide
         inside the deformed outline, SILHOUETTE_FEATHER_PX beside the ``fill`` (h, w) uint8 (what
         the face uncovered); only the ``write`` pixels are written; then anti-alias the folds
         (changed pixels only)."""
         alpha = feather_alpha(covered.view(np.uint8), feather)
-        if fill is not None and feather > SILHOUETTE_FEATHER_PX:
+        if feather > SILHOUETTE_FEATHER_PX:
             sharpen_silhouette(alpha, cv2.subtract(fill, covered.view(np.uint8)), feather, SILHOUETTE_FEATHER_PX)
         alpha = alpha[block]
         part = crop[block]
