@@ -82,3 +82,20 @@ def test_bench_scenario_acts_in_the_window_beside_a_busy_loop(data_dir, models_d
     assert counters.get("preset_loaded", 0) >= 1 and counters.get("press", 0) >= 1, counters
     assert entry["pipelined_fps"] > 5
     assert "with 1 competing busy loop(s) running" in result.stdout
+
+
+def test_timeline_gives_no_cpu_figure_for_a_slice_too_short_to_measure():
+    from facesculpt.app.bench_graph import CPU_SAMPLE_S, timeline_figures
+
+    t0, s = 1_000_000_000, 1_000_000_000
+    # frames at 0.1 .. 2.0 s; CPU sampled every CPU_SAMPLE_S and once more 1 ms after the last tick,
+    # as the window's close does: the slice from 2 s holds one frame and a 1-ms CPU span.
+    window = [(t0 + int(k * 0.1 * s), t0 + int(k * 0.1 * s) - 20_000_000) for k in range(1, 21)]
+    times = [t0 + int(k * CPU_SAMPLE_S * s) for k in range(int(2.0 / CPU_SAMPLE_S) + 1)] + [t0 + int(2.001 * s)]
+    samples = [(t, {"renderer": 0.25 * (t - t0) / s}) for t in times]
+    samples[-1] = (samples[-1][0], samples[-2][1])  # no clock tick counted in that 1 ms
+    rows = timeline_figures(window, samples, t0)
+    assert [r["frames"] for r in rows] == [19, 1]
+    assert rows[0]["cpu_percent"]["renderer"] == 25.0
+    assert "cpu_percent" not in rows[1]
+    assert rows[1]["p50_ms"] == 20.0

@@ -316,7 +316,9 @@ def timeline_figures(window: list[tuple[int, int]], cpu_samples: list[tuple[int,
             row.update(p50_ms=round(float(np.median(lat)), 1), p99_ms=round(float(np.percentile(lat, 99)), 1),
                        max_ms=round(float(lat.max()), 1))
         i, j = int(np.abs(times - lo).argmin()), int(np.abs(times - hi).argmin())
-        if j > i:
+        # A slice cut short by the window's end can find its two samples a few ms apart (the last
+        # tick and the closing sample): too short a span for CPU seconds counted in clock ticks.
+        if j > i and times[j] - times[i] >= CPU_SAMPLE_S * 1e9:
             (ta, ca), (tb, cb) = cpu_samples[i], cpu_samples[j]
             row["cpu_percent"] = {n: round(100.0 * (cb[n] - ca[n]) / ((tb - ta) / 1e9), 1) for n in cb if n in ca}
         out.append(row)
