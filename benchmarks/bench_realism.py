@@ -24,6 +24,10 @@ seamless the re-rendered region is on real videos.
    the ground truth: the median of that reach and of its error |1 - reach| in %), per yaw bin.
    The "ground truth (measurement check)" row is the truth's measurement over the true
    projected displacement: the patch moves less than its centre where the edit falls off.
+   ``--oracle`` (default on) adds two rows with no fit (``realism/oracle.py``): the project's
+   compositor drawing the true head with the true edit (the renderer alone), and with the preset
+   as the project's deformer solves it on the true head (renderer + deformer). A model's row
+   below them is what registration costs.
    Issue 16: the edits of ``--atlas-edits`` (default: ``nose_far``, the nose pulled far out,
    which shows surface the turned head hides or foreshortens) run a second time with
    ``process --atlas on`` (the face's texture memory): the row "MODEL + atlas", and crops
@@ -38,7 +42,8 @@ liquify, enlarged 2x without smoothing) and the presets to ``--out`` (default: a
 folder), and prints the tables.
 
 Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
-[--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--pythonpath DIR] [--process-args "--fill drag"]``
+[--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--no-oracle] [--pythonpath DIR]
+[--process-args "--fill drag"]``
 (``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
 revision, to compare compositors on the same ground truth). Needs the shared data
 (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
@@ -60,8 +65,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from realism.edits import ATLAS_EDITS, EDITS, write_preset  # noqa: E402
+from realism.edits import ATLAS_EDITS, EDITS, displacement, write_preset  # noqa: E402
 from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
+from realism.oracle import deformer_displacement, oracle_frames  # noqa: E402
 from realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
 from realism.scene import make_scene  # noqa: E402
 from realism.scoring import landing, landing_by_yaw, score_frame, score_real_frame, summarise  # noqa: E402
@@ -70,6 +76,9 @@ from realism.sequences import Sequences, read_video, render_sequences, run_proce
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
+#: The rows that take the fit away (``--oracle``): the true head through the project's compositor.
+ORACLE_RENDERER = "true mesh + true edit (renderer alone)"
+ORACLE_DEFORMER = "true mesh + preset (renderer + deformer)"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -86,6 +95,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--process-args", default="", type=str.split, metavar="ARGS",
                    help="more options for every process run, e.g. '--fill drag' (compare settings on one truth)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
+    p.add_argument("--oracle", action=argparse.BooleanOptionalAction, default=True,
+                   help="also score the project's compositor on the true head (the true edit, and the preset as the "
+                        "deformer solves it): what rendering and the deformer cost without a fit (default on)")
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
     p.add_argument("--pythonpath", default="", help="run process with this folder first on PYTHONPATH (a copy of "
                    "another revision of facesculpt, to compare compositors); default: the installed one")
@@ -211,6 +223,11 @@ def synthetic(args, data: Path, out: Path) -> dict:
         results[e] = {"do nothing": score_sequence(seq, e, seq.inputs, scored, truth_shifts),
                       "2D liquify": score_sequence(seq, e, [liq.get(i) for i in range(args.frames)], scored,
                                                    truth_shifts)}
+        if args.oracle:
+            for label, d in ((ORACLE_RENDERER, displacement(sp, scene.rest, scene.landmarks)),
+                             (ORACLE_DEFORMER, deformer_displacement(sp, scene))):
+                results[e][label] = score_sequence(seq, e, oracle_frames(scene, seq.inputs, d, list(range(args.frames))),
+                                                   scored, truth_shifts)
         for m in args.models:
             folder = out / "frames" / f"synthetic_{e}_{m}"
             try:

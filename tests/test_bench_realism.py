@@ -137,6 +137,30 @@ def test_the_presets_load_on_both_models(synth):
                 assert handles == [handle_vertex(k, scene.landmarks) for k in spec.handles]
 
 
+def test_the_compositor_on_the_true_head_is_closer_to_the_truth_than_doing_nothing(synth):
+    """The oracle rows: the project's compositor drawing the true head, with the true edit or with the
+    deformer's own solve of the preset, is closer to the truth than doing nothing; on the nose (no
+    background uncovered) the true edit is near exact, far closer than the ideal 2D warp."""
+    from realism.edits import displacement
+    from realism.oracle import deformer_displacement, oracle_frames
+
+    scene, seq = synth
+    for edit in ("nose", "jaw"):
+        spec = EDITS[edit]
+        true_edit = oracle_frames(scene, seq.inputs, displacement(spec, scene.rest, scene.landmarks), [0, 1, 2])
+        ours = oracle_frames(scene, seq.inputs, deformer_displacement(spec, scene), [0, 1, 2])
+        for i in (1, 2):
+            gt, inp = seq.truth[edit][i], seq.inputs[i]
+            region = edit_region(gt, inp)
+            vis = seq.visible[edit][i]
+            score = {name: psnr_from_mse(np.divide(*squared_error(img, gt, region)))
+                     for name, img in (("nothing", inp), ("liquify", liquify(inp, seq.p0[i][vis], seq.p1[edit][i][vis])),
+                                       ("true edit", true_edit[i]), ("preset", ours[i]))}
+            assert score["true edit"] > score["nothing"] + 1 and score["preset"] > score["nothing"], (edit, i, score)
+            if edit == "nose":  # an interior edit: no background to fill, the true edit is near exact
+                assert score["true edit"] > max(score["liquify"] + 3, score["preset"]), (edit, i, score)
+
+
 def test_the_command_line_refuses_an_unknown_edit(capsys):
     import bench_realism
 
