@@ -79,3 +79,25 @@ def test_process_exports_one_row_per_frame(data_dir, models_dir, tmp_path):
     assert doc["columns"] == list(rows[0]) and len(doc["rows"]) == 12
     assert doc["rows"][5]["jaw_open"] == pytest.approx(float(rows[5]["jaw_open"]), abs=1e-3)
     assert not list(tmp_path.glob(".*writing*"))
+
+
+def test_the_sfm_fit_of_exact_landmarks_recovers_the_true_expression(data_dir):
+    """bench_expression_synthetic's exact-landmark run, short: the synthetic head's true iBUG points
+    (no detector) through the SFM fitter give expression parameters that follow the true ones."""
+    if not (data_dir / "sfm").is_dir() or not (data_dir / "video" / "s18.mp4").is_file():
+        pytest.skip("needs ../shared/data/sfm and video/s18.mp4")
+    sys.path.insert(0, str(REPO))
+    from argparse import Namespace
+
+    from benchmarks.bench_expression_synthetic import fit_sequence
+    from benchmarks.realism.scene import make_scene
+    from facesculpt.nodes.fitter import load_model
+
+    args = Namespace(frames=60, neutral_frames=20, model="sfm")
+    run = fit_sequence(args, make_scene(data_dir, frames=args.frames), load_model("sfm"), exact=True)
+    truth, fitted = np.array(run["truth"]), np.array(run["fitted"])
+    assert len(truth) == 40 and np.isfinite(fitted).all()
+    for name in ("jaw_open", "lip_corner_up_right", "brow_inner_up_left", "cheek_puff_right"):
+        k = NAMES.index(name)
+        assert np.corrcoef(truth[:, k], fitted[:, k])[0, 1] > 0.85, name
+    assert np.median(run["snr"]) > 25.0
