@@ -74,6 +74,10 @@ def _check_shutdown_log(log: str, stopping: tuple[str, ...]) -> None:
 
 
 # -- the camera in lockstep, against a scripted acknowledger (no networks needed) ----------------
+#: The lockstep test's camera timings (s); the acker holds the last frame's acknowledgement HOLD_LAST_S.
+RESEND_S, ACK_TIMEOUT_S, HOLD_LAST_S = 0.5, 1.75, 1.2
+
+
 def test_lockstep_camera_waits_for_each_acknowledgement_resends_and_drains(graph, tmp_path):
     bag = tmp_path / "numbers.bag"
     _write_bag(bag, [np.full((48, 64, 3), 5 * i, np.uint8) for i in range(30)])
@@ -84,15 +88,15 @@ def test_lockstep_camera_waits_for_each_acknowledgement_resends_and_drains(graph
     acker.subscribe("camera/image", Image, lambda m: arrivals.append((time.monotonic(), m.seq, m.stamp)),
                     qos=EVERY_MESSAGE)
     cam = graph.spawn("run", "camera", f"source=bag:{bag}", "fps=-1", "wait_for=render/done", "wait_subscribers=1",
-                      "resend_s=0.4", "ack_timeout_s=1.5")
+                      f"resend_s={RESEND_S}", f"ack_timeout_s={ACK_TIMEOUT_S}")
 
     def ack(seq: int) -> None:
         stamp = next(s for _, q, s in arrivals if q == seq)
+        acked.setdefault(seq, time.monotonic())   # before it is sent: the camera cannot hear it earlier
         done.publish(FrameDone(stamp=stamp, seq=seq, frame_id="camera", rendered=True))
-        acked.setdefault(seq, time.monotonic())
 
     # Frame 1's first copy "is missed" (the camera sends it again), frame 10 is never
-    # acknowledged (the camera gives it up after ack_timeout_s), the last one only after 1 s.
+    # acknowledged (the camera gives it up after ack_timeout_s), the last one only after HOLD_LAST_S.
     deadline = time.monotonic() + 60
     last_held_since = None
     while cam.poll() is None and time.monotonic() < deadline:
@@ -103,7 +107,7 @@ def test_lockstep_camera_waits_for_each_acknowledgement_resends_and_drains(graph
                 continue
             if seq == 30:
                 last_held_since = last_held_since or time.monotonic()
-                if time.monotonic() - last_held_since < 1.0:
+                if time.monotonic() - last_held_since < HOLD_LAST_S:
                     continue
             ack(seq)
     assert cam.poll() == 0, "the camera did not end after its last frame was acknowledged"
@@ -111,13 +115,20 @@ def test_lockstep_camera_waits_for_each_acknowledgement_resends_and_drains(graph
     seqs = [q for _, q, _ in arrivals]
     assert sorted(set(seqs)) == list(range(1, 31)), seqs          # every frame went out
     assert min(seqs.count(1), seqs.count(10), seqs.count(30)) >= 2  # resent while unacknowledged
-    assert all(seqs.count(q) == 1 for q in range(2, 30) if q != 10)
-    assert len({s for _, q, s in arrivals if q == 1}) == 1         # a copy keeps its stamp
     first = {q: t for t, q, _ in reversed(arrivals)}
-    for q in range(2, 31):  # lockstep: frame q went out only after q - 1 was acknowledged (or given up)
-        before = acked.get(q - 1, first[q - 1] + 1.5)
-        assert first[q] >= before - 0.005, (q, first[q], before)
-    assert first[11] - first[10] >= 1.5 - 0.005                    # waited ack_timeout_s for frame 10
+    # a frame acknowledged well within resend_s of its arrival is not sent again
+    prompt = [q for q in range(2, 30) if q != 10 and acked[q] - first[q] < RESEND_S / 2]
+    assert len(prompt) >= 20 and all(seqs.count(q) == 1 for q in prompt), seqs
+    assert len({s for _, q, s in arrivals if q == 1}) == 1         # a copy keeps its stamp
+    for q in range(2, 31):
+        # lockstep, by order (arrival times lag the sends on a loaded machine, their order does not):
+        # frame q went out after every copy of q - 1, and after q - 1's acknowledgement when it had one
+        assert seqs.index(q) > len(seqs) - 1 - seqs[::-1].index(q - 1), (q, seqs)
+        if q - 1 in acked:
+            assert first[q] >= acked[q - 1], (q, first[q], acked[q - 1])
+    # frame 10 was held until ack_timeout_s: a copy every resend_s until then (the last may be
+    # late on a loaded machine), and not one after
+    assert int(ACK_TIMEOUT_S / RESEND_S) <= seqs.count(10) <= int(ACK_TIMEOUT_S / RESEND_S) + 1, seqs
     assert 30 in acked, "the camera ended before its last frame was acknowledged"
 
 
