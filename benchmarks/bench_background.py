@@ -383,7 +383,7 @@ def synthetic(args, data: Path, out: Path, report: dict, t0: float) -> None:
         scene.background = cluttered_background(scene.background)
     specs = [EDITS[e] for e in args.edits]
     seq = render_sequences(scene, specs, args.workers or None)
-    model_rest = scene.rest[: int(scene.model_triangles.max()) + 1]
+    model_rest = scene.rest[: scene.model_vertices]
     presets = {sp.name: write_preset(sp, model_rest, scene.landmarks, scene.model_triangles, out) for sp in specs}
     for m in args.models:
         report["synthetic"][m] = run_model(m, seq, scene, presets, args, out)

@@ -47,9 +47,9 @@ def activation(i: int, start: int) -> np.ndarray:
 def exact_landmarks(scene, X: np.ndarray, names, lv) -> tuple[np.ndarray, list[int]]:
     """The scene's true iBUG landmarks of camera-space vertices ``X`` (V, 3) mm: (L, 2) px in the
     project's convention (pixel centres at integers) and their 1-based iBUG numbers."""
-    from benchmarks.realism.raster import project
+    from benchmarks.realism.raster import project_pixels
 
-    px = project(scene.K, X)[0] - 0.5   # the benchmark's pixel centres are at +0.5
+    px = project_pixels(scene.K, X)
     vertex = dict(zip(names, lv))
     ids = [k for k in range(1, 69) if str(k) in vertex]
     return np.array([px[vertex[str(k)]] for k in ids]), ids

@@ -210,7 +210,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
     render_s = time.perf_counter() - t0
     video = write_lossless(seq.inputs, out / "synthetic.mkv")
     (out / "presets").mkdir(exist_ok=True)
-    model_rest = scene.rest[: int(scene.model_triangles.max()) + 1]  # without the mouth's fan centre
+    model_rest = scene.rest[: scene.model_vertices]
     presets = {sp.name: write_preset(sp, model_rest, scene.landmarks, scene.model_triangles, out / "presets")
                for sp in specs}
     scored = list(range(args.neutral_frames, args.frames))

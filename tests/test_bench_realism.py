@@ -122,7 +122,7 @@ def test_the_presets_load_on_both_models(synth):
     from facesculpt.nodes.fitter import load_model
 
     scene, _ = synth
-    rest = scene.rest[: int(scene.model_triangles.max()) + 1]
+    rest = scene.rest[: scene.model_vertices]
     for name in ("sfm", "facemesh"):
         model = load_model(name)
         stack = EditStack(np.asarray(model.mean, np.float64), np.asarray(model.triangles), model.landmark_names,

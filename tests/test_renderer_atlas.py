@@ -17,7 +17,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
 from realism.raster import project as reference_project  # noqa: E402
-from realism.raster import render_textured  # noqa: E402
+from realism.raster import project_pixels, render_textured  # noqa: E402
 
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
 from facesculpt.nodes.renderer.atlas_raster import AtlasRasterizer  # noqa: E402
@@ -60,7 +60,7 @@ def view(yaw: float, gain: float = 1.0):
     """(frame (H, W, 3) uint8, camera-space vertices (V, 3), their pixels (V, 2), OpenCV centres)."""
     X = pose(MESH, yaw)
     img = render_textured(K, X, TRI, UV * T, np.ones(len(X)), TEXTURE.astype(np.float32) * gain, BACKGROUND)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8), X, reference_project(K, X)[0] - 0.5
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8), X, project_pixels(K, X)
 
 
 @pytest.fixture(scope="module")

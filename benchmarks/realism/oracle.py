@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .edits import EditSpec, preset
-from .raster import project
+from .raster import project_pixels
 from .scene import Scene
 
 
@@ -24,7 +24,7 @@ def deformer_displacement(spec: EditSpec, scene: Scene) -> np.ndarray:
 
     from .edits import displacement
 
-    n = int(scene.model_triangles.max()) + 1
+    n = scene.model_vertices
     rest = scene.rest[:n]
     stack = EditStack(rest.astype(np.float32), scene.model_triangles, list(scene.landmarks),
                       list(scene.landmarks.values()))
@@ -40,7 +40,7 @@ def oracle_frames(scene: Scene, inputs: list, displacement: np.ndarray, frames: 
     model space; None for the other indices. Frames are composited in order, as a video is."""
     from facesculpt.nodes.renderer import Compositor
 
-    n = int(scene.model_triangles.max()) + 1
+    n = scene.model_vertices
     height, width = inputs[0].shape[:2]
     out: list = [None] * len(inputs)
     compositor = Compositor(width, height)
@@ -48,9 +48,7 @@ def oracle_frames(scene: Scene, inputs: list, displacement: np.ndarray, frames: 
         for i in frames:
             X0 = scene.to_camera(scene.rest, i)[:n]
             X1 = scene.to_camera(scene.rest + displacement, i)[:n]
-            # the benchmark's pixel centres are at +0.5, the compositor's at integers
-            px = project(scene.K, X0)[0] - 0.5
-            out[i] = compositor.render(inputs[i], X0, px, scene.model_triangles, X1)
+            out[i] = compositor.render(inputs[i], X0, project_pixels(scene.K, X0), scene.model_triangles, X1)
     finally:
         compositor.release()
     return out

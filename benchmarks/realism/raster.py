@@ -22,6 +22,12 @@ def project(K: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uv, z
 
 
+def project_pixels(K: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Pixels (N, 2) float64 of camera-space points X (N, 3) mm in the project's convention (OpenCV:
+    pixel centres at integer coordinates), where :func:`project`'s centres are at +0.5."""
+    return project(K, X)[0] - 0.5
+
+
 @dataclass
 class Fragments:
     """What a rasterisation leaves per (supersampled) pixel of a window.

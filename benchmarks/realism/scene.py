@@ -52,6 +52,12 @@ class Scene:
     frames: int
     model_triangles: np.ndarray
 
+    @property
+    def model_vertices(self) -> int:
+        """The number of the model's own vertices: ``rest``'s first rows (the rest are the centres
+        of the fans that close the mouth)."""
+        return int(self.model_triangles.max()) + 1
+
     def pose(self, i: int) -> tuple[float, float, np.ndarray]:
         """Frame ``i``'s yaw, pitch (degrees) and head translation (3,) camera mm."""
         return head_pose(i)
