@@ -145,7 +145,10 @@ class Pipeline:
     past the fitted outline an edit's motion is carried (share of the face's size; None: the
     compositor's ``OUTLINE_BAND``); expression: give each fit its expression parameters
     (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`; False: None, and their cost
-    saved). The GL context is made here; call :meth:`close` (or use ``with``) to free it.
+    saved); rotation_prior_px: a sparse model's fit holds its pitch toward that of the landmark
+    network's own 3D points with this weight (px per radian; 0: off;
+    :mod:`facesculpt.nodes.fitter.detector_rotation`). The GL context is made here; call
+    :meth:`close` (or use ``with``) to free it.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
@@ -156,7 +159,7 @@ class Pipeline:
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
-                 outline_band: float | None = None, expression: bool = True):
+                 outline_band: float | None = None, expression: bool = True, rotation_prior_px: float = 100.0):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -167,7 +170,8 @@ class Pipeline:
         self.analysis_pixels = int(analysis_pixels)
         self.fov_deg = float(fov_deg)
         self.neutral_frames = int(neutral_frames)
-        self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames, refine=refine)
+        self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames, refine=refine,
+                                          rotation_prior_px=float(rotation_prior_px))
         self.min_score = float(min_score)
         if plate not in ("off", "on"):
             raise ValueError(f"plate must be off or on, got {plate!r}")

@@ -65,17 +65,19 @@ IBUG68_GROUPS = {
 RIGHT_EYE_OUTER, LEFT_EYE_OUTER = 36, 45
 
 
-def to_ibug68(points: np.ndarray) -> np.ndarray:
+def to_ibug68(points: np.ndarray, depth: bool = False) -> np.ndarray:
     """iBUG-68 landmarks from face-mesh points.
 
     points: (468, 2 or 3) (or (..., 468, k) for several faces), image pixels. Returns
-    (68, 2) float32 (or (..., 68, 2)) x, y in the same pixels, in iBUG order.
+    (68, 2) float32 (or (..., 68, 2)) x, y in the same pixels, in iBUG order; with ``depth`` and
+    3 columns given, (68, 3): the network's relative depth kept as the third.
     """
     points = np.asarray(points)
     if points.ndim < 2 or points.shape[-2] != NUM_MESH_POINTS or points.shape[-1] < 2:
         raise ValueError(f"expected face-mesh points of shape (..., {NUM_MESH_POINTS}, 2 or 3), "
                          f"got {points.shape}")
-    return points[..., IBUG68_FROM_MESH, :2].astype(np.float32)
+    columns = 3 if depth and points.shape[-1] >= 3 else 2
+    return points[..., IBUG68_FROM_MESH, :columns].astype(np.float32)
 
 
 def normalised_mean_error(predicted: np.ndarray, truth: np.ndarray) -> float:

@@ -45,11 +45,16 @@ class FitterConfig:
     smoothing: One Euro filtering of the pose, the expression and (dense) the fitted shape;
     smooth_min_cutoff (> 0, Hz); smooth_beta (>= 0, Hz per unit/s) for rotation (rad), scale
     and expression; smooth_beta_mm (>= 0, Hz per mm/s) for translation and dense vertices.
-    neutral_frames (>= 1): frames averaged into the learned neutral reference (dense).
+    neutral_frames (>= 1): frames averaged into the learned neutral reference (dense) and into
+    the reference of the network's 3D points (sparse, ``rotation_prior_px``).
     warm_start_gap_s (> 0, s): a frame later than this after the previous one (or earlier than
     it) starts cold: no warm start, filters reset.
     correction_weight (> 0): weight of a user-corrected landmark relative to a detected one
     (``Fitter.fit(..., corrections=...)``).
+    rotation_prior_px (>= 0, px per radian; 0: off): a sparse perspective fit given points with
+    the network's relative depth ((N, 3)) holds its pitch toward that of the network's own 3D
+    points (:mod:`.detector_rotation`) with this weight against the landmarks' RMS pixel error;
+    the network's 3D reference is learned over ``neutral_frames`` frames.
     refine: None, or "appearance": after the landmark fit of a frame given with its ``image``, the
     pose is refined photometrically against the person's appearance learned from the earlier
     frames (:mod:`.appearance`, issue 20); ``refine_after`` (>= 1): frames learned first.
@@ -76,6 +81,7 @@ class FitterConfig:
     neutral_frames: int = 30
     warm_start_gap_s: float = 0.5
     correction_weight: float = 20.0
+    rotation_prior_px: float = 100.0
     refine: str | None = None
     refine_after: int = 10
 
@@ -93,7 +99,7 @@ class FitterConfig:
             _at_least("tracking_iterations", self.tracking_iterations, 1, "(or None)")
         if self.num_shape is not None:
             _at_least("num_shape", self.num_shape, 0, "(or None)")
-        for name in ("shape_lambda", "expression_lambda", "smooth_beta", "smooth_beta_mm"):
+        for name in ("shape_lambda", "expression_lambda", "smooth_beta", "smooth_beta_mm", "rotation_prior_px"):
             if not getattr(self, name) >= 0:
                 raise FitError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("outline_weight", "identity_max_frames", "smooth_min_cutoff", "warm_start_gap_s",

@@ -77,10 +77,12 @@ class FitCamera:
         Jp = pose.projection_jacobian(C, self.K)
         return Jp @ R, self.focal_px / C[:, 2]
 
-    def estimate_pose(self, X, x, w, init):
+    def estimate_pose(self, X, x, w, init, rotation_prior=None):
         """(R, t, s) placing model points X (N, 3) on pixels x (N, 2) with weights w (N,);
-        ``init`` (R, t, s) or None warm-starts it. s is 1.0 under perspective."""
+        ``init`` (R, t, s) or None warm-starts it; ``rotation_prior`` (R_p, px per radian) or None
+        (:func:`.pose.perspective`; not used by the orthographic camera). s is 1.0 under perspective."""
         if self.projection == "orthographic":
             return pose.scaled_orthographic(X, x, w, None if init is None else (init[0], init[2]))
-        R, t = pose.perspective(X, x, self.K, w, None if init is None else (init[0], init[1]))
+        R, t = pose.perspective(X, x, self.K, w, None if init is None else (init[0], init[1]),
+                                rotation_prior=rotation_prior)
         return R, t, 1.0

@@ -58,7 +58,11 @@ class FitterNode(Node):
                          choices=("ray", "nearest", "off")),
         "smoothing": Param(True, "One Euro filter on pose and expression"),
         "min_cutoff": Param(1.5, "One Euro minimum cutoff frequency, Hz", range=(0.001, 100.0)),
-        "neutral_frames": Param(30, "dense: frames averaged into the neutral reference", range=(1, 100000)),
+        "neutral_frames": Param(30, "frames averaged into the neutral reference (dense) and into the landmark "
+                                    "network's 3D reference (sparse, rotation_prior_px)", range=(1, 100000)),
+        "rotation_prior_px": Param(100.0, "sparse, perspective: weight (px per radian) holding the fitted pitch "
+                                          "toward that of the landmark network's own 3D points; 0: off",
+                                   range=(0.0, 10000.0)),
         "model_period_s": Param(1.0, "least time between face/model updates while the neutral is learned, s",
                                 range=(0.0, 3600.0)),
         "model_change_mm": Param(2.0, "sparse, once learned (2 x neutral_frames frames): republish when a "
@@ -239,6 +243,7 @@ class FitterNode(Node):
             projection=p.projection, iterations=p.iterations, tracking_iterations=p.tracking_iterations,
             shape_lambda=p.shape_lambda, expression_lambda=p.expression_lambda, outline=p.outline,
             smoothing=p.smoothing, smooth_min_cutoff=p.min_cutoff, neutral_frames=p.neutral_frames,
+            rotation_prior_px=p.rotation_prior_px,
             refine=None if p.refine == "off" else p.refine,
         )
 

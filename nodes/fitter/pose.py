@@ -191,8 +191,11 @@ def perspective(
     weights: np.ndarray | None = None,
     init: tuple[np.ndarray, np.ndarray] | None = None,
     iterations: int = 8,
+    rotation_prior: tuple[np.ndarray, float | tuple[float, float, float]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Perspective pose (R, t) minimising Σ w ‖π(K (R X + t)) − x‖² (Gauss-Newton on the pixel error).
+    """Perspective pose (R, t) minimising Σ w ‖π(K (R X + t)) − x‖² / Σ w (Gauss-Newton on the pixel
+    error), plus ‖λ ∘ log(R_pᵀ R)‖² with ``rotation_prior`` (R_p (3, 3), λ px per radian: a
+    number, or (3,) about the model's x, y, z axes, e.g. only the pitch's).
 
     points3d (N, 3) model units (mm); points2d (N, 2) pixels; K (3, 3); init (R, t) to start from.
     Without init, starts from the scaled orthographic pose about the principal point (depth f / s).
@@ -221,15 +224,29 @@ def perspective(
                        a[..., 2] * Jp[..., 0] - a[..., 0] * Jp[..., 2],
                        a[..., 0] * Jp[..., 1] - a[..., 1] * Jp[..., 0]], axis=-1)
         J = np.concatenate([Jw, Jp], axis=2) * sw[:, None, None]
-        J = J.reshape(-1, 6)
+        J, r = J.reshape(-1, 6), r.reshape(-1)
+        if rotation_prior is not None:
+            J, r = _with_rotation_prior(J, r, R, *rotation_prior)
         H = J.T @ J
         H += 1e-9 * np.trace(H) * np.eye(6)
-        delta = -np.linalg.solve(H, J.T @ r.reshape(-1))
+        delta = -np.linalg.solve(H, J.T @ r)
         R = rodrigues(delta[:3]) @ R
         t = t + delta[3:]
         if np.abs(delta[:3]).max() < 1e-7 and np.abs(delta[3:]).max() < 1e-5:
             break
     return R, t
+
+
+def _with_rotation_prior(J: np.ndarray, r: np.ndarray, R: np.ndarray, R_prior: np.ndarray, weights):
+    """The Gauss-Newton rows (J (M, 6), r (M,)) with three more: the rotation vector of R_priorᵀ R
+    (about the model's own x, y, z axes) times ``weights`` (a number or (3,) px per radian),
+    linearised for the update R ← exp([δ]x) R (δ in camera axes: the rotation vector moves by
+    Rᵀ δ, to first order)."""
+    w = np.broadcast_to(np.asarray(weights, np.float64), (3,))
+    e = rotation_log(np.asarray(R_prior, np.float64).T @ R)
+    rows = np.zeros((3, 6))
+    rows[:, :3] = w[:, None] * R.T
+    return np.vstack([J, rows]), np.r_[r, w * e]
 
 
 def similarity_procrustes(

@@ -23,6 +23,7 @@ import numpy as np
 from facesculpt.nodes.fitter import fitting
 from facesculpt.nodes.fitter import outline as outline_corr
 from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.nodes.fitter.detector_rotation import RIGID_IDS, DetectorRotation
 from facesculpt.nodes.fitter.fit_camera import FitCamera
 from facesculpt.nodes.fitter.fitter import Fitter
 from facesculpt.nodes.fitter.model import MorphableModel
@@ -56,6 +57,7 @@ class SparseFitter(Fitter):
         if len(m.outline_right) and len(m.outline_left):
             self._prepare_outline()
         self.identity = fitting.IdentityAccumulator(S, config.identity_decay, config.identity_max_frames)
+        self.network_rotation = DetectorRotation(config.neutral_frames)
         self.reset()
 
     def _prepare_outline(self) -> None:
@@ -73,6 +75,7 @@ class SparseFitter(Fitter):
     def reset(self) -> None:
         """Forget everything learned from earlier frames: warm start, identity, filters."""
         self.identity.reset()
+        self.network_rotation.reset()
         self._alpha = np.zeros(self.num_shape)
         self._beta = np.zeros(self.model.num_expression)
         super().reset()
@@ -101,8 +104,12 @@ class SparseFitter(Fitter):
         alpha, beta, init = self._alpha.copy(), self._beta.copy(), self._pose
         accumulate = self.config.accumulate_identity
         prior = (self.identity.H, self.identity.g) if (accumulate and not self.identity.empty) else (None, None)
+        R_network = self._network_rotation(pts, ids, finite)
+        R_prior = self.network_rotation.prior(R_network)
+        # the pitch alone is held: the network's yaw follows a turn short of it, its roll no better
+        held = None if R_prior is None else (R_prior, (self.config.rotation_prior_px, 0.0, 0.0))
         rows = self._rows(cv, cw)
-        R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, init)
+        R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, init, held)
         for _ in range(self.iterations if init is None else self.tracking_iterations):
             if len(out_idx):
                 cv, cw, x_all, w_all = self._with_outline(fv, fw, x_fixed, w_fixed, x_out, w_out, out_side, alpha, beta, R, t, s)
@@ -113,7 +120,10 @@ class SparseFitter(Fitter):
                 C, u0 = self.camera.to_camera(self._points(rows, alpha, beta), R, t, s)
                 J, rho = self.camera.linearisation(C, R, s)
                 alpha, beta = self._solve_coefficients(J, rho, rows[1], rows[2], x_all, w_all, u0, alpha, beta, prior)
-                R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, (R, t, s))
+                R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, (R, t, s), held)
+        if R_network is not None:  # the offset is learned from the rotation the landmarks alone give
+            free = R if held is None else self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, (R, t, s))[0]
+            self.network_rotation.learn(R_network, free)
         residual = self._finish_frame(rows, x_all, w_all, alpha, beta, R, t, s)
         self._alpha, self._beta, self._pose = alpha, beta, (R, t, s)
         result = self._result(alpha, beta, R, t, s, now, residual)
@@ -121,6 +131,17 @@ class SparseFitter(Fitter):
         result.correspondences = (cv, cw)
         result.correspondence_ids = [ids[i] for i in fixed_idx] + [ids[out_idx[j]] for j in self._outline_used]
         return result
+
+    def _network_rotation(self, pts: np.ndarray, ids: list[str], finite: np.ndarray):
+        """The network's rotation (3, 3) of the head from its points' depth (:mod:`.detector_rotation`);
+        None when the prior is off, the camera is orthographic or a point or its depth is missing."""
+        if (self.config.rotation_prior_px <= 0 or not self.camera.perspective or pts.shape[1] != 3
+                or any(name not in self._names for name in RIGID_IDS)):
+            return None
+        where = {name: i for i, name in enumerate(ids) if finite[i]}
+        if any(name not in where for name in RIGID_IDS):
+            return None
+        return self.network_rotation.observe(pts[[where[name] for name in RIGID_IDS]])
 
     def _select_landmarks(self, ids: list[str], finite: np.ndarray):
         """The usable points: (indices, model vertices) of those with a fixed vertex, and

@@ -3,8 +3,8 @@ in-process pipeline (:mod:`facesculpt.app.pipeline`) both call :func:`fit_landma
 
 It chooses the face to fit (the highest-scoring one, if that scores at least ``min_score``),
 gives a sparse model the iBUG-68 points of the 468 face-mesh points
-(:func:`facesculpt.geometry.to_ibug68`, ids "1".."68") and a dense one the 468 points as they
-are, and fits them. A frame that is not fitted says why, never raises.
+(:func:`facesculpt.geometry.to_ibug68`, ids "1".."68", with the network's relative depth) and a
+dense one the 468 points as they are, and fits them. A frame that is not fitted says why, never raises.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def fit_landmarks(fitter: Fitter, points, scores, stamp_s: float, min_score: flo
     ids = None
     if not fitter.model.dense:
         if pts.shape[0] == 468:
-            pts = to_ibug68(pts)
+            pts = to_ibug68(pts, depth=True).astype(np.float64)  # the depth feeds the pose prior
         if pts.shape[0] != 68:
             return LandmarksFit(None, "bad_landmark_count")
         ids = IBUG68_IDS
