@@ -7,14 +7,15 @@ pitch ±10°; true pose and shape known) is run through the project's own landma
 in perspective (``Pipeline.fit_frame``, as ``facesculpt process`` fits: 60° field of view, the
 scene's). Per fitted frame, against the truth:
 
-* pose error: the angle (degrees) of the rotation between the fitted and the true head rotation;
+* pose error: the angle (degrees) of the rotation between the fitted and the true head rotation,
+  and the error of the pitch alone;
 * vertex reprojection error (px): mean image distance between each fitted vertex and the same
   vertex of the true head, over the vertices the truth shows, and over those at the face's outline
   (the visible vertices within ``OUTLINE_PX`` of the true head's silhouette: where the issue says
   registration errors show);
 * jitter on real video (``--real-videos``): per shared video and model, the median frame-to-frame
   displacement of the fitted mesh's vertices (px) once its smooth motion is removed, over the
-  frames where that motion is slow (:func:`jitter`), with and without the refinement;
+  frames where that motion is slow (:func:`jitter`), for each method of :data:`METHODS`;
 * shape SNR (dB, seed 002): 10 log10 of the true shape's energy about its centroid over the squared
   error of a fitted shape after a similarity alignment: each frame's fitted model-space shape, and
   the fitter's learned identity (its neutral) at the end.
@@ -46,6 +47,7 @@ from realism.posed import render_all  # noqa: E402
 from realism.scene import FACING, FOV_DEG, head_pose, make_scene, rotation  # noqa: E402
 from realism.scoring import YAW_BINS  # noqa: E402
 
+from facesculpt.geometry.head_angles import euler_from_rotation  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
 #: A visible vertex within this distance (px) of the true silhouette is an outline vertex.
@@ -86,7 +88,7 @@ def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
 
 
 def score_frame(fit, truth: dict, i: int, image_size, background: np.ndarray, rest: np.ndarray) -> dict:
-    """One fitted frame's pose error (deg), mean reprojection error over the visible vertices and over
+    """One fitted frame's pose error (deg; and its pitch's alone), mean reprojection error over the visible vertices and over
     the outline ones (px), and the SNR (dB) of its fitted model-space shape against ``rest`` (V, 3)."""
     V = len(fit.projected)
     vis = truth["visible"][:V]
@@ -95,7 +97,9 @@ def score_frame(fit, truth: dict, i: int, image_size, background: np.ndarray, re
     px = np.clip(np.rint(truth["px"][:V]).astype(int), 0, [image_size[0] - 1, image_size[1] - 1])
     outline = vis & (dist[px[:, 1], px[:, 0]] <= OUTLINE_PX)
     yaw, pitch, _ = head_pose(i)
-    return {"yaw": yaw, "pose_deg": rotation_angle(np.asarray(fit.R, np.float64), rotation(yaw, pitch) @ FACING),
+    R_true = rotation(yaw, pitch) @ FACING
+    pitch_err = abs(euler_from_rotation(np.asarray(fit.R, np.float64))[1] - euler_from_rotation(R_true)[1])
+    return {"yaw": yaw, "pose_deg": rotation_angle(np.asarray(fit.R, np.float64), R_true), "pitch_deg": pitch_err,
             "all_px": float(err[vis].mean()), "outline_px": float(err[outline].mean()) if outline.any() else np.nan,
             "outline_vertices": int(outline.sum()), "frame_snr_db": shape_snr(np.asarray(fit.model_vertices), rest)}
 
@@ -106,7 +110,7 @@ def by_yaw(rows: list[dict]) -> dict:
         sel = [r for r in rows if lo <= r["yaw"] < hi]
         if sel:
             out[f"{lo:+.0f}..{hi:+.0f}"] = {k: float(np.nanmean([r[k] for r in sel]))
-                                            for k in ("pose_deg", "all_px", "outline_px", "frame_snr_db")} | {"frames": len(sel)}
+                                            for k in ("pose_deg", "pitch_deg", "all_px", "outline_px", "frame_snr_db")} | {"frames": len(sel)}
     return out
 
 
@@ -158,6 +162,15 @@ def real_jitter(data: Path, name: str, count: int, model: str, options: dict) ->
     return jitter(np.array(tracks))
 
 
+#: The fits compared: the project's default, the same without the landmark network's rotation
+#: as the pose's prior (``rotation_prior_px=0``), and refined by appearance.
+METHODS = {
+    "landmarks only": {},
+    "landmarks only, no network rotation": {"rotation_prior_px": 0.0},
+    "refined by appearance": {"refine": "appearance"},
+}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
@@ -176,26 +189,33 @@ def main(argv=None) -> int:
     truths = render_all(scene, [(0.0, 0.0)], args.workers or max(1, min(4, len(os.sched_getaffinity(0)))))[(0.0, 0.0)]
     frames = [t["image"] for t in truths]
     results = {}
-    for name, options in (("landmarks only", {}), ("refined by appearance", {"refine": "appearance"})):
+    for name, options in METHODS.items():
         bins, snr, ms = run(frames, truths, scene.background, scene, options)
         results[name] = {"by_yaw": bins, "shape_snr_db": snr, "fit_ms_median": ms}
-    lines = ["| method | yaw bin | frames | pose error (deg) | all vertices (px) | outline vertices (px) | frame shape SNR (dB) |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| method | yaw bin | frames | pose error (deg) | pitch error (deg) | all vertices (px) | outline vertices (px) "
+             "| frame shape SNR (dB) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for name, r in results.items():
         for b, v in r["by_yaw"].items():
-            lines.append(f"| {name} | {b} | {v['frames']} | {v['pose_deg']:.2f} | {v['all_px']:.2f} | {v['outline_px']:.2f} "
+            lines.append(f"| {name} | {b} | {v['frames']} | {v['pose_deg']:.2f} | {v['pitch_deg']:.2f} | {v['all_px']:.2f} "
+                         f"| {v['outline_px']:.2f} "
                          f"| {v['frame_snr_db']:.2f} |")
     lines += ["", "| method | identity SNR (dB, the learned neutral) | fit ms (median, landmarks included) |",
               "| --- | --- | --- |"]
     lines += [f"| {name} | {r['shape_snr_db']:.2f} | {r['fit_ms_median']:.1f} |" for name, r in results.items()]
     videos = [v for v in args.real_videos.split(",") if v]
     if videos:
-        lines += ["", "| video | model | jitter, landmarks only (px) | refined (px) | still frames |", "| --- | --- | --- | --- | --- |"]
+        lines += ["", "| video | model | " + " | ".join(f"jitter, {name} (px)" for name in METHODS) + " | still frames |",
+                  "| --- | --- | " + "--- | " * len(METHODS) + "--- |"]
     for video in videos:
         for model in ("facemesh", "sfm"):
-            (plain, n), (refined, _) = (real_jitter(data, video, args.real_frames, model, o) for o in ({}, {"refine": "appearance"}))
-            results.setdefault("jitter", {})[f"{video} {model}"] = {"landmarks only": plain, "refined": refined, "still_frames": n}
-            lines.append(f"| {video} | {model} | {plain:.3f} | {refined:.3f} | {n} |")
+            # the network's rotation is a sparse fit's prior: facemesh has no row without it
+            methods = {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
+            figures = {k: real_jitter(data, video, args.real_frames, model, o) for k, o in methods.items()}
+            results.setdefault("jitter", {})[f"{video} {model}"] = {
+                **{k: f[0] for k, f in figures.items()}, "still_frames": figures["landmarks only"][1]}
+            cells = [f"{figures[k][0]:.3f}" if k in figures else "–" for k in METHODS]
+            lines.append(f"| {video} | {model} | {' | '.join(cells)} | {figures['landmarks only'][1]} |")
     table = "\n".join(lines)
     (out / "results.md").write_text(table + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=1))
