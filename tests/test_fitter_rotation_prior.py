@@ -6,6 +6,7 @@ network's do."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from facesculpt.geometry.projection import project
 from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
@@ -91,3 +92,36 @@ def test_the_network_depth_steadies_the_fitted_pitch_of_a_nodding_head(data_dir)
         errors[weight] = np.std(e[60:])
     # The landmarks alone follow the nod short by the points' lag; the network's depth holds it.
     assert errors[100.0] < 0.7 * errors[0.0], errors
+
+
+def test_the_sparse_fit_of_a_filmed_face_takes_the_networks_depth(data_dir, models_dir):
+    """The landmark network's 468 points of a real video, through ``fit_landmarks`` as the node and
+    the pipeline fit them: the iBUG points keep their depth, so after the reference frames every
+    fit is held by the network's rotation; with the prior off, none is."""
+    import cv2
+
+    from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
+    from facesculpt.nodes.fitter.result import FitError
+    from facesculpt.nodes.fitter.stage import fit_landmarks
+    from facesculpt.nodes.landmarks import LandmarkDetector
+
+    detector = LandmarkDetector(models_dir=models_dir)
+    capture = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
+    faces = []
+    while len(faces) < 40:
+        ok, frame = capture.read()
+        assert ok, "d0.mp4 ended before 40 frames with a face"
+        found = detector.detect(frame)
+        if found:
+            faces.append(found[0].points)
+    size = (frame.shape[1], frame.shape[0])
+    model = load_model("sfm")
+    for weight in (100.0, 0.0):
+        fitter = make_fitter(model, FitterConfig(rotation_prior_px=weight, neutral_frames=20), size,
+                             intrinsics_from_fov(*size, 60.0))
+        for i, points in enumerate(faces):
+            assert fit_landmarks(fitter, points[None], [1.0], i / 25).fit is not None
+        assert (fitter.network_rotation.offsets_learned == len(faces)) == (weight > 0)
+        assert (fitter.network_rotation.prior(np.eye(3)) is not None) == (weight > 0)
+    with pytest.raises(FitError, match="rotation_prior_px"):
+        FitterConfig(rotation_prior_px=-1.0)

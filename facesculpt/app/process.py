@@ -32,6 +32,24 @@ from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_S
 LOSSLESS_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
 
 
+def _add_fit_arguments(p) -> None:
+    """--model, --neutral-frames, --fov, --refine, --rotation-prior: how each frame's face is fitted."""
+    p.add_argument("--model", default="facemesh", metavar="facemesh|sfm|MODEL.npz",
+                   help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
+                        "non-commercial) or a .npz from `facesculpt model import-eos`")
+    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
+                   help="frames the first pass learns the neutral face from, before the edits are solved (default 30)")
+    p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
+                   help="horizontal field of view assumed for the camera (default 60)")
+    p.add_argument("--refine", choices=("off", "appearance"), default="off",
+                   help="refine each frame's landmark fit on its pixels against the person's learned appearance "
+                        "(issue 20; README: Appearance refinement)")
+    p.add_argument("--rotation-prior", type=float, default=100.0, metavar="PX",
+                   help="with --model sfm: hold each fit's pitch toward the landmark network's own 3D rotation "
+                        "with this weight, px per radian (default 100; 0: the landmarks alone; README: The "
+                        "head's pitch from the network's depth)")
+
+
 def _add_pose_arguments(p) -> None:
     """--pose, --face-camera, --face-camera-limit, --keyframes (README "New views")."""
     p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,roll=D,x=MM,y=MM,z=MM",
@@ -80,9 +98,7 @@ def register(sub) -> None:
     p.add_argument("--faces", default="largest", metavar="all|largest|N",
                    help="which faces to fit and edit: the largest (default), all, or face N only "
                         "(faces numbered 1, 2, ... from the left as they first appear)")
-    p.add_argument("--model", default="facemesh", metavar="facemesh|sfm|MODEL.npz",
-                   help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
-                        "non-commercial) or a .npz from `facesculpt model import-eos`")
+    _add_fit_arguments(p)
     p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
     p.add_argument("--export-params", default="", metavar="FILE.csv|json",
                    help="also write each frame's head pose and expression parameters (README: Expression parameters); "
@@ -99,11 +115,7 @@ def register(sub) -> None:
     p.add_argument("--no-audio", action="store_true", help="do not copy the input's sound into the output video")
     p.add_argument("--width", type=int, default=0, metavar="W", help="resize frames to this width first (aspect kept)")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N frames (0: all)")
-    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
-                   help="frames the first pass learns the neutral face from, before the edits are solved (default 30)")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads per network (default 1)")
-    p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
-                   help="horizontal field of view assumed for the camera (default 60)")
     p.add_argument("--atlas", choices=("on", "off"), default="off",
                    help="keep a texture memory (UV atlas) of the face over the frames and take colours from it "
                         "where the frame sees the edited surface badly: stretched or hidden (default off)")
@@ -122,9 +134,6 @@ def register(sub) -> None:
                    help="carry an edit's motion this far past the fitted outline, fading out, as a share of the "
                         "face's size, so a real outline the fit lies inside moves with the face (default 0.05; "
                         "0: not at all)")
-    p.add_argument("--refine", choices=("off", "appearance"), default="off",
-                   help="refine each frame's landmark fit on its pixels against the person's learned appearance "
-                        "(issue 20; README: Appearance refinement)")
     p.add_argument("--interpolation", choices=("sinc", "cubic", "lanczos"), default="sinc",
                    help="kernel the frame is resampled with where the face moved: sinc (the default: a long "
                         "windowed sinc, keeps the skin's finest detail), cubic (faster, softer) or lanczos "
@@ -339,6 +348,17 @@ def _atlas_options(args) -> tuple[str, str]:
     return save_texture, "on" if atlas == "on" else ("learn" if save_texture else "off")
 
 
+def _fit_options(args) -> dict:
+    """The Pipeline's fitting options from --fov, --neutral-frames, --refine and --rotation-prior
+    (ValueError in one sentence on a negative --rotation-prior)."""
+    rotation_prior = getattr(args, "rotation_prior", 100.0)
+    if not rotation_prior >= 0:
+        raise ValueError(f"--rotation-prior must be a weight >= 0 px per radian (0: off), got {rotation_prior}")
+    refine = getattr(args, "refine", "off")
+    return {"fov_deg": args.fov, "neutral_frames": args.neutral_frames, "rotation_prior_px": rotation_prior,
+            "refine": None if refine == "off" else refine}
+
+
 def _pose_options(args) -> dict:
     """The Pipeline's pose options from --pose, --face-camera, its limit and smoothing, --keyframes (ValueError
     in one sentence on a bad value)."""
@@ -375,7 +395,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
-    pose_options = _pose_options(args)
+    pose_options, fit_options = _pose_options(args), _fit_options(args)
     source = open_input(args.input)
     fps = source.native_fps
     total = source.frame_count or None
@@ -384,10 +404,9 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input,
                          getattr(args, "preset", None))
     save_texture, atlas = _atlas_options(args)
-    pipeline = Pipeline(args.model, threads=args.threads, fov_deg=args.fov, neutral_frames=args.neutral_frames,
+    pipeline = Pipeline(args.model, threads=args.threads, **fit_options, **pose_options,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "drag"),
                         plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "sinc"),
-                        refine=None if getattr(args, "refine", "off") == "off" else args.refine, **pose_options,
                         outline_band=getattr(args, "outline_band", None), expression=export is not None)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
