@@ -159,7 +159,8 @@ class Pipeline:
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
-                 outline_band: float | None = None, expression: bool = True, rotation_prior_px: float = 100.0):
+                 outline_band: float | None = None, expression: bool = True,
+                 rotation_prior_px: float = FitterConfig.rotation_prior_px):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:

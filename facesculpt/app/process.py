@@ -351,7 +351,7 @@ def _atlas_options(args) -> tuple[str, str]:
 def _fit_options(args) -> dict:
     """The Pipeline's fitting options from --fov, --neutral-frames, --refine and --rotation-prior
     (ValueError in one sentence on a negative --rotation-prior)."""
-    rotation_prior = getattr(args, "rotation_prior", 100.0)
+    rotation_prior = args.rotation_prior
     if not rotation_prior >= 0:
         raise ValueError(f"--rotation-prior must be a weight >= 0 px per radian (0: off), got {rotation_prior}")
     refine = getattr(args, "refine", "off")

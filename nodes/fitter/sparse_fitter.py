@@ -135,8 +135,7 @@ class SparseFitter(Fitter):
     def _network_rotation(self, pts: np.ndarray, ids: list[str], finite: np.ndarray):
         """The network's rotation (3, 3) of the head from its points' depth (:mod:`.detector_rotation`);
         None when the prior is off, the camera is orthographic or a point or its depth is missing."""
-        if (self.config.rotation_prior_px <= 0 or not self.camera.perspective or pts.shape[1] != 3
-                or any(name not in self._names for name in RIGID_IDS)):
+        if self.config.rotation_prior_px <= 0 or not self.camera.perspective or pts.shape[1] != 3:
             return None
         where = {name: i for i, name in enumerate(ids) if finite[i]}
         if any(name not in where for name in RIGID_IDS):

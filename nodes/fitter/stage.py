@@ -51,7 +51,7 @@ def fit_landmarks(fitter: Fitter, points, scores, stamp_s: float, min_score: flo
     ids = None
     if not fitter.model.dense:
         if pts.shape[0] == 468:
-            pts = to_ibug68(pts, depth=True).astype(np.float64)  # the depth feeds the pose prior
+            pts = to_ibug68(pts, depth=True)  # the depth feeds the pose prior
         if pts.shape[0] != 68:
             return LandmarksFit(None, "bad_landmark_count")
         ids = IBUG68_IDS
