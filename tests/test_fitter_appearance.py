@@ -187,20 +187,26 @@ def test_the_refined_shape_reaches_the_learned_neutral(data_dir, models_dir):
 
 
 def test_the_applied_shape_follows_the_mean_of_the_samples_without_its_wobble():
-    """Each frame's shape sample moves the running mean by its share; the shape the fits carry
-    follows that mean smoothly and reaches it."""
+    """A shape sample, taken every SHAPE_EVERY-th frame, joins the running mean in equal parts
+    over the frames until the next (the mean does not step at the samples' rhythm); the shape the
+    fits carry follows that mean smoothly, frame by frame, and reaches it."""
+    from facesculpt.nodes.fitter import appearance
     from facesculpt.nodes.fitter.appearance_refiner import AppearanceRefiner
 
     refiner = AppearanceRefiner(K, "perspective", learn_frames=0)
     rng = np.random.default_rng(3)
     truth = np.array([1.0, -0.5, 0.25])
+    every = appearance.SHAPE_EVERY
+    assert every > 1
     applied, means = [], []
-    for _ in range(60):
-        applied.append(refiner._mean_shape(truth + rng.normal(0, 0.5, 3)).copy())
+    for i in range(60 * every):
+        sample = truth + rng.normal(0, 0.5, 3) if i % every == 0 else None
+        applied.append(refiner._mean_shape(sample, 3).copy())
         means.append(refiner.shape_sum / refiner.shape_count)
     applied, means = np.array(applied), np.array(means)
-    step = lambda a: np.median(np.linalg.norm(np.diff(a[10:], axis=0), axis=1))  # noqa: E731
-    assert step(applied) < 0.5 * step(means)
+    step = lambda a, n: np.linalg.norm(np.diff(a[10 * every::n], axis=0), axis=1).max()  # noqa: E731
+    assert step(means, 1) < 0.5 * step(means, every)     # no step at the samples' rhythm
+    assert step(applied, 1) < 0.5 * step(means, every)   # the largest step from frame to frame: the visible wobble
     assert np.abs(applied[-1] - means[-1]).max() < 0.1 and np.abs(means[-1] - truth).max() < 0.25
     assert np.array_equal(refiner.shape_change, applied[-1])
 

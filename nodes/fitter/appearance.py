@@ -61,10 +61,13 @@ BLEND_MOVING = 0.4
 MOVING_PX = 2.0
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
-#: The refined shape change applied is the mean of the last this many frames' (the person's shape),
-#: followed by an exponential average over SHAPE_SMOOTHING_FRAMES frames.
+#: The refined shape change applied is the mean of the samples of the last this many frames (the
+#: person's shape), followed by an exponential average over SHAPE_SMOOTHING_FRAMES frames.
 SHAPE_FRAMES = 100
 SHAPE_SMOOTHING_FRAMES = 5.0
+#: The shape is sampled (the pose-and-shape solve) on every this-many-th frame only: the person's
+#: shape does not change from frame to frame, and its samples are averaged anyway.
+SHAPE_EVERY = 4
 #: With an appearance model as the template (its mean and components), a component's mix of
 #: one grey level costs as much as a photometric residual of sqrt(COMPONENT_RIDGE) grey levels at
 #: every compared vertex.

@@ -49,6 +49,7 @@ class AppearanceRefiner:
         self.shape_sum: np.ndarray | None = None
         self.shape_count = 0.0
         self.shape_applied: np.ndarray | None = None    # the mean, smoothed: what the fits are given
+        self.shape_pending: np.ndarray | None = None    # the last sample, joining the mean in parts
 
     def forget_frame(self) -> None:
         """Forget the last frame (the next one is not its successor): its corners and refinement."""
@@ -114,17 +115,19 @@ class AppearanceRefiner:
         anchors = np.asarray(model.landmark_vertices, np.int64)
         k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), model.num_shape)
         if k:
-            self.model_basis, basis = shape_bases(model, result, k, self.model_basis)
-            sample = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, basis=basis,
-                                            start=self.last_sample, levels=appearance.SHAPE_LEVELS)
-            self.last_sample = sample.theta
-            mean = appearance.Refinement(np.r_[np.zeros(6), self._mean_shape(sample.shape)])
-            result = refined_result(result, mean, basis, self.model_basis, self.K, self.projection)
+            shape = None
+            if self.last_sample is None or self.frames % appearance.SHAPE_EVERY == 0:
+                self.model_basis, basis = shape_bases(model, result, k, self.model_basis)
+                sample = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, basis=basis,
+                                                start=self.last_sample, levels=appearance.SHAPE_LEVELS)
+                self.last_sample, shape = sample.theta, sample.shape
+            mean = appearance.Refinement(np.r_[np.zeros(6), self._mean_shape(shape, k)])
+            result = refined_result(result, mean, self.model_basis, self.K, self.projection)
             X = np.asarray(result.vertices, np.float64)
         found = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, start=self.last_theta,
                                        levels=appearance.POSE_AFTER_SHAPE_LEVELS if k else None)
         self.last_theta = found.theta
-        return refined_result(result, found, None, None, self.K, self.projection)
+        return refined_result(result, found, None, self.K, self.projection)
 
     @property
     def shape_change(self) -> np.ndarray | None:
@@ -133,15 +136,24 @@ class AppearanceRefiner:
         SHAPE_SMOOTHING_FRAMES; None before any."""
         return self.shape_applied
 
-    def _mean_shape(self, shape: np.ndarray) -> np.ndarray:
-        """The (k,) shape change to apply after this frame's sample ``shape``: the running mean of
-        the samples (the oldest fading once SHAPE_FRAMES are held), followed smoothly (each
-        sample moves the mean by its share, a visible wobble on a still face)."""
-        if self.shape_sum is None or len(self.shape_sum) != len(shape):
-            self.shape_sum, self.shape_count, self.shape_applied = np.zeros(len(shape)), 0.0, np.zeros(len(shape))
-        keep = min(1.0, appearance.SHAPE_FRAMES / (self.shape_count + 1.0))
-        self.shape_sum = (self.shape_sum + shape) * keep
-        self.shape_count = (self.shape_count + 1.0) * keep
+    def _mean_shape(self, shape: np.ndarray | None, k: int) -> np.ndarray:
+        """The (k,) shape change to apply in this frame, given its sample ``shape`` (k,) (None: not
+        sampled in this frame): the running mean of the samples (the oldest fading once those of
+        SHAPE_FRAMES frames are held), each sample joining it in equal parts over the SHAPE_EVERY
+        frames until the next (all at once, the mean would step every few frames and the face
+        wobble at that rhythm), followed smoothly frame by frame (each sample moves the mean by
+        its share, a visible wobble on a still face)."""
+        if self.shape_sum is None or len(self.shape_sum) != k:
+            self.shape_sum, self.shape_count, self.shape_applied = np.zeros(k), 0.0, np.zeros(k)
+            self.shape_pending = None
+        if shape is not None:
+            self.shape_pending = np.asarray(shape, np.float64)
+        if self.shape_pending is None:
+            return self.shape_applied
+        part = 1.0 / appearance.SHAPE_EVERY
+        keep = min(1.0, appearance.SHAPE_FRAMES / appearance.SHAPE_EVERY / (self.shape_count + part))
+        self.shape_sum = (self.shape_sum + part * self.shape_pending) * keep
+        self.shape_count = (self.shape_count + part) * keep
         mean = self.shape_sum / self.shape_count
         self.shape_applied = self.shape_applied + (mean - self.shape_applied) / appearance.SHAPE_SMOOTHING_FRAMES
         return self.shape_applied
@@ -156,7 +168,7 @@ class AppearanceRefiner:
             return result
         toward = appearance.track_pose(np.asarray(result.vertices, np.float64), self.K, tracks, steps=2)
         toward = appearance.Refinement((1.0 - appearance.blend(self.speed_px)) * toward.theta)
-        return refined_result(result, toward, None, None, self.K, self.projection)
+        return refined_result(result, toward, None, self.K, self.projection)
 
 
 def shape_bases(model: MorphableModel, result: FitResult, k: int,
@@ -171,16 +183,25 @@ def shape_bases(model: MorphableModel, result: FitResult, k: int,
     return model_basis, basis
 
 
-def refined_result(result: FitResult, found: appearance.Refinement, basis: np.ndarray | None,
-                   model_basis: np.ndarray | None, K: np.ndarray | None, projection: str) -> FitResult:
-    """``result`` with ``found`` applied: its shape change along ``basis`` (V, 3, k) camera space
-    (``model_basis`` (V, 3, k) the same in model space, mm), then its rigid motion; pixels by ``K``
+def refined_result(result: FitResult, found: appearance.Refinement, model_basis: np.ndarray | None,
+                   K: np.ndarray | None, projection: str) -> FitResult:
+    """``result`` with ``found`` applied: its shape change along ``model_basis`` (V, 3, k) model space,
+    mm (as :func:`shape_bases` gives it; the camera-space change is the model-space one turned and
+    scaled by ``result``'s pose), then its rigid motion about ``result``'s centroid; pixels by ``K``
     and ``projection``."""
     X = np.asarray(result.vertices, np.float64)
-    c = centroid(X)
     k = len(found.shape)
-    model_vertices = result.model_vertices + (basis_combination(model_basis, found.shape) if k else 0)
-    X = found.apply(X, basis)
+    model_vertices = np.asarray(result.model_vertices, np.float64)
+    pose = found
+    if k:
+        change = basis_combination(model_basis, found.shape)             # (V, 3) model space, mm
+        model_vertices = model_vertices + change
+        # the camera-space change as a basis of one component at 1, so the rotation stays about
+        # the centroid of ``result``'s vertices
+        camera = result.scale * change @ np.asarray(result.R, np.float64).T
+        pose = appearance.Refinement(np.r_[found.theta[:6], 1.0])
+    c = centroid(X)
+    X = pose.apply(X, camera[:, :, None] if k else None)
     alpha = np.asarray(result.alpha, np.float32).copy()
     alpha[:k] += found.shape.astype(np.float32)
     return dataclasses.replace(

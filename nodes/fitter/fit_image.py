@@ -59,4 +59,4 @@ def fit_image(image: np.ndarray, init: FitResult, model: MorphableModel, appeara
         found = appearance.refine_pose(grey, X, weights, template, K, anchors, prior_weight=prior_weight,
                                        basis=basis, start=None if found is None else found.theta,
                                        temporal_weight=0.0)
-    return refined_result(init, found, basis, model_basis, K, projection)
+    return refined_result(init, found, model_basis, K, projection)
