@@ -96,11 +96,18 @@ def test_a_handle_that_is_no_landmark_lands_on_the_same_point_of_the_other_model
     naive = [np.linalg.norm(fit_a.projected[v] - fit_b.projected[v]) * FACE_MM / eye_distance_px(fit_a, a)
              for v in handles if v < b.n]
     assert np.median(naive) > 15.0, naive
-    # offsets in mm follow the face size from one model to the other
+    # offsets in mm follow the face size from one model to the other, and turn into its axes: posed
+    # by each model's fit of the same frame, the offset points in the camera closer to the way it
+    # did on the model it was saved on than the same numbers taken in the other model's axes
     unit = (np.linalg.norm(b.rest[b.landmark_vertex("left_eye_outer")] - b.rest[b.landmark_vertex("right_eye_outer")])
             / np.linalg.norm(a.rest[a.landmark_vertex("left_eye_outer")] - a.rest[a.landmark_vertex("right_eye_outer")]))
+    saved_way = np.asarray(fit_a.R, np.float64) @ [0.0, 0.0, 1.0]
+    untouched = np.asarray(fit_b.R, np.float64) @ [0.0, 0.0, 1.0]
     for k, (e, w) in enumerate(zip(b.edits, found)):
-        assert np.allclose(e.offsets[w], [0.0, 0.0, unit * (2.0 + k)])
+        got = np.asarray(e.offsets[w], np.float64)
+        assert np.isclose(np.linalg.norm(got), unit * (2.0 + k))
+        way = np.asarray(fit_b.R, np.float64) @ got / np.linalg.norm(got)
+        assert way @ saved_way > untouched @ saved_way
     # and back: the handles return to (or next to) where they started
     back, _, _ = carry(d0, dst, src, found, tmp_path)
     assert np.all(np.linalg.norm(a.rest[back] - a.rest[handles], axis=1) < 6.0)

@@ -91,9 +91,10 @@ def _symmetric(p: np.ndarray, q: np.ndarray) -> list[float]:
 def preset(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], triangles: np.ndarray) -> dict:
     """The edit as a deformer preset document (nodes/deformer/preset_format.py). ``rest``
     (V, 3) and ``triangles`` (T, 3) are the SFM mesh the edit is defined on (its original
-    topology, without closed holes), ``landmarks`` its landmark name -> vertex. Handles that
-    are vertices carry their rest position, the SFM topology and the named landmarks' rest
-    positions, so that the facemesh model places them through its own landmarks; those
+    topology, without closed holes), ``landmarks`` its landmark name -> vertex. The preset
+    carries the SFM topology and the named landmarks' rest positions, so that the facemesh
+    model turns the offsets into its own axes and places the handles that are vertices (by
+    their rest position) through its own landmarks; those
     positions are made left-right symmetric (each averaged with its mirrored counterpart: the
     handle with the mirrored offset, the landmark with the mirrored name), so that the two
     sides of a symmetric edit land on mirrored vertices of a symmetric mesh (the nearest vertex
@@ -114,10 +115,11 @@ def preset(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], triangle
     doc = {"format": "facesculpt-deformer-preset", "version": 1, "units": "mm",
            "description": f"bench_realism ground-truth edit: {spec.description}; ROI {spec.radius:g} mm",
            "static": [], "edits": [{"handles": handles, "roi": {"radius": spec.radius, "metric": "geodesic"}}]}
-    if any(n.startswith("vertex:") for n in spec.handles):
-        named = {k: v for k, v in landmarks.items() if not k.isdigit()}
-        doc["topology"] = topology_signature(len(rest), triangles)
-        doc["landmarks"] = {k: _symmetric(rest[v], rest[named.get(_mirror_name(k), v)]) for k, v in sorted(named.items())}
+    # the mesh it was made on, always: another model places its unnamed handles and turns its
+    # offsets into its own axes by these
+    named = {k: v for k, v in landmarks.items() if not k.isdigit()}
+    doc["topology"] = topology_signature(len(rest), triangles)
+    doc["landmarks"] = {k: _symmetric(rest[v], rest[named.get(_mirror_name(k), v)]) for k, v in sorted(named.items())}
     return doc
 
 

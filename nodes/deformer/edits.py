@@ -12,7 +12,8 @@ a landmark vertex; any other handle is stored with its vertex index (exact on th
 topology) and its rest position, which the preset's copy of the neutral's named landmarks
 carries onto another person or another model (:mod:`.landmark_warp`). They store offsets and
 ROI radii (mm), so a preset made on one person applies to another person and to any model
-that names the same landmarks.
+that names the same landmarks (on another model, its offsets are turned into that model's axes
+by the landmarks both name).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from .anchors import METRICS, distances_from, edge_length_graph, roi_within_radius
 from .arap import ArapDeformer
 from .errors import DeformerError
-from .landmark_warp import face_size, landmark_positions, nearest_vertices, warp_points
+from .landmark_warp import face_size, frame_rotation, landmark_positions, nearest_vertices, warp_points
 from .preset_format import ORIGIN_KEYS, PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
 
 __all__ = ["GRIP", "GRIP_RANGE", "PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
@@ -358,17 +359,19 @@ class EditStack:
         return path
 
     def _placement(self, origin: dict):
-        """(same topology?, handle/pin dict -> vertex of this mesh, unit factor) for presets made
-        on the mesh ``origin`` describes (its optional ``topology`` and ``landmarks``).
+        """(same topology?, handle/pin dict -> vertex of this mesh, unit factor, axes (3, 3)) for
+        presets made on the mesh ``origin`` describes (its optional ``topology`` and ``landmarks``).
 
         The unit factor takes the preset's mm to this mesh's: the ratio of the face sizes when
         the preset was made on another topology (another model, maybe in other units) and
-        carries its landmarks; else 1."""
+        carries its landmarks; else 1. The axes turn its offsets into this mesh's model space
+        (:func:`.landmark_warp.frame_rotation`), under the same condition; else the identity."""
         same = origin.get("topology") == topology_signature(self.n, self.triangles)
         marks = {k: np.asarray(p, np.float64) for k, p in origin.get("landmarks", {}).items()}
         mine = landmark_positions(self.rest, self.landmarks)
         theirs, ours = face_size(marks), face_size(mine)
         unit = 1.0 if same or theirs is None or ours is None else ours / theirs
+        axes = np.eye(3) if same or not marks else frame_rotation(marks, mine)
         # numeric names are model-specific (mesh indices, iBUG numbers): from a preset made on
         # another mesh they would name other points here
         other_mesh = "topology" in origin and not same
@@ -392,13 +395,14 @@ class EditStack:
                 "different mesh topology"
             )
 
-        return same, resolve, unit
+        return same, resolve, unit, axes
 
     def apply_preset(self, preset: dict, strength: float = 1.0) -> None:
         """Replace the edits and pins by those of a preset dict (:mod:`.preset_format`), its
         offsets multiplied by ``strength`` and its own ``"strength"`` (each 0..3). Nothing
         changes when the preset is malformed or names a landmark this model lacks
-        (DeformerError). On another topology, offsets and ROI radii scale with the face size.
+        (DeformerError). On another topology, offsets and ROI radii scale with the face size and
+        offsets turn into this model's axes, where the preset carries its landmarks.
         An edit or pin with its own ``topology``/``landmarks`` (:func:`merge_presets` of presets
         made on different meshes) is placed by those."""
         preset = scale_preset(preset, strength)  # validates
@@ -415,8 +419,8 @@ class EditStack:
         static = {placement(r)[1](r) for r in preset.get("static", [])}
         edits = []
         for item in preset["edits"]:
-            same, resolve, unit = placement(item)
-            offsets = {resolve(h): unit * np.asarray(h["offset"], dtype=np.float64) for h in item["handles"]}
+            same, resolve, unit, axes = placement(item)
+            offsets = {resolve(h): unit * axes @ np.asarray(h["offset"], dtype=np.float64) for h in item["handles"]}
             roi = item.get("roi", {})
             radius = unit * float(roi["radius"]) if "radius" in roi else self.roi_radius
             metric = roi.get("metric", self.roi_metric)

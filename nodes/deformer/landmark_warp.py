@@ -1,5 +1,8 @@
 """Carry a point of one face mesh onto another face mesh, of another person or another model
 (another topology), through the landmarks both name: the portable part of a preset's handle.
+An offset is carried by :func:`frame_rotation`: two models' "x left, y up, z out of the face"
+need not agree (the face mesh's axes come from its eye corners and forehead-chin line), and the
+landmarks both name show how one model's axes lie in the other's.
 
 A preset stores the named landmarks of the neutral it was made on and, for a handle that is no
 named landmark, the handle's rest position. On another mesh a smooth 3D warp that takes the
@@ -73,6 +76,26 @@ def warp_points(points: np.ndarray, source: dict[str, np.ndarray], target: dict[
     except (ValueError, np.linalg.LinAlgError):
         raise DeformerError(f"the landmarks {', '.join(names)} are degenerate (coplanar): cannot place the handle") from None
     return warp(P) * s_dst
+
+
+def frame_rotation(source: dict[str, np.ndarray], target: dict[str, np.ndarray]) -> np.ndarray:
+    """(3, 3) float64 rotation that best takes the landmark positions ``source`` (name -> (3,), the
+    mesh a preset was made on) onto the same landmarks in ``target`` (name -> (3,), this mesh): a
+    similarity fit of the portable names both have, so ``rotation @ offset`` is a preset's offset
+    in this mesh's axes. The identity when they share fewer than MIN_SHARED or are degenerate."""
+    from facesculpt.geometry.similarity import similarity_procrustes
+
+    names = sorted(k for k in set(source) & set(target) if not str(k).isdigit())
+    if len(names) < MIN_SHARED:
+        return np.eye(3)
+    A = np.array([source[k] for k in names], dtype=np.float64)
+    B = np.array([target[k] for k in names], dtype=np.float64)
+    if not (np.isfinite(A).all() and np.isfinite(B).all()):
+        return np.eye(3)
+    try:
+        return similarity_procrustes(A, B)[1]
+    except ValueError:
+        return np.eye(3)
 
 
 def nearest_vertices(vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
