@@ -16,7 +16,7 @@ from facesculpt.paths import model_file
 
 #: MediaPipe face-mesh vertex of each semantic landmark (the mesh's published keypoint annotations).
 FACEMESH_SEMANTIC = {
-    "nose_tip": 1, "chin": 152, "forehead": 151, "right_cheek": 205, "left_cheek": 425,
+    "nose_tip": 4, "chin": 152, "forehead": 151, "right_cheek": 205, "left_cheek": 425,
     "mouth_right": 61, "mouth_left": 291, "right_eye_outer": 33, "left_eye_outer": 263,
     "right_eye_inner": 133, "left_eye_inner": 362, "right_brow": 105, "left_brow": 334,
     "nose_bridge": 168,
