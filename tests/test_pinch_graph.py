@@ -27,6 +27,7 @@ FIRST_CLOSED, LAST_CLOSED = 32, 61   # frames of the scripted pinch (pinch_video
 def video(data_dir, models_dir, tmp_path_factory):
     """The scripted video (d0.mp4 with the hand) and its script; the pinch starts on the nose tip
     that the landmark network finds in the face video without the hand."""
+    from facesculpt.nodes.fitter.facemesh_model import FACEMESH_SEMANTIC
     from facesculpt.nodes.hands import HandDetector
     from facesculpt.nodes.landmarks import LandmarkDetector
 
@@ -35,7 +36,8 @@ def video(data_dir, models_dir, tmp_path_factory):
     assert right, f"no right hand found in {PHOTO}"
     open_pose, closed_pose = hand_sprites(photo, right[0].points)
     faces = read_faces(data_dir)
-    nose = LandmarkDetector(models_dir).track(faces[FIRST_CLOSED])[0].points[1, :2]  # mesh point 1: the nose tip
+    tip = FACEMESH_SEMANTIC["nose_tip"]                          # the face mesh's named nose tip
+    nose = LandmarkDetector(models_dir).track(faces[FIRST_CLOSED])[0].points[tip, :2]
     steps = pinch_script(nose, len(faces), MOVE_PX)
     path = tmp_path_factory.mktemp("pinch") / "pinch.mkv"
     frames = write_pinch_video(faces, {"open": open_pose, "closed": closed_pose}, steps, SCALE, ANGLE_DEG, path)
