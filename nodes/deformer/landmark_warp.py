@@ -80,12 +80,13 @@ def warp_points(points: np.ndarray, source: dict[str, np.ndarray], target: dict[
 
 def frame_rotation(source: dict[str, np.ndarray], target: dict[str, np.ndarray]) -> np.ndarray:
     """(3, 3) float64 rotation that best takes the landmark positions ``source`` (name -> (3,), the
-    mesh a preset was made on) onto the same landmarks in ``target`` (name -> (3,), this mesh): a
-    similarity fit of the portable names both have, so ``rotation @ offset`` is a preset's offset
-    in this mesh's axes. The identity when they share fewer than MIN_SHARED or are degenerate."""
+    mesh a preset was made on) onto the same landmarks in ``target`` (name -> (3,), this mesh's
+    :func:`landmark_positions`, portable names only): a similarity fit of the names both have, so
+    ``rotation @ offset`` is a preset's offset in this mesh's axes. The identity when they share
+    fewer than MIN_SHARED or are degenerate."""
     from facesculpt.geometry.similarity import similarity_procrustes
 
-    names = sorted(k for k in set(source) & set(target) if not str(k).isdigit())
+    names = sorted(set(source) & set(target))
     if len(names) < MIN_SHARED:
         return np.eye(3)
     A = np.array([source[k] for k in names], dtype=np.float64)

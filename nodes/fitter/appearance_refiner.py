@@ -3,9 +3,9 @@
 Per person: the appearance template (:class:`.appearance.AppearanceTemplate`), the corners of
 the last frame tied to the mesh (:mod:`.surface_features`) and that frame, the last refinements
 (where the next ones start) and the mean shape change (:attr:`AppearanceRefiner.shape_change`,
-which a sparse fitter adds to its learned neutral). With a shape basis each frame is solved twice:
-pose and shape (the frame's sample of the person's shape, averaged over frames), then the pose
-alone for the mesh with the averaged shape, the one the output carries.
+which a sparse fitter adds to its learned neutral). With a shape basis, every SHAPE_EVERY-th frame
+is first solved for pose and shape (a sample of the person's shape, averaged over frames); every
+frame is solved for the pose alone for the mesh with the averaged shape, the one the output carries.
 :meth:`AppearanceRefiner.refine` takes a frame's landmark fit, *before* its head pose is
 smoothed, and returns it refined; the fitter smooths the refined pose afterwards, so the
 smoothing filters the better measurement rather than the refinement adding unfiltered motion to
@@ -106,8 +106,8 @@ class AppearanceRefiner:
     def _refined(self, model: MorphableModel, result: FitResult, grey: np.ndarray, X: np.ndarray,
                  normals: np.ndarray) -> FitResult:
         """``result`` refined against the template (:func:`.appearance.refine_pose`): with a shape
-        basis, a first solve of the pose and the leading shape components gives this frame's
-        sample of the person's shape, whose running mean is applied; then the pose alone is
+        basis, a first solve of the pose and the leading shape components (on every SHAPE_EVERY-th
+        frame) gives a sample of the person's shape, whose running mean is applied; then the pose alone is
         solved for the mesh with that mean shape, so the output's pose fits the shape it is
         shown with (not the frame's noisier sample)."""
         front = appearance.frontality(X, normals, self.K is not None)
