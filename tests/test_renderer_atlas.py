@@ -20,7 +20,7 @@ from realism.raster import project as reference_project  # noqa: E402
 from realism.raster import project_pixels, render_textured  # noqa: E402
 
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
-from facesculpt.nodes.renderer.atlas_raster import AtlasRasterizer  # noqa: E402
+from facesculpt.nodes.renderer.atlas_raster import AtlasRasterizer, vertex_frontality  # noqa: E402
 from facesculpt.nodes.renderer.camera import estimate_projection  # noqa: E402
 from facesculpt.nodes.renderer.gl_context import create_headless_context  # noqa: E402
 from facesculpt.nodes.renderer.texture_atlas import TextureAtlas, uv_layout  # noqa: E402
@@ -156,6 +156,18 @@ def test_uv_layout_keeps_texcoords_or_projects_the_neutral_frontally():
     # frontal: x to the right, y up -> v down; uniform scale
     top, right = np.argmax(MESH[:, 1]), np.argmax(MESH[:, 0])
     assert uv[top, 1] < 0.05 and uv[right, 0] > 0.95
+
+
+def test_frontality_is_measured_under_an_affine_camera_too():
+    """An orthographic fit's camera is at infinity: the flat rim of the bump faces it squarely
+    (the camera's direction is its centre's, not a vector of zeros)."""
+    X = pose(MESH, 0)
+    P = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])   # pixels = x, y
+    flat = MESH[:, 2] < 0.5
+    for camera in (P, estimate_projection(X, project_pixels(K, X))):
+        cos = vertex_frontality(X, TRI, camera)
+        assert np.median(cos[flat]) > 0.95, np.median(cos[flat])
+        assert cos[np.argmax(MESH[:, 2])] > 0.95   # the bump's top
 
 
 def test_a_surface_hidden_in_the_current_view_gets_the_atlas_colours():

@@ -78,12 +78,12 @@ DEPTH_TOLERANCE = 0.02  # share of the mesh's extent a texel may lie behind the 
 EDGE_PX = 3             # texels seen this close to an occluding edge (frame pixels) are not taken
 
 
-def camera_centre(P: np.ndarray) -> np.ndarray | None:
-    """The (3,) centre of the (3, 4) projection ``P`` (its null vector), None for a camera at
-    infinity (affine)."""
+def camera_centre(P: np.ndarray) -> np.ndarray:
+    """The centre of the (3, 4) projection ``P``: its null vector (4,), homogeneous; its last
+    coordinate is 0 for a camera at infinity (affine: orthographic, scaled orthographic), whose
+    first three then give the direction of its viewing rays (up to sign)."""
     _, _, vt = np.linalg.svd(np.asarray(P, np.float64))
-    c = vt[-1]
-    return None if abs(c[3]) < 1e-12 else c[:3] / c[3]
+    return vt[-1]
 
 
 def vertex_frontality(vertices: np.ndarray, triangles: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -96,10 +96,10 @@ def vertex_frontality(vertices: np.ndarray, triangles: np.ndarray, P: np.ndarray
     fn = face_normals(X, tri)
     n = vertex_normals(X, tri, fn)
     c = camera_centre(P)
-    if c is None:
-        to_cam = np.broadcast_to(-np.asarray(P, np.float64)[2, :3], X.shape)
+    if abs(c[3]) < 1e-12:   # at infinity: every ray runs along the centre's direction
+        to_cam = np.broadcast_to(c[:3], X.shape)
     else:
-        to_cam = c - X
+        to_cam = c[:3] / c[3] - X
     to_cam = to_cam / np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
     cos = np.einsum("ij,ij->i", n, to_cam)
     area = np.linalg.norm(fn, axis=1)
