@@ -185,8 +185,9 @@ class TextureAtlas:
         grid = np.zeros((rows * 1024, 2), np.float32)
         grid[:n] = uv.reshape(-1, 2) * self.size - 0.5
         grid = grid.reshape(rows, 1024, 2)
-        img = self.colour if lighting == "atlas" else self.colour / self.gain
-        col = cv2.remap(img, grid[..., 0], grid[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        col = cv2.remap(self.colour, grid[..., 0], grid[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if lighting == "frame":   # the gain is per channel: dividing the samples is dividing the atlas
+            col /= self.gain
         conf = cv2.remap(self.confidence(), grid[..., 0], grid[..., 1], cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return col.reshape(-1, 3)[:n].reshape(*shape, 3), conf.reshape(-1)[:n].reshape(shape)
@@ -200,19 +201,22 @@ def blend_atlas(warped: np.ndarray, offsets: np.ndarray, extra: np.ndarray, chan
     the input-view frontality (``extra[..., 2]``) under ATLAS_GRAZING; weighted by the atlas's
     confidence at the pixels' texture coordinates (``extra[..., :2]``: the source map's extras,
     (h, w, >= 3) float32). Returns the (h, w) float32 weight the atlas got."""
-    off = offsets.astype(np.float64)
-    dx_dx = 1.0 + np.gradient(off[..., 0], axis=1)
-    dy_dy = 1.0 + np.gradient(off[..., 1], axis=0)
-    det = dx_dx * dy_dy - np.gradient(off[..., 0], axis=0) * np.gradient(off[..., 1], axis=1)
-    stretch = 1.0 / np.sqrt(np.maximum(np.abs(det), 1e-6))
+    # float64: the offsets of uncovered pixels are huge, and float32 differences of them cancel
+    gy, gx = np.gradient(np.asarray(offsets, np.float64), axis=(0, 1))
+    det = (1.0 + gx[..., 0]) * (1.0 + gy[..., 1]) - gy[..., 0] * gx[..., 1]
     lo, hi = ATLAS_STRETCH
-    w = np.maximum(np.clip((stretch - lo) / (hi - lo), 0.0, 1.0),
-                   np.clip(1.0 - extra[..., 2] / ATLAS_GRAZING, 0.0, 1.0))
-    w *= changed
-    if not (w > 0).any():
-        return w.astype(np.float32)
-    colours, confidence = atlas.sample(np.clip(extra[..., :2], 0.0, 1.0))
+    front = extra[..., 2]
+    # the atlas's pixels: stretched past lo (|det| under 1 / lo^2) or grazing; only they are weighed
+    ys, xs = np.nonzero(changed & ((np.abs(det) < 1.0 / lo ** 2) | (front < ATLAS_GRAZING)))
+    out = np.zeros(changed.shape, np.float32)
+    if not len(ys):
+        return out
+    stretch = 1.0 / np.sqrt(np.maximum(np.abs(det[ys, xs]), 1e-6))
+    w = np.maximum(np.clip((stretch - lo) / (hi - lo), 0.0, 1.0), np.clip(1.0 - front[ys, xs] / ATLAS_GRAZING, 0.0, 1.0))
+    colours, confidence = atlas.sample(np.clip(extra[ys, xs, :2], 0.0, 1.0))
     w = (w * confidence).astype(np.float32)
-    mixed = warped.astype(np.float32) * (1.0 - w[..., None]) + colours * w[..., None]
-    np.copyto(warped, np.clip(np.rint(mixed), 0, 255).astype(np.uint8), where=(w > 0)[..., None])
-    return w
+    mixed = warped[ys, xs].astype(np.float32) * (1.0 - w[:, None]) + colours * w[:, None]
+    on = w > 0
+    warped[ys[on], xs[on]] = np.clip(np.rint(mixed[on]), 0, 255).astype(np.uint8)
+    out[ys, xs] = w
+    return out
