@@ -170,18 +170,25 @@ def test_frontality_is_measured_under_an_affine_camera_too():
         assert cos[np.argmax(MESH[:, 2])] > 0.95   # the bump's top
 
 
-def test_a_surface_hidden_in_the_current_view_gets_the_atlas_colours():
+@pytest.mark.parametrize("thread", [False, True], ids=["inline", "own thread and context"])
+def test_a_surface_hidden_in_the_current_view_gets_the_atlas_colours(thread):
     """The head seen turned 50 degrees, re-posed frontally by the 'edit': the side of the bump the
     camera does not see is shown. With the atlas (learned from earlier frames) it has its colours;
-    without it, the stretched colours of the sliver the camera saw."""
+    without it, the stretched colours of the sliver the camera saw. The same with the atlas's
+    updates on a thread of their own (waited for after each frame, so that none is skipped)."""
     yaws = (0, -35, 35, 50)
     outs = {}
     for on in (False, True):
-        with Compositor(W, H, atlas=on, atlas_size=S) as comp:
+        with Compositor(W, H, atlas=on, atlas_size=S, atlas_thread=thread) as comp:
             for yaw in yaws:
                 frame, X, px = view(yaw)
                 out = comp.render(frame, X, px, TRI, X, uv=UV)   # no edit: the atlas only learns
                 assert np.array_equal(out, frame)
+                if comp.memory is not None:
+                    comp.memory.wait()
+            if on:
+                assert comp.atlas.updates == len(yaws)
+                assert comp.memory.current is not thread   # with a thread: the GL work is its own too
             centre = pose(MESH, 50).mean(axis=0)
             frontal = pose(MESH, 0)
             deformed = frontal - frontal.mean(axis=0) + centre

@@ -39,7 +39,6 @@ crop for work that numpy/OpenCV do cheaply on it (benchmarks/bench_renderer.py m
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import moderngl
@@ -47,6 +46,7 @@ import numpy as np
 
 from facesculpt.geometry import point_bounds
 
+from .atlas_memory import AtlasMemory
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate
 from .camera import estimate_projection, project
@@ -105,8 +105,9 @@ class Compositor:
     pixels: :class:`.RenderMeshes`); ``atlas`` keep and use the
     face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side, ``atlas_every``
     update it every N frames (the frames between only read it); ``atlas_blend`` False: learn the atlas,
-    blend nothing from it (e.g. only to save it); ``atlas_thread``: the CPU work of its updates on a
-    thread of its own (an update is skipped while the last one runs: not deterministic, for live use);
+    blend nothing from it (e.g. only to save it); ``atlas_thread``: its updates on a thread of its own,
+    with a GL context of its own where one can be made (an update is skipped while the last one runs:
+    not deterministic, for live use; :mod:`.atlas_memory`);
     ``plate`` keep a background plate (:class:`.background_plate.BackgroundPlate`; ``plate_max_age``
     frames an estimate is used, ``plate_register`` follow camera motion) and take uncovered pixels from
     it; ``segmenter`` a callable frame -> (H, W) uint8 0/1 mask of people, kept off the plate
@@ -154,17 +155,13 @@ class Compositor:
         if atlas_every < 1:
             raise ValueError(f"atlas_every must be >= 1, got {atlas_every}")
         self.atlas_on, self.atlas_size, self.atlas_blend = bool(atlas), int(atlas_size), bool(atlas_blend)
-        self.atlases: dict = {}
-        self.atlas: TextureAtlas | None = TextureAtlas(atlas_size) if atlas else None
-        self._atlas_raster = AtlasRasterizer(self.ctx, atlas_size, width, height) if atlas else None
-        # keyframes need how well each frame sees each vertex: the atlas's rasteriser, or one of their own
-        self._quality_raster = self._atlas_raster or (AtlasRasterizer(self.ctx, 16, width, height) if keyframes else None)
+        self.memory = AtlasMemory(self.ctx, atlas_size, width, height, atlas_every, atlas_thread) if atlas else None
+        # keyframes need how well this frame sees each vertex: the atlas's, when it sees every frame
+        # on this thread, or a rasteriser of their own
+        own = keyframes and not (self.memory is not None and self.memory.current)
+        self._quality_raster = AtlasRasterizer(self.ctx, 16, width, height) if own else None
         self.views: dict | None = {} if keyframes else None   # face key -> KeyframeViews
         self.keyframe_used: int | None = None   # the frame index of the keyframe the last render blended in
-        self.atlas_every = int(atlas_every)
-        self._atlas_pool = ThreadPoolExecutor(1, thread_name_prefix="atlas") if atlas and atlas_thread else None
-        self._atlas_job = None
-        self._atlas_frames = 0
         self.atlas_region: np.ndarray | None = None   # (h, w) float32 atlas weight of the last box
         self.plate = BackgroundPlate(width, height, max_age=plate_max_age, register=plate_register) if plate else None
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
@@ -249,6 +246,16 @@ class Compositor:
         ``IDENTITY_PX``) and outside the union of the original and deformed face regions
         (grown by ``dilate_px``). Raises ValueError on inputs of the wrong shape, type or size.
         """
+        try:
+            return self._render(frame_bgr, fitted_vertices, projected_px, triangles, deformed_vertices, keep_mask, uv,
+                                face_key, head_motion)
+        finally:
+            if self.memory is not None:   # the frame is drawn: the atlas's update may start
+                self.memory.start()
+
+    def _render(self, frame_bgr, fitted_vertices, projected_px, triangles, deformed_vertices, keep_mask, uv, face_key,
+                head_motion) -> np.ndarray:
+        """:meth:`render`'s work."""
         t_start = time.perf_counter()
         fitted, projected, deformed = self._check(frame_bgr, fitted_vertices, projected_px, deformed_vertices, keep_mask)
         self.box = self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None
@@ -380,55 +387,31 @@ class Compositor:
         if self._plate_learner is not None:
             self._plate_learner.sync()
 
-    def _update_atlas(self, frame, fitted, projected, triangles, uv, face_key, keep_mask) -> np.ndarray | None:
-        """With the atlas on and ``uv`` given: reset it on a new face, take this frame into it
-        (every ``atlas_every`` frames; otherwise only see how well the frame shows each vertex)
-        and return the per-vertex (V, 3) float32 (u, v, frontality in the input (0 where hidden))
-        to rasterise; None when the atlas is off, has no ``uv`` or cannot be updated."""
-        if not self.atlas_on or uv is None:
-            return None
-        uv = np.asarray(uv, np.float32)
-        if uv.shape != (len(fitted), 2):
-            raise ValueError(f"uv must be ({len(fitted)}, 2), got {uv.shape}")
-        if self._atlas_job is not None and (self.atlas is None or self.atlas.key is None
-                                            or self.atlas.key[0] != face_key):
-            self._atlas_job.result()   # no reset under a running update
-        if face_key not in self.atlases and len(self.atlases) >= 8:
-            self.atlases.clear()
-        if face_key not in self.atlases:
-            self.atlases[face_key] = self.atlas if not self.atlases and self.atlas.key is None else TextureAtlas(self.atlas_size)
-        self.atlas = self.atlases[face_key]
-        self.atlas.ensure(face_key, uv)
-        P = estimate_projection(fitted, projected)
-        tri = np.asarray(triangles, np.int64)
-        busy = self._atlas_job is not None and not self._atlas_job.done()
-        if self._atlas_frames % self.atlas_every == 0 and not busy:
-            raw = self._atlas_raster.draw_uv(fitted, projected, tri, uv, P)
-            atlas, raster = self.atlas, self._atlas_raster
+    @property
+    def atlases(self) -> dict:
+        """Face key -> its :class:`.texture_atlas.TextureAtlas` (empty with the atlas off)."""
+        return self.memory.atlases if self.memory is not None else {}
 
-            def job():
-                return atlas.update(frame, *raster.finish(*raw), keep_mask)
-            self._atlas_job = self._atlas_pool.submit(job) if self._atlas_pool is not None else None
-            if self._atlas_pool is None:
-                job()
-        else:
-            self._atlas_raster.see(fitted, projected, tri, P)
-        self._atlas_frames += 1
-        return np.column_stack([uv, self._atlas_raster.vertex_quality]).astype(np.float32)
+    @property
+    def atlas(self) -> TextureAtlas | None:
+        """The last face's atlas (None with the atlas off)."""
+        return self.memory.atlas if self.memory is not None else None
 
     def _update_memory(self, frame, fitted, projected, triangles, deformed, uv, face_key, keep_mask):
-        """Step 6's inputs: the atlas's per-vertex (u, v, quality) (:meth:`_update_atlas`) and,
+        """Step 6's inputs: the atlas's per-vertex (u, v, quality) (:meth:`.AtlasMemory.update`) and,
         with keyframes on, (the keyframe chosen for the ``deformed`` view, its (V,) weights)
         (:mod:`.keyframe_views`) or None; the frame is then offered as a keyframe (not with a
         ``keep_mask``: a hand in front of the face would be kept with it)."""
-        uvq = self._update_atlas(frame, fitted, projected, triangles, uv, face_key, keep_mask)
+        uvq = None if self.memory is None or uv is None else \
+            self.memory.update(frame, fitted, projected, triangles, uv, face_key, keep_mask)
         self.keyframe_used = None
         if self.views is None:
             return uvq, None
         if face_key not in self.views and len(self.views) >= 8:
             self.views.clear()
         views = self.views.setdefault(face_key, KeyframeViews())
-        quality = uvq[:, 2] if uvq is not None else self._quality_raster.see(
+        raster = self._quality_raster or (self.memory.raster if uvq is None else None)
+        quality = uvq[:, 2] if raster is None else raster.see(
             fitted, projected, np.asarray(triangles, np.int64), estimate_projection(fitted, projected))[0]
         key = views.choose(fitted, deformed)
         if keep_mask is None or not np.any(keep_mask):
@@ -564,15 +547,12 @@ class Compositor:
         if self._plate_learner is not None:
             self._plate_learner.close()
             self._plate_learner = None
-        if self._atlas_pool is not None:
-            self._atlas_pool.shutdown(wait=True)
-            self._atlas_pool = None
-        if self._quality_raster is not None and self._quality_raster is not self._atlas_raster:
+        if self.memory is not None:
+            self.memory.release()
+            self.memory = None
+        if self._quality_raster is not None:
             self._quality_raster.release()
-        self._quality_raster = None
-        if self._atlas_raster is not None:
-            self._atlas_raster.release()
-            self._atlas_raster = None
+            self._quality_raster = None
         if self._own_ctx and self.ctx is not None:
             self.ctx.release()
             self.ctx = None

@@ -126,8 +126,9 @@ class RendererNode(Node):
                               "the edited surface badly (stretched, hidden) its colours come from it; published on "
                               "face/texture", choices=("on", "off")),
         "atlas_size": Param(256, "atlas texels a side", range=(32, 2048)),
-        "atlas_every": Param(2, "update the atlas every N frames (the frames between only read it; an update's CPU "
-                                "work runs on a thread of its own, skipped while the last one runs)", range=(1, 100)),
+        "atlas_every": Param(2, "update the atlas every N frames (the frames between only read it; an update runs "
+                                "on a thread with a GL context of its own once the frame is drawn, skipped while the "
+                                "last one runs)", range=(1, 100)),
         "texture_size": Param(128, "face/texture: the atlas downscaled to this many texels a side", range=(16, 2048)),
         "texture_period_s": Param(1.0, "face/texture: published at most this often, s", range=(0.0, 3600.0)),
         "face_camera": Param(0.0, "turn each face this share of the way toward looking into the camera (0: off, "
