@@ -58,6 +58,9 @@ FILL_VARIANTS = (("drag", "drag", False), ("ns", "ns", False), ("patch", "patch"
 #: update, which starts once the frame is drawn, is waited for untimed: the live renderer has that
 #: time while it waits for the next frame).
 ATLAS_VARIANT, ATLAS_EVERY = "drag+plate+atlas", 2
+#: Between a frame's arrival and its render, the live graph fits the face (s): the plate's people
+#: are looked for meanwhile (Compositor.prefetch).
+FIT_PAUSE_S = 0.010
 PAPER_INPAINT_MS = 31.16
 PAPER_TEXTURE_DRAW_MS = 10.55
 SIZE = (856, 480)
@@ -203,6 +206,12 @@ def main(argv=None) -> int:
             if g is None:
                 continue
             fitted, projected, tris, deformed = g
+            # as the renderer node does: the plate's people are looked for as soon as the frame
+            # arrives, while its face is fitted (here: a pause as long as a fit)
+            for comp in comps.values():
+                if hasattr(comp, "prefetch"):
+                    comp.prefetch(frame)
+            time.sleep(FIT_PAUSE_S)
             for method, comp in comps.items():
                 t0 = time.perf_counter()
                 memory = {"uv": uv} if method == ATLAS_VARIANT else {}

@@ -99,3 +99,19 @@ def test_timeline_gives_no_cpu_figure_for_a_slice_too_short_to_measure():
     assert rows[0]["cpu_percent"]["renderer"] == 25.0
     assert "cpu_percent" not in rows[1]
     assert rows[1]["p50_ms"] == 20.0
+
+
+def test_bench_with_the_plate_and_the_atlas_runs_them_in_process_and_in_the_graph(data_dir, models_dir, tmp_path):
+    out = tmp_path / "bench.json"
+    result = subprocess.run(
+        [sys.executable, "-m", "facesculpt.cli", "bench", "--model", "facemesh", "--frames", "6", "--drags", "2",
+         "--window", "2", "--warmup", "0.5", "--memory", "on", "--json", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=150)
+    assert result.returncode == 0, result.stderr[-2000:]
+    doc = json.loads(out.read_text())
+    assert doc["memory"] == "on"
+    m = doc["models"]["facemesh"]
+    assert m["pipelined_fps"] > 0
+    # the renderer node learned its plate: its diagnostics time the plate's stage
+    assert m["nodes"]["renderer"]["stages_ms"]["plate"] > 0
+    assert "--memory on" in result.stdout

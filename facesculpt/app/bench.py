@@ -105,6 +105,9 @@ def register(sub) -> None:
     p.add_argument("--refine", choices=("off", "appearance"), default="off",
                    help="the fitter refines each fit on its frame's pixels, in-process and in the graph "
                         "(fitter.refine; README \"Appearance refinement\")")
+    p.add_argument("--memory", choices=("off", "on"), default="off",
+                   help="the renderer's background plate and texture atlas on, in-process and in the graph "
+                        "(renderer.plate, renderer.atlas; README \"Texture memory of the face\")")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)
@@ -210,13 +213,13 @@ def _mean(values) -> float | None:
 
 
 def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dict, drags: int,
-                   refine: str | None = None) -> dict:
+                   refine: str | None = None, memory: str = "off") -> dict:
     """Per-stage ms of the in-process pipeline over ``frames`` (see the module doc); ``refine``:
-    the fitter's (None: landmarks only)."""
+    the fitter's (None: landmarks only); ``memory`` "on": the background plate and texture atlas."""
     from facesculpt.app.pipeline import Pipeline
 
     skip = 3  # the first frames create the GL context and warm the caches
-    with Pipeline(model, refine=refine) as pipeline:
+    with Pipeline(model, refine=refine, plate=memory, atlas=memory) as pipeline:
         pipeline.calibrate(iter(frames), fps)
         if pipeline.fitted_frames == 0:
             raise RuntimeError(f"no face found in the bench input with the {model} model")
@@ -357,7 +360,7 @@ def cmd_bench(args) -> int:
         "input": description, "size": list(size), "frames": len(frames),
         "edit": [p.stem for p in paths], "pose": preset.get("pose", {}), "camera_fps": args.camera_fps,
         "pairing": "sync", "camera_pace": args.pace, "competing_busy_loops": args.load, "scenario": args.scenario,
-        "refine": args.refine,
+        "refine": args.refine, "memory": args.memory,
         "threads": args.threads or "default",
         "machine": {"cpus": os.cpu_count(), "load_avg_start": [round(v, 2) for v in load_start]},
         "paper_ms": PAPER_MS, "paper_pipelined_fps": PAPER_PIPELINED_FPS, "models": {}, "skipped": skipped,
@@ -371,6 +374,8 @@ def cmd_bench(args) -> int:
     print(table(result))
     if args.refine != "off":
         print(f"the fitter refines by {args.refine} (--refine)")
+    if args.memory != "off":
+        print("the renderer keeps a background plate and a texture atlas (--memory on)")
     if args.load:
         print(f"with {args.load} competing busy loop(s) running (--load)")
     print(f"load average {result['machine']['load_avg_start'][0]:.2f} -> {result['machine']['load_avg_end'][0]:.2f} "
@@ -387,11 +392,11 @@ def _measure_models(args, models, frames, fps, preset, preset_file, source, size
     for model in models:
         print(f"[{model}] stages in-process ...", file=sys.stderr, flush=True)
         refine = None if args.refine == "off" else args.refine
-        entry = measure_stages(model, frames, fps, preset, args.drags, refine)
+        entry = measure_stages(model, frames, fps, preset, args.drags, refine, args.memory)
         if not args.no_graph:
             print(f"[{model}] the graph as separate processes, {args.window:.0f} s window ...",
                   file=sys.stderr, flush=True)
             entry.update(measure_graph(source, model, preset_file, args.camera_fps, args.window, args.warmup, size,
                                        resize="fill" if wanted else "stretch", scenario=args.scenario,
-                                       pace=args.pace, refine=refine))
+                                       pace=args.pace, refine=refine, memory=args.memory))
         result["models"][model] = entry
