@@ -15,6 +15,9 @@ synthetic set, and the plate on a real video.
    (push-pull under the plate), ``patch+plate``, ``drag+plate``, and ``plate-face-only``: the plate
    learning everywhere outside the face, people included, as before the person segmentation): the fills differ only
    in the compositor, so the fits are shared; process --fill/--plate runs the same compositor.
+   The model ``truth`` (in the default ``--models``) takes the fit away: the true head moved by
+   the true edit through the same compositors, i.e. what the fills and the plate give when
+   registration is perfect.
 3. Scored over the frames after the neutral: fill-region PSNR (dB) and SSIM, the region being
    the pixels that were face in the input and are background in the ground truth; "do nothing"
    is the input itself; also PSNR over the part of that region push-pull's compositor filled
@@ -50,13 +53,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from realism.edits import EditSpec, write_preset  # noqa: E402
+from realism.edits import EditSpec, displacement, write_preset  # noqa: E402
 from realism.metrics import changed, psnr_from_mse, squared_error, ssim_map  # noqa: E402
+from realism.raster import project_pixels  # noqa: E402
 from realism.report import crop_boxes, side_by_side  # noqa: E402
 from realism.scene import Scene, make_scene  # noqa: E402
 from realism.sequences import read_video, render_sequences  # noqa: E402
 
 from facesculpt.app.pipeline import Pipeline, read_preset  # noqa: E402
+from facesculpt.geometry import merge_deformation  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
 EDITS = {
@@ -78,7 +83,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--frames", type=int, default=90)
     p.add_argument("--neutral-frames", type=int, default=30)
-    p.add_argument("--models", default="facemesh,sfm")
+    p.add_argument("--models", default="facemesh,sfm,truth",
+                   help="models fitted as process does; 'truth': no fit, the true head and edit (default facemesh,sfm,truth)")
     p.add_argument("--edits", default=",".join(EDITS))
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--real-video", default="d3", help="shared video for part 4 ('' for none)")
@@ -170,16 +176,61 @@ class Scores:
                 "psnr_filled": psnr_from_mse(self.se2 / self.n2) if self.n2 else float("nan"), "filled": self.n2 / 3}
 
 
+class FittedFaces:
+    """The faces ``facesculpt process`` draws: ``model`` fitted by the project's pipeline (calibrated
+    on the first ``neutral_frames``), each edit's preset solved once on its neutral."""
+
+    def __init__(self, model: str, inputs: list, presets: dict, neutral_frames: int):
+        self.pipe = Pipeline(model, neutral_frames=neutral_frames)
+        self.pipe.calibrate(inputs[:neutral_frames], 25.0)
+        self.disps = {}
+        for e, preset in presets.items():
+            self.pipe.set_edits(None)
+            self.pipe.set_edits(read_preset(preset))
+            self.disps[e] = dict(self.pipe.displacements)
+        self.fits = {}
+
+    def analyse(self, frame: np.ndarray, i: int) -> None:
+        self.fits, _ = self.pipe.analyse(frame, i / 25.0)
+
+    def faces(self, edit: str, i: int) -> list[tuple]:
+        """(fitted (V, 3), projected (V, 2), triangles, deformed (V, 3)) per face of the frame analysed last."""
+        out = []
+        for key, fit in self.fits.items():
+            d = self.disps[edit].get(key)
+            deformed = fit.vertices if d is None else merge_deformation(fit.vertices, fit.R, fit.scale, d)
+            out.append((fit.vertices, fit.projected, self.pipe.model.triangles, deformed))
+        return out
+
+    def close(self) -> None:
+        self.pipe.close()
+
+
+class TrueFaces:
+    """No fit: the true head, moved by each edit's true displacement (model ``truth``): what the fill
+    and the plate give when registration is perfect."""
+
+    def __init__(self, scene: Scene, specs: dict):
+        self.scene = scene
+        self.disps = {e: displacement(sp, scene.rest, scene.landmarks) for e, sp in specs.items()}
+
+    def analyse(self, frame: np.ndarray, i: int) -> None:
+        pass
+
+    def faces(self, edit: str, i: int) -> list[tuple]:
+        sc, n = self.scene, self.scene.model_vertices
+        X0, X1 = sc.to_camera(sc.rest, i)[:n], sc.to_camera(sc.rest + self.disps[edit], i)[:n]
+        return [(X0, project_pixels(sc.K, X0), sc.model_triangles, X1)]
+
+    def close(self) -> None:
+        pass
+
+
 def run_model(model: str, seq, scene, presets: dict, args, out: Path) -> dict:
-    """Every edit and method of one model on the synthetic set."""
+    """Every edit and method of one model (``truth``: :class:`TrueFaces`) on the synthetic set."""
     H, W = seq.inputs[0].shape[:2]
-    pipe = Pipeline(model, neutral_frames=args.neutral_frames)
-    pipe.calibrate(seq.inputs[: args.neutral_frames], 25.0)
-    disps = {}
-    for e, preset in presets.items():
-        pipe.set_edits(None)
-        pipe.set_edits(read_preset(preset))
-        disps[e] = dict(pipe.displacements)
+    source = TrueFaces(scene, {e: EDITS[e] for e in presets}) if model == "truth" else \
+        FittedFaces(model, seq.inputs, presets, args.neutral_frames)
     comps = {e: compositors(args.methods, (W, H)) for e in presets}
     scored = list(range(args.neutral_frames, args.frames))
     yaw = seq.yaw[scored]
@@ -191,20 +242,21 @@ def run_model(model: str, seq, scene, presets: dict, args, out: Path) -> dict:
     ms = {m: [] for m in args.methods}
     share = {e: {m: [0, 0] for m in args.methods if METHODS[m][1]} for e in presets}
     for i, frame in enumerate(seq.inputs):
-        fits, timings = pipe.analyse(frame, i / 25.0)
+        source.analyse(frame, i)
         for e in presets:
-            pipe.displacements = disps[e]
+            faces = source.faces(e, i)
             truth = seq.truth[e][i]
             region = seq.face[i] & ~changed(truth, scene.background)
             results, filled = {"do nothing": frame}, {}
             for m, comp in comps[e].items():
-                pipe.compositor = comp
-                results[m] = pipe.compose(frame, fits, dict(timings)).image
+                results[m] = frame
+                for key, face in enumerate(faces):
+                    results[m] = comp.render(results[m], *face, face_key=key)
                 filled[m] = np.zeros((H, W), bool)
                 if comp.box is not None:
                     x0, y0, x1, y1 = comp.box
                     filled[m][y0:y1, x0:x1] = (comp.inpainted_region != 0) & (comp.deformed_region == 0)
-                if fits and comp.timings.get("total"):
+                if faces and comp.timings.get("total"):
                     ms[m].append(comp.timings["total"])
                 if i in scored and m in share[e] and comp.plate_region is not None:
                     unc = (comp.inpainted_region != 0) & (comp.deformed_region == 0)
@@ -221,8 +273,7 @@ def run_model(model: str, seq, scene, presets: dict, args, out: Path) -> dict:
             prev[e] = {**results, "filled": filled}
             if i in rows:
                 kept[e][i] = results
-    pipe.compositor = None
-    pipe.close()
+    source.close()
     for e in presets:
         for comp in comps[e].values():
             comp.release()
