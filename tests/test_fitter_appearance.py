@@ -127,8 +127,9 @@ def test_corners_on_the_face_are_tracked_to_a_fraction_of_a_pixel_and_a_covered_
     moved = cv2.warpAffine(image, shift, image.shape[::-1], flags=cv2.INTER_CUBIC)
     x0, y0 = found.pixels[0].astype(int)
     moved[y0 - 12:y0 + 13, x0 - 12:x0 + 13] = 128                  # a hand over one corner
-    tracked, ok = track_features(image, moved, found)
+    tracked, ok, back = track_features(image, moved, found)
     assert not ok[0] and ok.mean() > 0.8
+    assert back.shape == ok.shape and np.median(back[ok]) < 0.05   # the way back returns (the shift is 1.4 px)
     error = np.linalg.norm(tracked[ok] - (found.pixels[ok] + [1.3, -0.6]), axis=1)
     assert np.median(error) < 0.05
 

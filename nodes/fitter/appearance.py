@@ -51,6 +51,8 @@ SHAPE_WEIGHT = 0.02
 TEMPORAL_WEIGHT = 1.0
 #: Huber threshold of a tracked corner's distance, px (:func:`track_pose`).
 TRACK_HUBER_PX = 1.0
+#: ... and a track's forward-backward miss (px) at which it counts half (:func:`track_pose`).
+TRACK_ERROR_PX = 0.1
 #: The complementary filter (:func:`track_pose`, :mod:`.appearance_refiner`): each frame the
 #: face follows the corners tracked from the last frame, and moves this share of the way back
 #: to the frame's own fit.
@@ -211,9 +213,10 @@ def _image_jacobian(grad: np.ndarray, Xm: np.ndarray, centre: np.ndarray, theta:
 
 def _pixel_term(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.ndarray | None,
                 K: np.ndarray | None, vertices: np.ndarray, mix: np.ndarray, targets: np.ndarray,
-                huber_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                huber_px: float | None = None, point_weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(H (n, n), g (n,)) of sum |mix-weighted pixels of ``vertices`` - targets|^2 over points:
-    vertices (P, m) int, mix (P, m) weights, targets (P, 2) px; Huber weights beyond ``huber_px``."""
+    vertices (P, m) int, mix (P, m) weights, targets (P, 2) px; Huber weights beyond ``huber_px``;
+    each point's term times ``point_weights`` (P,) when given."""
     flat = vertices.reshape(-1)
     B = None if basis is None else basis[flat]
     Xm = _moved(X[flat], centre, theta, B)
@@ -225,6 +228,8 @@ def _pixel_term(X: np.ndarray, centre: np.ndarray, theta: np.ndarray, basis: np.
     if huber_px is not None:
         d = np.linalg.norm(r, axis=1)
         w = np.where(d <= huber_px, 1.0, huber_px / np.maximum(d, 1e-9))
+    if point_weights is not None:
+        w = w * point_weights
     J = J.reshape(2 * P, -1)
     w = np.repeat(w, 2)
     return J.T @ (J * w[:, None]), J.T @ (w * r.reshape(-1))
@@ -325,13 +330,16 @@ def track_pose(vertices: np.ndarray, K: np.ndarray | None, tracks: tuple, steps:
     """The rigid motion (rotation about the centroid, translation: a :class:`Refinement`) that moves
     ``vertices`` (V, 3) float64 camera space (``K`` (3, 3), or None: orthographic) so the corners
     tracked from the last frame land where they were found: ``tracks`` (vertices (P, 3) int, mix
-    (P, 3), offsets (P, 2), found (P, 2) px), each corner at its vertices' mixed pixels plus its
-    offset (:mod:`.surface_features`); Huber weights beyond TRACK_HUBER_PX."""
+    (P, 3), offsets (P, 2), found (P, 2) px[, error (P,) px: the forward-backward miss of each
+    track]), each corner at its vertices' mixed pixels plus its offset (:mod:`.surface_features`);
+    Huber weights beyond TRACK_HUBER_PX, and a track that missed by ``error`` on its way back
+    weighs 1 / (1 + (error / TRACK_ERROR_PX)^2)."""
     X = np.asarray(vertices, np.float64)
     centre = centroid(X)
-    tv, mix, offsets, found = tracks
+    tv, mix, offsets, found = tracks[:4]
+    confidence = None if len(tracks) < 5 else 1.0 / (1.0 + (np.asarray(tracks[4]) / TRACK_ERROR_PX) ** 2)
     theta = np.zeros(6)
     for _ in range(steps):
-        H, g = _pixel_term(X, centre, theta, None, K, tv, mix, found - offsets, TRACK_HUBER_PX)
+        H, g = _pixel_term(X, centre, theta, None, K, tv, mix, found - offsets, TRACK_HUBER_PX, confidence)
         theta -= np.linalg.solve(H + 1e-6 * np.eye(6), g)
     return Refinement(theta)

@@ -95,13 +95,13 @@ class AppearanceRefiner:
         """The last frame's corners found in this one, as :func:`.appearance.track_pose` takes them."""
         if self.features is None or self.previous is None:
             return None
-        found, ok = track_features(self.previous, grey8, self.features)
+        found, ok, error = track_features(self.previous, grey8, self.features)
         self.kept = found[ok]
         if ok.sum() < 10:
             return None
         f = self.features
         self.speed_px = float(np.median(np.linalg.norm(found[ok] - f.pixels[ok], axis=1)))
-        return f.vertices[ok], f.weights[ok], f.offsets[ok], found[ok]
+        return f.vertices[ok], f.weights[ok], f.offsets[ok], found[ok], error[ok]
 
     def _refined(self, model: MorphableModel, result: FitResult, grey: np.ndarray, X: np.ndarray,
                  normals: np.ndarray) -> FitResult:

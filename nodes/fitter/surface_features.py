@@ -98,11 +98,13 @@ def surface_features(grey: np.ndarray, projected: np.ndarray, usable: np.ndarray
     return SurfaceFeatures(pixels, vertices, weights, offsets)
 
 
-def track_features(previous: np.ndarray, grey: np.ndarray, features: SurfaceFeatures) -> tuple[np.ndarray, np.ndarray]:
+def track_features(previous: np.ndarray, grey: np.ndarray,
+                   features: SurfaceFeatures) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where ``features`` of the frame ``previous`` (H, W) uint8 are in ``grey`` (H, W) uint8:
     (pixels (P, 2) float64, found (P,) bool: tracked both ways and back within
-    FORWARD_BACKWARD_PX, so a corner a hand or a blink covered is not trusted). Only the face's
-    box (grown by the window and the pyramid's reach) is searched."""
+    FORWARD_BACKWARD_PX, so a corner a hand or a blink covered is not trusted; error (P,) float64
+    px: how far the way back missed, a measure of each track's noise). Only the face's box (grown
+    by the window and the pyramid's reach) is searched."""
     reach = WINDOW_PX * 2 ** LEVELS
     x0, y0, x1, y1 = _face_box(features.pixels, grey.shape[:2], reach)
     a, b = previous[y0:y1, x0:x1], grey[y0:y1, x0:x1]
@@ -116,4 +118,4 @@ def track_features(previous: np.ndarray, grey: np.ndarray, features: SurfaceFeat
                                                    criteria=criteria, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     error = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
     ok = (found.reshape(-1) == 1) & (found_back.reshape(-1) == 1) & (error < FORWARD_BACKWARD_PX)
-    return p1.reshape(-1, 2).astype(np.float64) + [x0, y0], ok
+    return p1.reshape(-1, 2).astype(np.float64) + [x0, y0], ok, error.astype(np.float64)
