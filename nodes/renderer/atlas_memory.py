@@ -23,7 +23,6 @@ import moderngl
 import numpy as np
 
 from .atlas_raster import AtlasRasterizer
-from .camera import estimate_projection
 from .gl_context import create_headless_context
 from .texture_atlas import TextureAtlas
 
@@ -72,12 +71,13 @@ class AtlasMemory:
         return self._ctx is None
 
     def update(self, frame: np.ndarray, fitted: np.ndarray, projected: np.ndarray, triangles: np.ndarray,
-               uv: np.ndarray, face_key, keep_mask: np.ndarray | None) -> np.ndarray:
+               uv: np.ndarray, face_key, keep_mask: np.ndarray | None, P: np.ndarray) -> np.ndarray:
         """Take the frame ``frame`` (H, W, 3) uint8 into the atlas of ``face_key`` (a new key: a new
         atlas) when an update is due, and return the per-vertex (V, 3) float32 (u, v, quality: the
         input's frontality, 0 where hidden) to rasterise. ``fitted`` (V, 3) camera space,
         ``projected`` (V, 2) px, ``triangles`` (T, 3) int, ``uv`` (V, 2) in [0, 1], ``keep_mask``
-        (H, W) pixels not to learn (in front of the face) or None."""
+        (H, W) pixels not to learn (in front of the face) or None, ``P`` (3, 4) the camera that
+        projects ``fitted`` to ``projected`` (:func:`.camera.estimate_projection`)."""
         uv = np.asarray(uv, np.float32)
         if uv.shape != (len(fitted), 2):
             raise ValueError(f"uv must be ({len(fitted)}, 2), got {uv.shape}")
@@ -94,9 +94,8 @@ class AtlasMemory:
         due = self._frames % self.every == 0 and not busy
         self._frames += 1
         if self._ctx is not None:
-            self._pending = (self.atlas, frame, fitted, projected, tri, uv, keep_mask) if due else None
-            return np.column_stack([uv, self._last_quality(fitted, projected, tri)]).astype(np.float32)
-        P = estimate_projection(fitted, projected)
+            self._pending = (self.atlas, frame, fitted, projected, tri, uv, keep_mask, P) if due else None
+            return np.column_stack([uv, self._last_quality(fitted, projected, tri, P)]).astype(np.float32)
         if due:
             raw = self.raster.draw_uv(fitted, projected, tri, uv, P)
             atlas, raster = self.atlas, self.raster
@@ -123,14 +122,13 @@ class AtlasMemory:
         if self._job is not None:
             self._job.result()
 
-    def _learn(self, atlas: TextureAtlas, frame, fitted, projected, tri, uv, keep_mask) -> int:
+    def _learn(self, atlas: TextureAtlas, frame, fitted, projected, tri, uv, keep_mask, P) -> int:
         """On the update thread, with its own context: what the frame shows of ``atlas`` into it."""
-        P = estimate_projection(fitted, projected)
         got = atlas.update(frame, *self.raster.observe(fitted, projected, tri, uv, P), keep_mask)
         self._quality = self.raster.vertex_quality.copy()
         return got
 
-    def _last_quality(self, fitted, projected, tri) -> np.ndarray:
+    def _last_quality(self, fitted, projected, tri, P) -> np.ndarray:
         """(V,) the vertex quality of the last finished update (of the running one when none has
         finished yet, or when the last was of another mesh; seen afresh on the update thread when
         that was of another mesh too)."""
@@ -139,7 +137,6 @@ class AtlasMemory:
             self._job.result()
             quality = self._quality
         if quality is None or len(quality) != len(fitted):
-            P = estimate_projection(fitted, projected)
             quality = self._pool.submit(lambda: self.raster.see(fitted, projected, tri, P)[0].copy()).result()
         return quality
 

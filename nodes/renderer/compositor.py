@@ -211,14 +211,15 @@ class Compositor:
                 raise ValueError(f"{name} contains NaN or infinite values")
         return fitted, projected, deformed
 
-    def deformed_pixels(self, fitted_vertices, projected_px, deformed_vertices):
+    def deformed_pixels(self, fitted_vertices, projected_px, deformed_vertices, P: np.ndarray | None = None):
         """Pixels (V, 2) float64 and depth (V,) float64 of the deformed vertices.
 
-        The camera is recovered from the (fitted_vertices, projected_px) pairs; the pixels
-        are projected_px moved by the projected displacement, so zero deformation gives
-        projected_px exactly.
+        The camera ``P`` (3, 4) is recovered from the (fitted_vertices, projected_px) pairs when
+        not given; the pixels are projected_px moved by the projected displacement, so zero
+        deformation gives projected_px exactly.
         """
-        P = estimate_projection(fitted_vertices, projected_px)
+        if P is None:
+            P = estimate_projection(fitted_vertices, projected_px)
         V = len(fitted_vertices)
         px, depth = project(P, np.concatenate([fitted_vertices, deformed_vertices]))  # one pass
         return projected_px + (px[V:] - px[:V]), depth[V:]
@@ -267,9 +268,11 @@ class Compositor:
             return frame_bgr.copy()
         self._set_triangles(triangles, V, projected)
         t0 = time.perf_counter()
-        uvq, chosen = self._update_memory(frame_bgr, fitted, projected, triangles, deformed, uv, face_key, keep_mask)
-        t_atlas, t0 = (time.perf_counter() - t0) * 1e3, time.perf_counter()
-        dst_px, depth = self.deformed_pixels(fitted, projected, deformed)
+        P = estimate_projection(fitted, projected)   # the camera, once for the atlas, keyframes and warp
+        t_P, t0 = time.perf_counter() - t0, time.perf_counter()
+        uvq, chosen = self._update_memory(frame_bgr, fitted, projected, triangles, deformed, uv, face_key, keep_mask, P)
+        t_atlas, t0 = (time.perf_counter() - t0) * 1e3, time.perf_counter() - t_P   # the camera's stage holds P
+        dst_px, depth = self.deformed_pixels(fitted, projected, deformed, P)
         self.deformed_px = dst_px
         offset = projected - dst_px
         moved = np.einsum("ij,ij->i", offset, offset) >= IDENTITY_PX ** 2
@@ -397,13 +400,14 @@ class Compositor:
         """The last face's atlas (None with the atlas off)."""
         return self.memory.atlas if self.memory is not None else None
 
-    def _update_memory(self, frame, fitted, projected, triangles, deformed, uv, face_key, keep_mask):
-        """Step 6's inputs: the atlas's per-vertex (u, v, quality) (:meth:`.AtlasMemory.update`) and,
+    def _update_memory(self, frame, fitted, projected, triangles, deformed, uv, face_key, keep_mask, P):
+        """Step 6's inputs (``P`` (3, 4) the frame's camera): the atlas's per-vertex (u, v, quality)
+        (:meth:`.AtlasMemory.update`) and,
         with keyframes on, (the keyframe chosen for the ``deformed`` view, its (V,) weights)
         (:mod:`.keyframe_views`) or None; the frame is then offered as a keyframe (not with a
         ``keep_mask``: a hand in front of the face would be kept with it)."""
         uvq = None if self.memory is None or uv is None else \
-            self.memory.update(frame, fitted, projected, triangles, uv, face_key, keep_mask)
+            self.memory.update(frame, fitted, projected, triangles, uv, face_key, keep_mask, P)
         self.keyframe_used = None
         if self.views is None:
             return uvq, None
@@ -411,8 +415,7 @@ class Compositor:
             self.views.clear()
         views = self.views.setdefault(face_key, KeyframeViews())
         raster = self._quality_raster or (self.memory.raster if uvq is None else None)
-        quality = uvq[:, 2] if raster is None else raster.see(
-            fitted, projected, np.asarray(triangles, np.int64), estimate_projection(fitted, projected))[0]
+        quality = uvq[:, 2] if raster is None else raster.see(fitted, projected, np.asarray(triangles, np.int64), P)[0]
         key = views.choose(fitted, deformed)
         if keep_mask is None or not np.any(keep_mask):
             views.offer(frame, fitted, projected, quality)
