@@ -193,13 +193,15 @@ class FittedFaces:
     def analyse(self, frame: np.ndarray, i: int) -> None:
         self.fits, _ = self.pipe.analyse(frame, i / 25.0)
 
-    def faces(self, edit: str, i: int) -> list[tuple]:
-        """(fitted (V, 3), projected (V, 2), triangles, deformed (V, 3)) per face of the frame analysed last."""
-        out = []
+    def faces(self, edit: str, i: int) -> dict:
+        """Face key -> (fitted (V, 3), projected (V, 2), triangles, deformed (V, 3)) of the frame
+        analysed last, for the faces ``edit`` was solved on (as process draws them: no other)."""
+        out = {}
         for key, fit in self.fits.items():
             d = self.disps[edit].get(key)
-            deformed = fit.vertices if d is None else merge_deformation(fit.vertices, fit.R, fit.scale, d)
-            out.append((fit.vertices, fit.projected, self.pipe.model.triangles, deformed))
+            if d is not None:
+                out[key] = (fit.vertices, fit.projected, self.pipe.model.triangles,
+                            merge_deformation(fit.vertices, fit.R, fit.scale, d))
         return out
 
     def close(self) -> None:
@@ -217,10 +219,10 @@ class TrueFaces:
     def analyse(self, frame: np.ndarray, i: int) -> None:
         pass
 
-    def faces(self, edit: str, i: int) -> list[tuple]:
+    def faces(self, edit: str, i: int) -> dict:
         sc, n = self.scene, self.scene.model_vertices
         X0, X1 = sc.to_camera(sc.rest, i)[:n], sc.to_camera(sc.rest + self.disps[edit], i)[:n]
-        return [(X0, project_pixels(sc.K, X0), sc.model_triangles, X1)]
+        return {0: (X0, project_pixels(sc.K, X0), sc.model_triangles, X1)}
 
     def close(self) -> None:
         pass
@@ -250,7 +252,7 @@ def run_model(model: str, seq, scene, presets: dict, args, out: Path) -> dict:
             results, filled = {"do nothing": frame}, {}
             for m, comp in comps[e].items():
                 results[m] = frame
-                for key, face in enumerate(faces):
+                for key, face in faces.items():
                     results[m] = comp.render(results[m], *face, face_key=key)
                 filled[m] = np.zeros((H, W), bool)
                 if comp.box is not None:
