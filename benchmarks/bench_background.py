@@ -372,7 +372,8 @@ def markdown(report: dict, args) -> str:
             r = report["synthetic"][m][e]
             cells = [f"{r[k]['psnr']:.2f} / {r[k]['ssim']:.3f} / {r[k]['flicker']:.2f}" for k in ["do nothing", *args.methods]]
             lines.append(f"| {e} | {m} | " + " | ".join(cells) + " |")
-    lines += ["", "PSNR (dB) over the part of the fill region push-pull's compositor filled (the rest stays under "
+    lines += [] if "pushpull" not in args.methods else [
+        "", "PSNR (dB) over the part of the fill region push-pull's compositor filled (the rest stays under "
               "the deformed face in every method): " + "; ".join(
                   f"{e} {m}: " + ", ".join(f"{k} {report['synthetic'][m][e][k]['psnr_filled']:.2f}"
                                            for k in ["do nothing", *args.methods])
