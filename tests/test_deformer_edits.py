@@ -444,3 +444,21 @@ def test_merge_presets_keeps_each_presets_strength_and_origin(model):
     assert np.allclose(t.edits[4].offsets[chin_v], 1.5 * np.array(chin["edits"][0]["handles"][0]["offset"]))
     with pytest.raises(DeformerError, match="no preset"):
         merge_presets([])
+
+
+def test_a_preset_settles_on_its_arap_solution():
+    """settle() solves until the mesh stops moving, as the live deformer's idle rounds do, and lands
+    where a long solve does (a preset solved once for a video must not stop short of it)."""
+    from facesculpt.nodes.deformer.preset_format import find_preset, read_preset_file
+    from facesculpt.nodes.fitter import load_model
+
+    face = load_model("facemesh")
+    doc = read_preset_file(find_preset("cheeks"))
+    settled, long = (EditStack(face.mean, face.triangles, face.landmark_names, face.landmark_vertices) for _ in range(2))
+    for s in (settled, long):
+        s.apply_preset(doc)
+    got = settled.settle()
+    assert settled.deformer.last_converged
+    assert settled.deformer.last_iterations < 400
+    assert settled.deformer.tolerance == 0.0   # only this solve ran to the tolerance
+    assert np.abs(got - long.solve(2000)).max() < 0.05

@@ -425,7 +425,7 @@ class Pipeline:
             else:
                 stack = self.edit_stack(key)
                 stack.apply_preset(merge_presets(presets))
-                self.displacements[key] = stack.solve().astype(np.float32)
+                self.displacements[key] = stack.settle().astype(np.float32)
         return self.displacements[key]
 
     @property

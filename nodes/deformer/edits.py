@@ -31,7 +31,7 @@ from .errors import DeformerError
 from .landmark_warp import face_size, frame_rotation, landmark_positions, nearest_vertices, warp_points
 from .preset_format import ORIGIN_KEYS, PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
 
-__all__ = ["GRIP", "GRIP_RANGE", "PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
+__all__ = ["GRIP", "GRIP_RANGE", "SETTLE_ITERATIONS", "SETTLE_TOLERANCE", "PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
 
 # A handle grips the skin within this share of its edit's ROI radius (same metric), which moves
 # with it rigidly: ARAP pulling a single vertex of a dense mesh makes a cusp (the vertex moves,
@@ -39,6 +39,10 @@ __all__ = ["GRIP", "GRIP_RANGE", "PRESET_FORMAT", "PRESET_VERSION", "Edit", "Edi
 # barely moved. 0 is the single-vertex handle.
 GRIP = 0.2
 GRIP_RANGE = (0.0, 0.5)
+# An edit has settled when no vertex moves by more than this share of the mesh's bounding-box
+# diagonal in an iteration (the deformer node's default ``tolerance``, which its idle rounds reach).
+SETTLE_TOLERANCE = 1e-5
+SETTLE_ITERATIONS = 400   # the most iterations :meth:`EditStack.settle` takes to get there
 
 
 @dataclass
@@ -312,6 +316,18 @@ class EditStack:
         self.displacement = solved - self.rest
         self.version += 1
         return self.displacement
+
+    def settle(self, iterations: int = SETTLE_ITERATIONS, tolerance: float = SETTLE_TOLERANCE) -> np.ndarray:
+        """:meth:`solve` until the edits have settled on their ARAP solution (no vertex moving more
+        than ``tolerance`` times the mesh's diagonal in an iteration; at most ``iterations``), as the
+        live deformer's idle rounds do: a preset solved once for a video must not stop short of
+        where the same preset settles in the window."""
+        kept = self.deformer.tolerance
+        self.deformer.tolerance = float(tolerance)
+        try:
+            return self.solve(iterations)
+        finally:
+            self.deformer.tolerance = kept
 
     # -- presets -----------------------------------------------------------------------
 

@@ -33,7 +33,7 @@ from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVENTS, LATCHED
 
-from .edits import GRIP, GRIP_RANGE
+from .edits import GRIP, GRIP_RANGE, SETTLE_TOLERANCE
 from .errors import DeformerError
 from .face_editor import FaceEditor
 from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_preset
@@ -54,7 +54,7 @@ class DeformerNode(Node):
         "grip": Param(GRIP, "share of a handle's ROI radius around it that moves rigidly with it (0: the "
                             "handle vertex alone, which pulls a spike)", range=GRIP_RANGE),
         "iterations": Param(4, "ARAP local/global iterations per solve (Anderson-accelerated)", range=(1, 100)),
-        "tolerance": Param(1e-5, "stop early below this per-iteration motion, x bounding-box diagonal (0: never)",
+        "tolerance": Param(SETTLE_TOLERANCE, "stop early below this per-iteration motion, x bounding-box diagonal (0: never)",
                            range=(0.0, 1.0)),
         "acceleration": Param("anderson", "how a solve converges: anderson (accelerated) or none (plain local/global)",
                               choices=("anderson", "none")),
