@@ -161,6 +161,27 @@ def test_the_compositor_on_the_true_head_is_closer_to_the_truth_than_doing_nothi
                 assert score["true edit"] > max(score["liquify"] + 3, score["preset"]), (edit, i, score)
 
 
+def test_the_arap_truth_is_what_a_preset_stands_for(synth):
+    """--truth-edit arap: the benchmark's own ARAP solver (gripping handles) moves each handle by
+    exactly its offset and lands where the project's deformer settles the same preset, which the
+    raised-cosine falloff does not."""
+    from realism.edits import displacement, handle_vertex
+    from realism.oracle import deformer_displacement
+
+    scene, _ = synth
+    n = scene.model_vertices
+    for edit in ("nose", "jaw"):
+        spec = EDITS[edit]
+        arap = displacement(spec, scene.rest, scene.landmarks, "arap", scene.model_triangles, n)
+        falloff = displacement(spec, scene.rest, scene.landmarks)
+        ours = deformer_displacement(spec, scene)
+        for name, offset in spec.handles.items():
+            assert np.allclose(arap[handle_vertex(name, scene.landmarks)], offset)
+        assert np.abs(arap[:n] - ours[:n]).max() < 0.5, edit
+        assert np.abs(falloff[:n] - ours[:n]).max() > 1.0, edit
+        assert np.array_equal(arap[n:], falloff[n:])   # the vertices closing the mouth keep the falloff
+
+
 def test_the_command_line_refuses_an_unknown_edit(capsys):
     import bench_realism
 

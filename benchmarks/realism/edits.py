@@ -1,6 +1,7 @@
 """The ground-truth edits: model-space displacements with a smooth radial falloff around named
-handle vertices of the Surrey Face Model, and the same edits as deformer presets that both
-built-in models (``sfm``, ``facemesh``) can load.
+handle vertices of the Surrey Face Model (or, ``kind="arap"``, the as-rigid-as-possible
+deformation the preset stands for: :mod:`.arap_truth`), and the same edits as deformer presets
+that both built-in models (``sfm``, ``facemesh``) can load.
 
 A handle at vertex h with offset o (mm) moves vertex v by ``o * w(|rest_v - rest_h| / R)``,
 w(r) = (1 + cos(pi r)) / 2 for r < 1 (0 beyond): the handle moves by exactly o, the surface
@@ -64,14 +65,30 @@ def falloff(r: np.ndarray) -> np.ndarray:
     return np.where(r < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(r, 1.0))), 0.0)
 
 
-def displacement(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int]) -> np.ndarray:
-    """The edit's displacement (V, 3) mm of the rest vertices ``rest`` (V, 3) model space."""
+#: What a ground-truth edit is: the raised-cosine falloff above, or the ARAP deformation a deformer
+#: preset stands for (:mod:`.arap_truth`, the benchmark's own solver).
+TRUTH_EDITS = ("falloff", "arap")
+
+
+def displacement(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], kind: str = "falloff",
+                 triangles: np.ndarray | None = None, model_vertices: int | None = None) -> np.ndarray:
+    """The edit's displacement (V, 3) mm of the rest vertices ``rest`` (V, 3) model space: ``kind``
+    "falloff", or "arap" on the first ``model_vertices`` of ``rest`` and their ``triangles`` (T, 3)
+    (the others, e.g. those that close the mouth, keep the falloff)."""
+    if kind not in TRUTH_EDITS:
+        raise ValueError(f"kind must be one of {TRUTH_EDITS}, got {kind!r}")
     rest = np.asarray(rest, np.float64)
     out = np.zeros_like(rest)
     for name, offset in spec.handles.items():
         h = handle_vertex(name, landmarks)
         w = falloff(np.linalg.norm(rest - rest[h], axis=1) / spec.radius)
         out += w[:, None] * np.asarray(offset, np.float64)
+    if kind == "arap":
+        from .arap_truth import arap_displacement
+
+        n = len(rest) if model_vertices is None else int(model_vertices)
+        handles = {handle_vertex(name, landmarks): np.asarray(o, np.float64) for name, o in spec.handles.items()}
+        out[:n] = arap_displacement(rest[:n], triangles, handles, spec.radius)
     return out
 
 

@@ -30,7 +30,7 @@ def deformer_displacement(spec: EditSpec, scene: Scene) -> np.ndarray:
                       list(scene.landmarks.values()))
     stack.apply_preset(preset(spec, rest, scene.landmarks, scene.model_triangles))
     out = displacement(spec, scene.rest, scene.landmarks)
-    out[:n] = stack.solve()
+    out[:n] = stack.settle()
     return out
 
 

@@ -71,9 +71,12 @@ def render_frame(i: int) -> dict:
     return out
 
 
-def render_sequences(scene: Scene, specs: list[EditSpec], workers: int | None = None) -> Sequences:
-    """Render ``scene.frames`` frames of the scene, unedited and with each of ``specs``."""
-    displacements = {sp.name: displacement(sp, scene.rest, scene.landmarks) for sp in specs}
+def render_sequences(scene: Scene, specs: list[EditSpec], workers: int | None = None,
+                     truth_edit: str = "falloff") -> Sequences:
+    """Render ``scene.frames`` frames of the scene, unedited and with each of ``specs`` (their
+    displacement of kind ``truth_edit``: :func:`.edits.displacement`)."""
+    displacements = {sp.name: displacement(sp, scene.rest, scene.landmarks, truth_edit, scene.model_triangles,
+                                           scene.model_vertices) for sp in specs}
     workers = workers or max(1, min(4, len(os.sched_getaffinity(0))))
     if workers > 1:
         with ProcessPoolExecutor(workers, initializer=_init, initargs=(scene, displacements)) as pool:
