@@ -77,7 +77,6 @@ FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's
 # anti-aliasing of a filmed silhouette. The wider feather blended the outline over the fill and
 # left a pale band along a narrowed jaw.
 SILHOUETTE_FEATHER_PX = 2.0
-STILL_LEVELS = 8  # a band pixel this close to the plate (grey levels, every channel) keeps the frame's colour
 OUTLINE_BAND = 0.05  # a shape edit's motion reaches this far past the fitted outline (share of the face's size)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
@@ -307,8 +306,6 @@ class Compositor:
         t6 = time.perf_counter()
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected), fill)
-            if self.plate is not None and not head_motion:
-                self._plate_over_band(crop, frame_bgr, offsets, changed & ~face & (orig_mask == 0), source, box, projected)
         if keep_mask is not None:  # what is in front of the face is the input's, bit for bit
             np.copyto(crop, frame_bgr[y0:y1, x0:x1], where=np.asarray(keep_mask[y0:y1, x0:x1], bool)[..., None])
         t7 = time.perf_counter()
@@ -360,27 +357,6 @@ class Compositor:
             if dragged is not None:  # not where the drag shows a person (their rim the fit lies inside)
                 fill = self._plate_learner.background_pixels(frame, fill, done, dragged, box)
             self.plate_region = self.plate.take(crop, fill, source, box, self.feather_width(projected))
-
-    def _plate_over_band(self, crop: np.ndarray, frame: np.ndarray, offsets: np.ndarray, band: np.ndarray,
-                         source: np.ndarray | None, box: tuple[int, int, int, int], projected: np.ndarray) -> None:
-        """Keep the background still in the ``band`` ((h, w) bool: pixels past both outlines moved by
-        the edit's carried motion): where a band pixel's source shows the background, the motion would
-        drag the background along with the face; the pixel keeps the frame's colour where it shows the
-        background itself, and takes the plate where it shows a real outline the fit lay inside (now
-        moved in). A band pixel whose source is the face keeps its motion. ``crop`` of the frame's
-        ``box`` is changed in place."""
-        if not band.any():
-            return
-        shows = self._plate_learner.background_pixels(frame, band.view(np.uint8), band, offsets, box)
-        ys, xs = np.nonzero(shows)
-        x0, y0 = box[:2]
-        still = self._plate_learner.background_at(frame, xs + x0, ys + y0, STILL_LEVELS)
-        crop[ys[still], xs[still]] = frame[ys[still] + y0, xs[still] + x0]
-        shows[ys[still], xs[still]] = 0
-        ring = source if source is not None else np.zeros(band.shape, bool)
-        weight = self.plate.take(crop, shows, ring, box, self.feather_width(projected))
-        weight[ys[still], xs[still]] = 1.0
-        self.plate_region = weight if self.plate_region is None else np.maximum(self.plate_region, weight)
 
     def _learn_plate(self, frame: np.ndarray, projected: np.ndarray, keep_mask: np.ndarray | None) -> float:
         """With the plate on: take ``frame`` into it outside the face (``projected`` (V, 2) px, its hull grown

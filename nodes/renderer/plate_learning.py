@@ -92,14 +92,13 @@ class PlateLearner:
         a segmenter."""
         return None if self._people is None else self._people.result()
 
-    def background_at(self, frame: np.ndarray, xs: np.ndarray, ys: np.ndarray,
-                      levels: float = MATCH_LEVELS) -> np.ndarray:
+    def background_at(self, frame: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
         """(N,) bool: whether the pixels (``xs``, ``ys``) (N,) int of ``frame`` (the one learned last)
         show the background: where the plate knows them, the frame matches it (background
-        subtraction: every channel within ``levels``); elsewhere, nobody is there (the segmenter's
+        subtraction: every channel within MATCH_LEVELS); elsewhere, nobody is there (the segmenter's
         people; without a segmenter, yes)."""
         known = self.plate.known_at(xs, ys)
-        same = np.abs(frame[ys, xs].astype(np.float32) - self.plate.colour[ys, xs]).max(axis=1) <= levels
+        same = np.abs(frame[ys, xs].astype(np.float32) - self.plate.colour[ys, xs]).max(axis=1) <= MATCH_LEVELS
         people = self.people()
         nobody = np.ones(len(xs), bool) if people is None else people[ys, xs] == 0
         return np.where(known, same, nobody)
