@@ -154,7 +154,7 @@ class Compositor:
         self.maps = SourceMapRenderer(self.ctx, width, height, extras=bool(atlas) or bool(keyframes))
         if atlas_every < 1:
             raise ValueError(f"atlas_every must be >= 1, got {atlas_every}")
-        self.atlas_on, self.atlas_size, self.atlas_blend = bool(atlas), int(atlas_size), bool(atlas_blend)
+        self.atlas_blend = bool(atlas_blend)
         self.memory = AtlasMemory(self.ctx, atlas_size, width, height, atlas_every, atlas_thread) if atlas else None
         # keyframes need how well this frame sees each vertex: the atlas's, when it sees every frame
         # on this thread, or a rasteriser of their own
@@ -436,7 +436,7 @@ class Compositor:
     def _extras(self, fine: np.ndarray) -> np.ndarray | None:
         """The source map's per-vertex extras: (Vf, 4) float32 (u, v, input frontality, 0) from the
         fine vertices' columns 5:8 (zeros without them); None with the atlas off."""
-        if not self.atlas_on:
+        if self.memory is None:
             return None
         extra = np.zeros((len(fine), 4), np.float32)
         if fine.shape[1] >= 8:
