@@ -65,7 +65,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, displacement, write_preset  # noqa: E402
+from realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, write_preset  # noqa: E402
 from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
 from realism.oracle import deformer_displacement, oracle_frames  # noqa: E402
 from realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
@@ -228,9 +228,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
                       "2D liquify": score_sequence(seq, e, [liq.get(i) for i in range(args.frames)], scored,
                                                    truth_shifts)}
         if args.oracle:
-            truth = displacement(sp, scene.rest, scene.landmarks, args.truth_edit, scene.model_triangles,
-                                 scene.model_vertices)
-            for label, d in ((ORACLE_RENDERER, truth),
+            for label, d in ((ORACLE_RENDERER, seq.displacements[e]),
                              (ORACLE_DEFORMER, deformer_displacement(sp, scene))):
                 results[e][label] = score_sequence(seq, e, oracle_frames(scene, seq.inputs, d, list(range(args.frames))),
                                                    scored, truth_shifts)

@@ -45,7 +45,9 @@ def cotangent_matrix(rest: np.ndarray, triangles: np.ndarray) -> sp.csr_matrix:
 def edge_distances(rest: np.ndarray, triangles: np.ndarray, handles: list[int], radius: float) -> np.ndarray:
     """(H, V): each vertex's distance (mm) from each of ``handles`` along the mesh's edges (inf
     beyond ``radius``)."""
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    # each edge once: a pair given twice would be summed into one edge of twice the length
+    e = np.unique(np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1),
+                  axis=0)
     length = np.linalg.norm(rest[e[:, 0]] - rest[e[:, 1]], axis=1)
     graph = sp.coo_matrix((length, (e[:, 0], e[:, 1])), shape=(len(rest),) * 2).tocsr()
     return np.atleast_2d(dijkstra(graph, directed=False, indices=handles, limit=radius * 1.0001))
@@ -61,9 +63,10 @@ def arap_displacement(rest: np.ndarray, triangles: np.ndarray, handles: dict[int
     idx = np.array(list(handles), np.int64)
     d = edge_distances(rest, np.asarray(triangles, np.int64), list(idx), radius)
     nearest = np.argmin(d, axis=0)
-    gripped = (d.min(axis=0) <= grip * radius)
+    to_handle = d.min(axis=0)
+    gripped = to_handle <= grip * radius
     gripped[idx] = True
-    free = (d.min(axis=0) <= radius) & ~gripped
+    free = (to_handle <= radius) & ~gripped
     target = rest.copy()
     offsets = np.array([handles[h] for h in idx], np.float64)
     target[gripped] += offsets[nearest[gripped]]

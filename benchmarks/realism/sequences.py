@@ -26,7 +26,8 @@ class Sequences:
     inputs[i] (H, W, 3) uint8 BGR; truth[edit][i] the same frame with the edit; yaw[i] degrees;
     p0[i] (V, 2) px of the unedited vertices, p1[edit][i] of the edited ones; visible[edit][i]
     (V,) bool: vertices seen both before and after the edit; handles[edit]: the SFM vertices
-    of the edit's handles; face[i] (H, W) bool: where the head covers the background."""
+    of the edit's handles; face[i] (H, W) bool: where the head covers the background;
+    displacements[edit] (V, 3) mm, the edit's true displacement of the rest vertices."""
 
     inputs: list
     truth: dict
@@ -36,6 +37,7 @@ class Sequences:
     visible: dict
     handles: dict
     face: list
+    displacements: dict
 
 
 _SCENE: Scene | None = None
@@ -94,6 +96,7 @@ def render_sequences(scene: Scene, specs: list[EditSpec], workers: int | None = 
         visible={n: [f["visible"][n] for f in frames] for n in names},
         handles={sp.name: [handle_vertex(h, scene.landmarks) for h in sp.handles] for sp in specs},
         face=[changed(f["input"], scene.background) for f in frames],
+        displacements=displacements,
     )
 
 
