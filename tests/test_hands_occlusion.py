@@ -10,6 +10,8 @@ import pytest
 
 from facesculpt.app.pipeline import Pipeline, read_preset
 from facesculpt.geometry.hand_regions import hand_region_mask, hand_size
+from facesculpt.nodes.deformer import EditStack
+from facesculpt.nodes.fitter import load_model
 from facesculpt.nodes.hands import HandDetector
 from facesculpt.nodes.landmarks.detector import Detection, LandmarkDetector
 
@@ -27,10 +29,20 @@ class FaceBehindTheFist(LandmarkDetector):
                           keypoints=keypoints, score=0.9)]
 
 
+def brow_raise() -> dict:
+    """The subject's left brow raised 4 mm (ROI 30 mm): under the hand across her forehead."""
+    face = load_model("facemesh")
+    stack = EditStack(face.mean, face.triangles, face.landmark_names, face.landmark_vertices)
+    brow = stack.landmark_vertex("left_brow")
+    stack.begin([brow], roi_radius=30.0)
+    stack.set_offset(brow, [0.0, 4.0, 2.0])
+    return stack.to_preset()
+
+
 @pytest.mark.parametrize("name, preset, detector", [
-    ("google_sample_woman_hands.jpg", "cheeks", LandmarkDetector),
-    ("thumbs_down.jpg", "nose_longer", FaceBehindTheFist),
-])
+    ("google_sample_woman_hands.jpg", brow_raise, LandmarkDetector),
+    ("thumbs_down.jpg", lambda: read_preset("nose_longer"), FaceBehindTheFist),
+], ids=["brow_under_the_hand", "nose_behind_the_fist"])
 def test_nothing_rerendered_covers_a_hand(data_dir, models_dir, name, preset, detector):
     photo = cv2.imread(str(data_dir / "hands" / name))
     h, w = photo.shape[:2]
@@ -39,7 +51,7 @@ def test_nothing_rerendered_covers_a_hand(data_dir, models_dir, name, preset, de
     mask = hand_region_mask(np.stack([hand.points for hand in hands]), w, h)
     with Pipeline("facemesh", neutral_frames=1, detector=detector(models_dir)) as pipeline:
         pipeline.calibrate([photo], fps=1.0)
-        pipeline.set_edits(read_preset(preset))
+        pipeline.set_edits(preset())
         fits, timings = pipeline.analyse(photo, 0.0)
         assert fits, "no face fitted"
         painted = pipeline.compose(photo, fits, dict(timings)).image

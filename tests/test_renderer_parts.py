@@ -8,6 +8,8 @@ import pytest
 from renderer_scene import read_frames
 
 from facesculpt.geometry import boundary_loops, point_bounds
+from facesculpt.geometry.close_holes import close_holes
+from facesculpt.geometry.subdivision import loop_subdivision
 from facesculpt.nodes.renderer.camera import estimate_projection, project
 from facesculpt.nodes.renderer.compositor import OUTLINE_BAND
 from facesculpt.nodes.renderer.frame_size_defaults import (
@@ -17,9 +19,9 @@ from facesculpt.nodes.renderer.frame_size_defaults import (
     auto_subdivision,
 )
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
-from facesculpt.nodes.renderer.mesh import close_holes, vertex_rings
+from facesculpt.nodes.renderer.mesh import vertex_rings
 from facesculpt.nodes.renderer.sinc_sampling import sample_sinc, upsample2x
-from facesculpt.nodes.renderer.subdivision import levels_for, loop_subdivision, median_edge_px
+from facesculpt.nodes.renderer.subdivision import levels_for, median_edge_px
 from facesculpt.nodes.renderer.video_out import VideoOutput
 from facesculpt.nodes.renderer.warp import sample
 

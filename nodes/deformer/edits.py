@@ -30,6 +30,7 @@ from .arap import ArapDeformer
 from .errors import DeformerError
 from .landmark_warp import face_size, frame_rotation, landmark_positions, nearest_vertices, warp_points
 from .preset_format import ORIGIN_KEYS, PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
+from .solve_mesh import MIN_SOLVE_VERTICES, MIN_SOLVE_VERTICES_RANGE, solve_mesh
 
 __all__ = ["GRIP", "GRIP_RANGE", "SETTLE_ITERATIONS", "SETTLE_TOLERANCE", "PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
 
@@ -42,7 +43,7 @@ GRIP_RANGE = (0.0, 0.5)
 # An edit has settled when no vertex moves by more than this share of the mesh's bounding-box
 # diagonal in an iteration (the deformer node's default ``tolerance``, which its idle rounds reach).
 SETTLE_TOLERANCE = 1e-5
-SETTLE_ITERATIONS = 400   # the most iterations :meth:`EditStack.settle` takes to get there
+SETTLE_ITERATIONS = 2000  # the most iterations :meth:`EditStack.settle` takes to get there
 
 
 @dataclass
@@ -55,7 +56,7 @@ class Edit:
     roi_radius: float = 40.0
     roi_metric: str = "geodesic"
     roi: np.ndarray | None = None
-    base: np.ndarray | None = None  # (V, 3) mm, the solved displacement when the edit began
+    base: np.ndarray | None = None  # (Vf, 3) mm, the solve mesh's displacement when the edit began
 
 
 def topology_signature(n_vertices: int, triangles: np.ndarray) -> dict:
@@ -72,7 +73,9 @@ class EditStack:
     for pressing at a landmark. roi_radius (mm) and roi_metric ("geodesic" | "euclidean"): the
     default ROI of a new edit. ``grip`` (share of an edit's ROI radius, in ``GRIP_RANGE``): the
     skin around each handle that moves rigidly with it (0: the handle vertex alone).
-    ``deformer_options`` go to :class:`ArapDeformer`.
+    ``min_solve_vertices``: a mesh with fewer vertices is solved on its refinement
+    (:mod:`.solve_mesh`; 0: always on the mesh itself). ``deformer_options`` go to
+    :class:`ArapDeformer`, which works on the solve mesh (``self.solve_mesh``).
     Methods raise :class:`DeformerError` on bad input and leave the stack as it was.
     """
 
@@ -85,12 +88,24 @@ class EditStack:
         roi_radius: float = 40.0,
         roi_metric: str = "geodesic",
         grip: float = GRIP,
+        min_solve_vertices: int = MIN_SOLVE_VERTICES,
         **deformer_options,
     ):
-        self.deformer = ArapDeformer(vertices, triangles, **deformer_options)
-        self.rest = self.deformer.rest
-        self.triangles = self.deformer.triangles
-        self.n = self.deformer.n
+        low, high = MIN_SOLVE_VERTICES_RANGE
+        if isinstance(min_solve_vertices, bool) or not isinstance(min_solve_vertices, (int, np.integer)) \
+                or not low <= min_solve_vertices <= high:
+            raise DeformerError(f"min_solve_vertices must be an integer in [{low}, {high}], got {min_solve_vertices!r}")
+        model = ArapDeformer(vertices, triangles, **deformer_options)   # checks the mesh and the options
+        self.rest, self.triangles, self.n = model.rest, model.triangles, model.n
+        self.solve_mesh = solve_mesh(self.rest, self.triangles, int(min_solve_vertices))
+        self.deformer = model if self.solve_mesh.levels == 0 else \
+            ArapDeformer(self.solve_mesh.rest, self.solve_mesh.triangles, **deformer_options)
+        # Local/global steps shrink with the squared edge length on a refined mesh (its smooth
+        # modes converge more slowly), so a step that small is further from the solution: the
+        # tolerance shrinks as much, and a solve stops as close to it as on the model's mesh.
+        self._tolerance_scale = 4.0 ** -self.solve_mesh.levels
+        self.deformer.tolerance *= self._tolerance_scale
+        self._rest = self.solve_mesh.rest   # the solve mesh's rest; its first n vertices are the model's
         names = list(landmark_names)
         idx = np.asarray(landmark_vertices, dtype=np.int64).ravel()
         if len(names) != idx.size:
@@ -112,10 +127,11 @@ class EditStack:
             raise DeformerError(f"grip must be a share of the ROI radius in {list(GRIP_RANGE)}, got {grip!r}")
         self.grip = float(grip)
         self._grips: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # (vertex, radius, metric) -> (vertices, mm)
-        self._graph = edge_length_graph(self.rest, self.triangles)
+        self._graph = edge_length_graph(self._rest, self.solve_mesh.triangles)
         self.edits: list[Edit] = []
         self.static: set[int] = set()
         self.displacement = np.zeros_like(self.rest)  # last good solve, (V, 3) mm
+        self._solved = np.zeros_like(self._rest)      # ... on the solve mesh, (Vf, 3) mm
         self.version = 0
 
     # -- building edits ----------------------------------------------------------------
@@ -152,7 +168,7 @@ class EditStack:
         radius = self.roi_radius if roi_radius is None else float(roi_radius)
         metric = self.roi_metric if roi_metric is None else roi_metric
         self._check_roi(radius, metric)
-        edit = Edit({v: self.displacement[v].copy() for v in vs}, radius, metric, None, self.displacement.copy())
+        edit = Edit({v: self._solved[v].copy() for v in vs}, radius, metric, None, self._solved.copy())
         if roi is not None:
             edit.roi = np.unique(np.asarray([self._vertex(int(r)) for r in np.asarray(roi).ravel()], dtype=np.int64))
         self.edits.append(edit)
@@ -163,7 +179,7 @@ class EditStack:
         v = self._vertex(vertex)
         e = self._edit(edit)
         if v not in e.offsets:
-            e.offsets[v] = self.displacement[v].copy()
+            e.offsets[v] = self._solved[v].copy()
 
     def _edit(self, edit: int) -> Edit:
         if not self.edits:
@@ -208,7 +224,7 @@ class EditStack:
         for e in reversed(self.edits):
             if v in e.offsets:
                 return self.rest[v] + e.offsets[v]
-        return self.rest[v] + self.displacement[v]
+        return self.rest[v] + self._solved[v]
 
     def toggle_static(self, vertex: int) -> bool:
         """Pin (or unpin) a vertex at its rest position. Returns True when now pinned."""
@@ -234,23 +250,24 @@ class EditStack:
     # -- solving -----------------------------------------------------------------------
 
     def anchors(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(static, handles, roi, handle targets (H, 3) mm) for the current edits."""
+        """(static, handles, roi, handle targets (H, 3) mm) for the current edits, as vertex indices of
+        the solve mesh (the model's vertices first; a refined one adds ROI vertices past ``n``)."""
         targets: dict[int, np.ndarray] = {}
         for e in self.edits:
             targets.update(e.offsets)  # a later edit of the same vertex wins
         static = np.array(sorted(self.static - set(targets)), dtype=np.int64)
         handles = np.array(sorted(targets), dtype=np.int64)
-        roi_mask = np.zeros(self.n, bool)
+        roi_mask = np.zeros(len(self._rest), bool)
         for e in self.edits:
             if e.roi is not None:
-                roi_mask[e.roi] = True
+                roi_mask |= self.solve_mesh.inside(e.roi)
             else:
                 seeds = np.array(sorted(e.offsets), dtype=np.int64)
-                roi_mask[roi_within_radius(self.rest, seeds, e.roi_radius, e.roi_metric, graph=self._graph)] = True
+                roi_mask[roi_within_radius(self._rest, seeds, e.roi_radius, e.roi_metric, graph=self._graph)] = True
         roi_mask[handles] = False
         roi_mask[static] = False
         offsets = np.array([targets[v] for v in handles]).reshape(-1, 3)
-        return static, handles, np.flatnonzero(roi_mask), self.rest[handles] + offsets
+        return static, handles, np.flatnonzero(roi_mask), self._rest[handles] + offsets
 
     def _grip_radius(self, edit: Edit, vertex: int) -> float:
         """mm: ``grip`` of the edit's ROI radius, or of the explicit ROI's reach from ``vertex``."""
@@ -264,7 +281,7 @@ class EditStack:
         if key not in self._grips:
             # no "at least the neighbours" rule: on the face mesh's coarse outline a neighbour can
             # lie half an ROI away, and moving it rigidly overshot the cheeks and jaw edits
-            d = distances_from(self.rest, [vertex], metric, graph=self._graph, limit=radius)
+            d = distances_from(self._rest, [vertex], metric, graph=self._graph, limit=radius)
             near = np.flatnonzero(d <= radius)
             near = near[near != vertex]
             self._grips[key] = (near, d[near])
@@ -279,7 +296,7 @@ class EditStack:
         static, handles, roi, targets = self.anchors()
         if self.grip <= 0 or handles.size == 0:
             return static, handles, roi, targets
-        offset = dict(zip(handles.tolist(), targets - self.rest[handles]))
+        offset = dict(zip(handles.tolist(), targets - self._rest[handles]))
         reach, base = {}, {}
         for e in self.edits:  # the latest edit that holds a handle sets its grip
             reach.update({v: (self._grip_radius(e, v), e.roi_metric) for v in e.offsets})
@@ -297,7 +314,7 @@ class EditStack:
                        for v, (_, h) in best.items()})
         constrained = np.array(sorted(offset), dtype=np.int64)
         roi = np.setdiff1d(roi, constrained)
-        return static, constrained, roi, self.rest[constrained] + np.array([offset[v] for v in constrained])
+        return static, constrained, roi, self._rest[constrained] + np.array([offset[v] for v in constrained])
 
     def solve(self, iterations: int | None = None) -> np.ndarray:
         """Solve all edits; returns and keeps the displacement (V, 3) float64 mm.
@@ -307,23 +324,37 @@ class EditStack:
         """
         if not self.edits:
             self.displacement = np.zeros_like(self.rest)
+            self._solved = np.zeros_like(self._rest)
             self.deformer.reset()
             self.version += 1
             return self.displacement
         static, handles, roi, targets = self.constraints()
         self.deformer.set_anchors(static=static, handles=handles, roi=roi)
-        solved = self.deformer.solve(targets, iterations=iterations)
-        self.displacement = solved - self.rest
+        self._solved = self.deformer.solve(targets, iterations=iterations) - self._rest
+        self.displacement = self.solve_mesh.to_model(self._solved)
         self.version += 1
         return self.displacement
 
+    @property
+    def solved(self) -> np.ndarray:
+        """(Vf, 3) float64 mm: the last solve on the solve mesh (:mod:`.solve_mesh`; its first
+        ``n`` rows are the model's vertices, where every handle sits exactly at its offset), of
+        which :attr:`displacement` is the model's share."""
+        return self._solved
+
+    def continue_from(self, other: EditStack) -> None:
+        """Start the next solve from where ``other`` (a stack on the same mesh, e.g. the previous
+        neutral of the same face) left its edits, instead of from the rest mesh."""
+        if other._solved.shape == self._solved.shape:
+            self.deformer.current = self._rest + other._solved
+
     def settle(self, iterations: int = SETTLE_ITERATIONS, tolerance: float = SETTLE_TOLERANCE) -> np.ndarray:
         """:meth:`solve` until the edits have settled on their ARAP solution (no vertex moving more
-        than ``tolerance`` times the mesh's diagonal in an iteration; at most ``iterations``), as the
-        live deformer's idle rounds do: a preset solved once for a video must not stop short of
+        than ``tolerance`` times the mesh's diagonal in an iteration, a quarter of that per level of
+        the solve mesh's refinement; at most ``iterations``), as the live deformer's idle rounds do: a preset solved once for a video must not stop short of
         where the same preset settles in the window."""
         kept = self.deformer.tolerance
-        self.deformer.tolerance = float(tolerance)
+        self.deformer.tolerance = float(tolerance) * self._tolerance_scale
         try:
             return self.solve(iterations)
         finally:

@@ -32,7 +32,7 @@ from .errors import DeformerError
 from .picking import pick_vertex
 from .preset_format import find_preset, pose_to_preset, preset_pose, read_preset_file, scale_preset
 
-MAX_SETTLE_ROUNDS = 100  # idle rounds that may go on converging the last edit
+MAX_SETTLE_ROUNDS = 500  # idle rounds that may go on converging the last edit
 
 
 class FaceEditor:
@@ -88,6 +88,7 @@ class FaceEditor:
                 roi_radius=self.params.roi_radius,
                 roi_metric=self.params.roi_metric,
                 grip=self.params.grip,
+                min_solve_vertices=self.params.min_solve_vertices,
                 iterations=self.params.iterations,
                 tolerance=self.params.tolerance,
                 acceleration=self.params.acceleration,
@@ -102,7 +103,7 @@ class FaceEditor:
         if same_topology and self.stack.edits:
             # A refined neutral of the same mesh: the edit's shape barely changes, so the solver
             # starts from it (a few iterations) instead of from the rest mesh (many).
-            stack.deformer.current = stack.rest + self.stack.displacement
+            stack.continue_from(self.stack)
         self.model, self.stack = msg, stack
         if not same_topology:
             # Vertex indices mean nothing on another mesh; on the same one (the face-mesh

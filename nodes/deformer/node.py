@@ -37,6 +37,7 @@ from .edits import GRIP, GRIP_RANGE, SETTLE_TOLERANCE
 from .errors import DeformerError
 from .face_editor import FaceEditor
 from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_preset
+from .solve_mesh import MIN_SOLVE_VERTICES, MIN_SOLVE_VERTICES_RANGE
 
 MAX_PENDING_WITHOUT_MODEL = 10000
 MAX_FACES = 16  # editors kept; the face edited longest ago is dropped first
@@ -53,6 +54,9 @@ class DeformerNode(Node):
                             choices=("geodesic", "euclidean")),
         "grip": Param(GRIP, "share of a handle's ROI radius around it that moves rigidly with it (0: the "
                             "handle vertex alone, which pulls a spike)", range=GRIP_RANGE),
+        "min_solve_vertices": Param(MIN_SOLVE_VERTICES, "a model mesh with fewer vertices is solved on its refinement "
+                                                        "with at least as many, its holes closed (0: always on the "
+                                                        "model's own mesh)", range=MIN_SOLVE_VERTICES_RANGE),
         "iterations": Param(4, "ARAP local/global iterations per solve (Anderson-accelerated)", range=(1, 100)),
         "tolerance": Param(SETTLE_TOLERANCE, "stop early below this per-iteration motion, x bounding-box diagonal (0: never)",
                            range=(0.0, 1.0)),
@@ -258,6 +262,7 @@ class DeformerNode(Node):
     def publish(self):
         editor = self.editor
         static, handles, roi, _ = editor.stack.anchors()
+        roi = roi[roi < editor.stack.n]   # the model's vertices (a refined solve mesh has more)
         own = self._displacement_of(editor.face_id)
         several = len(self.editors) > 1
         # faces with a solve or a pose (a face turned before its first solve is listed with zeros)

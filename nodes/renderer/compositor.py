@@ -172,6 +172,16 @@ class Compositor:
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None  # last box's
         self.deformed_px: np.ndarray | None = None   # (V, 2) pixels of the last deformed mesh
 
+    def drawn_px(self, px: np.ndarray) -> np.ndarray:
+        """(V, 2) float: where the drawn (subdivided) surface of the last frame's mesh puts its
+        vertices whose pixels are ``px`` (V, 2), e.g. :attr:`deformed_px`: a deformer may hand over
+        a displacement whose subdivided surface, not the vertices themselves, follows the edit
+        (``nodes/deformer/solve_mesh.py``), so marks on the face go here."""
+        p = np.asarray(px, np.float64)
+        if self._mesh is None or self._mesh.S.shape[1] != len(p):
+            return p
+        return np.asarray(self._mesh.S[: len(p)] @ p)
+
     def _set_triangles(self, triangles: np.ndarray, n_vertices: int, px: np.ndarray) -> None:
         """Make the render mesh of ``triangles`` current (:class:`.RenderMeshes`; the face's vertex
         pixels ``px`` (V, 2) choose its levels); ValueError for triangles that are not indices."""

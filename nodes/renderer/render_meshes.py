@@ -1,6 +1,7 @@
-"""The meshes the compositor draws: a face's triangles closed (:func:`.mesh.close_holes`) and
-Loop-subdivided (:func:`.subdivision.loop_subdivision`), built once per triangle set and level and
-kept, the level chosen per frame (:func:`.subdivision.levels_for`).
+"""The meshes the compositor draws: a face's triangles closed
+(:func:`facesculpt.geometry.close_holes.close_holes`) and Loop-subdivided
+(:func:`facesculpt.geometry.subdivision.loop_subdivision`), built once per triangle set and level
+and kept, the level chosen per frame (:func:`.subdivision.levels_for`).
 
 Subdividing costs the renderer per fine triangle (llvmpipe sets up every triangle on the CPU), and
 a fine edge much shorter than a pixel rounds no outline further. So with ``max_fine_edge_px`` the
@@ -16,8 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .mesh import close_holes, vertex_rings
-from .subdivision import levels_for, loop_subdivision, median_edge_px
+from facesculpt.geometry.close_holes import close_holes
+from facesculpt.geometry.subdivision import loop_subdivision
+
+from .mesh import vertex_rings
+from .subdivision import levels_for, median_edge_px
 
 
 @dataclass(frozen=True)
