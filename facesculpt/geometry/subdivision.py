@@ -5,8 +5,8 @@ The compositor draws the face as a triangle mesh; with a few hundred vertices an
 (a chin pulled down) shows the mesh's straight edges (docs/architecture.md "Stages", 4). Loop
 subdivision (Loop 1987) refines every triangle into four and moves the vertices by fixed linear
 weights, so any per-vertex quantity (pixel positions, depth, the displacement) is carried to the
-fine mesh by one sparse matrix ``S``: ``fine = S @ coarse``. The matrix depends on the triangles only, so it is built
-once per mesh and applied per frame.
+fine mesh by one sparse matrix ``S``: ``fine = S @ coarse``. The matrix depends on the triangles
+only, so it is built once per mesh and applied per frame.
 
 Rules (Loop's, with the usual boundary rules): a new vertex on an interior edge (a, b) with
 opposite vertices c, d is 3/8 (a + b) + 1/8 (c + d); on a boundary edge it is the midpoint. An

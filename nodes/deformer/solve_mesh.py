@@ -80,11 +80,10 @@ class SolveMesh:
         return (self.refine @ (~mask).astype(np.float64)) == 0
 
 
-def solve_levels(n_vertices: int, min_vertices: int = MIN_SOLVE_VERTICES, n_triangles: int | None = None) -> int:
+def solve_levels(n_vertices: int, n_triangles: int, min_vertices: int = MIN_SOLVE_VERTICES) -> int:
     """Levels of refinement (each about quadruples the vertices; up to :data:`MAX_LEVELS`) that
-    bring a mesh of ``n_vertices`` to at least ``min_vertices`` (0: none)."""
-    levels, n = 0, int(n_vertices)
-    tri = int(n_triangles) if n_triangles is not None else 2 * n
+    bring a mesh of ``n_vertices`` and ``n_triangles`` to at least ``min_vertices`` (0: none)."""
+    levels, n, tri = 0, int(n_vertices), int(n_triangles)
     while n < min_vertices and levels < MAX_LEVELS:
         n += (3 * tri) // 2   # one new vertex per edge; a triangle mesh has about 3 T / 2 edges
         tri *= 4
@@ -98,7 +97,7 @@ def solve_mesh(rest: np.ndarray, triangles: np.ndarray, min_vertices: int = MIN_
     rest = np.asarray(rest, np.float64)
     tri = np.asarray(triangles, np.int64)
     V = len(rest)
-    levels = solve_levels(V, min_vertices, len(tri))
+    levels = solve_levels(V, len(tri), min_vertices)
     if levels == 0:
         eye = sp.identity(V, format="csr")
         return SolveMesh(rest, tri, 0, V, eye, eye)

@@ -359,8 +359,9 @@ class RendererNode(Node):
                     self.stage_times.setdefault(name, []).append(ms)
             d, px = self.deformation, self.compositor.deformed_px
             if d is not None and px is not None and (d.face_id == state.face_id or len(states) == 1):
-                # the overlay marks the face being edited, on the surface drawn
-                px = self.compositor.drawn_px(px)
+                # the window marks the face being edited, on the surface drawn (no window: no marks)
+                if self.window is not None:
+                    px = self.compositor.drawn_px(px)
                 self._overlay_px = px
                 handles_px = px[d.handles[d.handles < len(px)]]
                 roi_px = px[d.roi[d.roi < len(px)]]
