@@ -12,7 +12,6 @@ from scipy.spatial.transform import Rotation
 from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.deformer import DeformerError, EditStack
 from facesculpt.nodes.deformer.anchors import distances_from, roi_within_radius
-from facesculpt.nodes.deformer.edits import SETTLE_ITERATIONS
 
 
 @pytest.fixture(scope="module")
@@ -460,6 +459,6 @@ def test_a_preset_settles_on_its_arap_solution():
         s.apply_preset(doc)
     got = settled.settle()
     assert settled.deformer.last_converged
-    assert settled.deformer.last_iterations < SETTLE_ITERATIONS
+    assert settled.deformer.last_iterations < 400   # the cap it had before the refined solve mesh
     assert settled.deformer.tolerance == 0.0   # only this solve ran to the tolerance
     assert np.abs(got - long.solve(2000)).max() < 0.05
