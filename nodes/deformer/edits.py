@@ -32,7 +32,10 @@ from .landmark_warp import face_size, frame_rotation, landmark_positions, neares
 from .preset_format import ORIGIN_KEYS, PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
 from .solve_mesh import MIN_SOLVE_VERTICES, MIN_SOLVE_VERTICES_RANGE, solve_mesh
 
-__all__ = ["GRIP", "GRIP_RANGE", "SETTLE_ITERATIONS", "SETTLE_TOLERANCE", "PRESET_FORMAT", "PRESET_VERSION", "Edit", "EditStack", "topology_signature"]
+__all__ = [
+    "GRIP", "GRIP_RANGE", "SETTLE_ITERATIONS", "SETTLE_TOLERANCE", "PRESET_FORMAT",
+    "PRESET_VERSION", "Edit", "EditStack", "topology_signature",
+]
 
 # A handle grips the skin within this share of its edit's ROI radius (same metric), which moves
 # with it rigidly: ARAP pulling a single vertex of a dense mesh makes a cusp (the vertex moves,
@@ -351,8 +354,9 @@ class EditStack:
     def settle(self, iterations: int = SETTLE_ITERATIONS, tolerance: float = SETTLE_TOLERANCE) -> np.ndarray:
         """:meth:`solve` until the edits have settled on their ARAP solution (no vertex moving more
         than ``tolerance`` times the mesh's diagonal in an iteration, a quarter of that per level of
-        the solve mesh's refinement; at most ``iterations``), as the live deformer's idle rounds do: a preset solved once for a video must not stop short of
-        where the same preset settles in the window."""
+        the solve mesh's refinement; at most ``iterations``), as the live deformer's idle rounds do:
+        a preset solved once for a video must not stop short of where the same preset settles in the
+        window."""
         kept = self.deformer.tolerance
         self.deformer.tolerance = float(tolerance) * self._tolerance_scale
         try:
