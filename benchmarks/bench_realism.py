@@ -27,7 +27,9 @@ seamless the re-rendered region is on real videos.
    ``--oracle`` (default on) adds two rows with no fit (``realism/oracle.py``): the project's
    compositor drawing the true head with the true edit (the renderer alone), and with the preset
    as the project's deformer solves it on the true head (renderer + deformer). A model's row
-   below them is what registration costs.
+   below them is what registration costs. ``--landmark-oracle KEEP`` (``--models sfm``) runs
+   process with the detector's inner landmarks moved toward the true head's in every synthetic
+   frame, keeping KEEP of their error (``realism/landmark_oracle.py``): what the landmarks cost.
    Issue 16: the edits of ``--atlas-edits`` (default: ``nose_far``, the nose pulled far out,
    which shows surface the turned head hides or foreshortens) run a second time with
    ``process --atlas on`` (the face's texture memory): the row "MODEL + atlas", and crops
@@ -43,7 +45,7 @@ folder), and prints the tables.
 
 Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
 [--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--no-oracle] [--pythonpath DIR]
-[--process-args "--fill drag"]``
+[--process-args "--fill drag"] [--landmark-oracle KEEP]``
 (``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
 revision, to compare compositors on the same ground truth). Needs the shared data
 (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
@@ -66,6 +68,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, write_preset  # noqa: E402
+from realism.landmark_oracle import MODULE as LANDMARK_ORACLE  # noqa: E402
+from realism.landmark_oracle import process_environment, true_landmarks, write_true_landmarks  # noqa: E402
 from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
 from realism.oracle import deformer_displacement, oracle_frames  # noqa: E402
 from realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
@@ -105,6 +109,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
     p.add_argument("--pythonpath", default="", help="run process with this folder first on PYTHONPATH (a copy of "
                    "another revision of facesculpt, to compare compositors); default: the installed one")
+    p.add_argument("--landmark-oracle", type=float, default=None, metavar="KEEP",
+                   help="move the detector's inner landmarks (iBUG 18-68) toward the true head's in every synthetic "
+                        "frame, keeping KEEP of their error (0: the true points, 1: the detector's): what the "
+                        "landmarks cost (realism/landmark_oracle.py; --models sfm only)")
     a = p.parse_args(argv)
     a.models = [m for m in a.models.split(",") if m]
     a.edits = [e for e in a.edits.split(",") if e]
@@ -113,6 +121,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     bad = [e for e in a.edits if e not in EDITS]
     if bad:
         p.error(f"unknown edit {bad[0]!r} (choose from {', '.join(EDITS)})")
+    if a.landmark_oracle is not None and (a.models != ["sfm"] or not 0.0 <= a.landmark_oracle <= 1.0):
+        p.error("--landmark-oracle takes a share in [0, 1] and --models sfm (the face mesh's fit takes all 468 "
+                "network points)")
     if a.frames <= a.neutral_frames:
         p.error(f"--frames {a.frames} leaves no frame after --neutral-frames {a.neutral_frames}")
     return a
@@ -186,13 +197,15 @@ def save_atlas_crops(seq: Sequences, edit: str, without: list, with_atlas: list,
     cv2.imwrite(str(path), side_by_side(panels, boxes))
 
 
-def run_with_atlas(args, data, seq, video, preset, e, m, frames, scored, truth_shifts, rows, out, timings) -> dict:
+def run_with_atlas(args, data, seq, video, preset, e, m, frames, scored, truth_shifts, rows, out, timings,
+                   oracle: dict) -> dict:
     """Edit ``e`` with model ``m`` once more with ``process --atlas on``: its scores (and the crops
-    against ``frames``, the run without the atlas)."""
+    against ``frames``, the run without the atlas); ``oracle``: run_process's landmark oracle, if any."""
     folder = out / "frames" / f"synthetic_{e}_{m}_atlas"
     try:
         got, took = run_process(video, folder, preset, m, neutral_frames=args.neutral_frames,
-                                pythonpath=args.pythonpath, data=data, extra_args=(*args.process_args, "--atlas", "on"))
+                                pythonpath=args.pythonpath, data=data, extra_args=(*args.process_args, "--atlas", "on"),
+                                **oracle)
     except RuntimeError as exc:
         print(exc, file=sys.stderr)
         return {"error": str(exc)}
@@ -220,6 +233,11 @@ def synthetic(args, data: Path, out: Path) -> dict:
     scored = list(range(args.neutral_frames, args.frames))
     rows = crop_frames(seq, scored)
     results, timings = {}, {"render_s": render_s}
+    oracle = {}
+    if args.landmark_oracle is not None:
+        H, W = seq.inputs[0].shape[:2]
+        found = write_true_landmarks(out / "true_landmarks.npz", true_landmarks(scene.landmarks, seq.p0), (W, H))
+        oracle = {"module": LANDMARK_ORACLE, "environment": process_environment(found, args.landmark_oracle)}
     for sp in specs:
         e = sp.name
         liq = {i: liquified(seq, e, i) for i in scored}
@@ -236,7 +254,8 @@ def synthetic(args, data: Path, out: Path) -> dict:
             folder = out / "frames" / f"synthetic_{e}_{m}"
             try:
                 frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames,
-                                           pythonpath=args.pythonpath, data=data, extra_args=args.process_args)
+                                           pythonpath=args.pythonpath, data=data, extra_args=args.process_args,
+                                           **oracle)
             except RuntimeError as exc:
                 print(exc, file=sys.stderr)
                 results[e][m] = {"error": str(exc)}
@@ -249,7 +268,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
             save_crops(seq, e, f"result ({m})", frames, liq, rows, out / f"crops_{e}_{m}.png")
             if e in args.atlas_edits:
                 results[e][f"{m} + atlas"] = run_with_atlas(args, data, seq, video, presets[e], e, m, frames, scored,
-                                                            truth_shifts, rows, out, timings)
+                                                            truth_shifts, rows, out, timings, oracle)
             if not args.keep_frames:
                 shutil.rmtree(folder)
         results[e]["ground truth (measurement check)"] = {
@@ -307,7 +326,9 @@ def markdown(report: dict) -> str:
     return "\n\n".join([
         f"# bench_realism ({report['revision']}, {report['frames']} frames, scored "
         f"{report['frames'] - report['neutral_frames']}, yaw {report['yaw_range'][0]:+.0f}..{report['yaw_range'][1]:+.0f}, "
-        f"truth edit {report.get('truth_edit', 'falloff')})",
+        f"truth edit {report.get('truth_edit', 'falloff')}"
+        + ("" if report.get("landmark_oracle_keep") is None else
+           f", inner landmarks: {report['landmark_oracle_keep']:g} of the detector's error kept") + ")",
         "## Synthetic set against ground truth (edit region)", synthetic_table(report["results"]),
         "## Handle landing by yaw: median error % of the true image displacement (reach)",
         landing_table(report["results"]),
@@ -338,7 +359,8 @@ def main(argv=None) -> int:
     syn = synthetic(args, data, out)
     real = real_videos(args, data, out, syn["presets"])
     report = {"revision": git_revision(args.pythonpath), "frames": args.frames, "neutral_frames": args.neutral_frames,
-              "models": args.models, "edits": args.edits, "truth_edit": args.truth_edit, **syn, "real": real,
+              "models": args.models, "edits": args.edits, "truth_edit": args.truth_edit,
+              "landmark_oracle_keep": args.landmark_oracle, **syn, "real": real,
               "total_s": time.perf_counter() - t0}
     (out / "results.json").write_text(json.dumps(_clean(report), indent=1))
     text = markdown(report)

@@ -189,3 +189,39 @@ def test_the_command_line_refuses_an_unknown_edit(capsys):
         bench_realism.parse_args(["--edits", "nose,ears"])
     assert exc.value.code == 2
     assert "unknown edit 'ears'" in capsys.readouterr().err
+
+
+def test_the_landmark_oracle_moves_the_detectors_inner_points_toward_the_truth(synth, models_dir):
+    """``--landmark-oracle KEEP``: the detector's inner iBUG points of a synthetic frame move to
+    ``truth + KEEP * (detected - truth)``; the jaw line and the other mesh points stay the detector's."""
+    from realism.landmark_oracle import move_toward_truth, true_landmarks
+
+    from facesculpt.geometry import IBUG68_FROM_MESH, to_ibug68
+    from facesculpt.nodes.landmarks import LandmarkDetector
+
+    scene, seq = synth
+    truth = true_landmarks(scene.landmarks, seq.p0)
+    assert truth.shape == (3, 68, 2)
+    inner = np.isfinite(truth[0, :, 0])
+    assert not inner[:17].any() and inner[17:].sum() >= 40   # the jaw line is a silhouette, no vertex
+    faces = LandmarkDetector(models_dir).detect(seq.inputs[0])
+    points = np.asarray(faces[0].points, np.float64)
+    detected = to_ibug68(points).astype(np.float64)
+    assert np.abs(detected[inner] - truth[0, inner]).max() > 1.0   # the detector is off somewhere
+    for keep in (0.0, 0.5, 1.0):
+        moved = move_toward_truth(points, truth[0], keep)
+        got = to_ibug68(moved).astype(np.float64)
+        np.testing.assert_allclose(got[inner], truth[0, inner] + keep * (detected[inner] - truth[0, inner]), atol=1e-3)
+        np.testing.assert_array_equal(got[~inner], detected[~inner])
+        untouched = np.setdiff1d(np.arange(len(points)), IBUG68_FROM_MESH[inner])
+        np.testing.assert_array_equal(moved[untouched], points[untouched])
+
+
+def test_the_landmark_oracle_is_for_the_surrey_model_only(capsys):
+    import bench_realism
+
+    with pytest.raises(SystemExit) as exc:
+        bench_realism.parse_args(["--landmark-oracle", "0.5"])   # both models by default
+    assert exc.value.code == 2
+    assert "--models sfm" in capsys.readouterr().err
+    assert bench_realism.parse_args(["--landmark-oracle", "0.5", "--models", "sfm"]).landmark_oracle == 0.5

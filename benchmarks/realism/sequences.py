@@ -155,18 +155,21 @@ def importable_checkout(checkout: Path, shim: Path) -> Path:
 
 def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames: int = 0,
                 neutral_frames: int = 30, pythonpath: str = "", data: Path | None = None,
-                extra_args: tuple = ()) -> tuple[list, float]:
+                extra_args: tuple = (), module: str = "facesculpt.cli",
+                environment: dict | None = None) -> tuple[list, float]:
     """``facesculpt process VIDEO -o OUT/%05d.png --edits PRESET --model MODEL`` (no --edits when
     ``preset`` is None) in a
     subprocess (with ``pythonpath`` first on its PYTHONPATH when given: another build of
     facesculpt) and FACESCULPT_DATA set to ``data`` when given (where ``sfm`` is read), with
-    ``extra_args`` (more process options, e.g. ``--atlas on``) at the end: (the
-    frames written, seconds taken). RuntimeError with its stderr on failure."""
+    ``extra_args`` (more process options, e.g. ``--atlas on``) at the end, run as ``python -m
+    module`` (another command line in front of facesculpt's, e.g. :mod:`.landmark_oracle`) with
+    ``environment`` added: (the frames written, seconds taken). RuntimeError with its stderr on
+    failure."""
     import time
 
     out_dir.mkdir(parents=True, exist_ok=True)
     video, out_dir = Path(video).resolve(), Path(out_dir).resolve()
-    cmd = [sys.executable, "-m", "facesculpt.cli", "process", str(video), "-o", str(out_dir / "%05d.png"),
+    cmd = [sys.executable, "-m", module, "process", str(video), "-o", str(out_dir / "%05d.png"),
            "--model", model, "--neutral-frames", str(neutral_frames), "--quiet"]
     if preset is not None:
         cmd += ["--edits", str(Path(preset).resolve())]
@@ -174,7 +177,7 @@ def run_process(video: Path, out_dir: Path, preset: Path, model: str, max_frames
         cmd += ["--max-frames", str(max_frames)]
     cmd += list(extra_args)
     t0 = time.perf_counter()
-    env = dict(os.environ)
+    env = {**os.environ, **(environment or {})}
     if data is not None:
         env["FACESCULPT_DATA"] = str(data)
     if pythonpath:
