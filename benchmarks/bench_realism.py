@@ -236,7 +236,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
     oracle = {}
     if args.landmark_oracle is not None:
         H, W = seq.inputs[0].shape[:2]
-        found = write_true_landmarks(out / "true_landmarks.npz", true_landmarks(scene.landmarks, seq.p0), (W, H))
+        found = write_true_landmarks(out / "true_landmarks.npz", true_landmarks(scene), (W, H))
         oracle = {"module": LANDMARK_ORACLE, "environment": process_environment(found, args.landmark_oracle)}
     for sp in specs:
         e = sp.name

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .raster import project_pixels
+
 #: Environment variables the oracle's process reads: the true landmarks (.npz) and KEEP.
 LANDMARKS_ENV = "FACESCULPT_BENCH_TRUE_LANDMARKS"
 KEEP_ENV = "FACESCULPT_BENCH_LANDMARK_KEEP"
@@ -31,15 +33,15 @@ MODULE = "realism.landmark_oracle"
 INNER = range(17, 68)
 
 
-def true_landmarks(landmarks: dict[str, int], p0: list[np.ndarray]) -> np.ndarray:
-    """(F, 68, 2) float64 px: where the true head's iBUG landmark vertices are in each input frame
-    (``p0``: per frame, (V, 2) px of every vertex; ``landmarks``: iBUG number "1".."68" -> vertex),
-    NaN for the jaw line and for points the model has no vertex for."""
-    out = np.full((len(p0), 68, 2), np.nan)
-    for k in INNER:
-        v = landmarks.get(str(k + 1))
-        if v is not None:
-            out[:, k] = [np.asarray(p, np.float64)[v] for p in p0]
+def true_landmarks(scene) -> np.ndarray:
+    """(F, 68, 2) float64 px: where the true head's iBUG landmark vertices are in each of ``scene``'s
+    frames (unedited), in the project's pixel convention (centres at integers, as the detector's
+    points), NaN for the jaw line and for points the model has no vertex for."""
+    rows = [k for k in INNER if str(k + 1) in scene.landmarks]
+    vertices = [scene.landmarks[str(k + 1)] for k in rows]
+    out = np.full((scene.frames, 68, 2), np.nan)
+    for i in range(scene.frames):
+        out[i, rows] = project_pixels(scene.K, scene.to_camera(scene.rest[vertices], i))
     return out
 
 
@@ -62,10 +64,10 @@ def move_toward_truth(points: np.ndarray, truth: np.ndarray, keep: float) -> np.
     the finite rows of ``truth`` (68, 2) moved to ``truth + keep * (point - truth)``."""
     from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH
 
+    rows = np.flatnonzero(np.isfinite(truth[:, 0]))
+    m = IBUG68_FROM_MESH[rows]   # one mesh point per iBUG point
     out = np.array(points, np.float64)
-    for k in np.flatnonzero(np.isfinite(truth[:, 0])):
-        m = IBUG68_FROM_MESH[k]
-        out[m, :2] = truth[k] + keep * (out[m, :2] - truth[k])
+    out[m, :2] = truth[rows] + keep * (out[m, :2] - truth[rows])
     return out.astype(np.asarray(points).dtype)
 
 
