@@ -44,6 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from realism.metrics import changed  # noqa: E402
 from realism.posed import render_all  # noqa: E402
+from realism.raster import project_pixels  # noqa: E402
 from realism.scene import FACING, FOV_DEG, head_pose, make_scene, rotation  # noqa: E402
 from realism.scoring import YAW_BINS  # noqa: E402
 
@@ -87,14 +88,16 @@ def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def score_frame(fit, truth: dict, i: int, image_size, background: np.ndarray, rest: np.ndarray) -> dict:
+def score_frame(fit, truth: dict, i: int, image_size, background: np.ndarray, rest: np.ndarray, K: np.ndarray) -> dict:
     """One fitted frame's pose error (deg; and its pitch's alone), mean reprojection error over the visible vertices and over
-    the outline ones (px), and the SNR (dB) of its fitted model-space shape against ``rest`` (V, 3)."""
+    the outline ones (px), and the SNR (dB) of its fitted model-space shape against ``rest`` (V, 3); ``K`` the scene's
+    intrinsics (the true vertices are projected in the fit's pixel convention, centres at integers)."""
     V = len(fit.projected)
     vis = truth["visible"][:V]
-    err = np.linalg.norm(np.asarray(fit.projected, np.float64) - truth["px"][:V], axis=1)
+    true_px = project_pixels(K, truth["vertices"][:V])
+    err = np.linalg.norm(np.asarray(fit.projected, np.float64) - true_px, axis=1)
     dist = silhouette_distance(truth["image"], background)
-    px = np.clip(np.rint(truth["px"][:V]).astype(int), 0, [image_size[0] - 1, image_size[1] - 1])
+    px = np.clip(np.rint(true_px).astype(int), 0, [image_size[0] - 1, image_size[1] - 1])
     outline = vis & (dist[px[:, 1], px[:, 0]] <= OUTLINE_PX)
     yaw, pitch, _ = head_pose(i)
     R_true = rotation(yaw, pitch) @ FACING
@@ -126,7 +129,7 @@ def run(frames: list, truths: list, background: np.ndarray, scene, fitter_option
             fit = pipe.fit_frame(frame, i / 25.0)
             took.append((time.perf_counter() - t0) * 1e3)
             if fit is not None:
-                rows.append(score_frame(fit, truths[i], i, size, background, scene.rest))
+                rows.append(score_frame(fit, truths[i], i, size, background, scene.rest, scene.K))
         neutral = np.asarray(pipe.neutral, np.float64)
     return by_yaw(rows), shape_snr(neutral, scene.rest), float(np.median(took))
 
