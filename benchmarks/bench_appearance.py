@@ -15,7 +15,14 @@ scene's). Per fitted frame, against the truth:
   registration errors show);
 * jitter on real video (``--real-videos``): per shared video and model, the median frame-to-frame
   displacement of the fitted mesh's vertices (px) once its smooth motion is removed, over the
-  frames where that motion is slow (:func:`jitter`), for each method of :data:`METHODS`;
+  frames where that motion is slow (:func:`realism.jitter.jitter`), for each method of
+  :data:`METHODS`; next to it, the same metric on the face's own image motion (corners on the face
+  tracked from frame to frame, :func:`realism.jitter.tracked_motion`): what a tracker that follows
+  the pixels faithfully shows, true motion and the video's noise alike, since real video has no
+  ground truth;
+* jitter against the truth (``--still-frames``): the same metric on the synthetic head held
+  nearly still (its true motion smooth, so every bit of jitter is the fit's), clean, with camera
+  noise and with camera noise and H.264 (:data:`realism.jitter.CONDITIONS`);
 * shape SNR (dB, seed 002): 10 log10 of the true shape's energy about its centroid over the squared
   error of a fitted shape after a similarity alignment: each frame's fitted model-space shape, and
   the fitter's learned identity (its neutral) at the end.
@@ -23,7 +30,7 @@ scene's). Per fitted frame, against the truth:
 Writes ``results.md`` and ``results.json`` to ``--out`` (default: a new temporary folder) and
 prints the table.
 
-Run: ``python benchmarks/bench_appearance.py [--out DIR] [--frames 90]``. Needs the shared data
+Run: ``python benchmarks/bench_appearance.py [--out DIR] [--frames 90] [--still-frames 120]``. Needs the shared data
 (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
 """
 
@@ -42,6 +49,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from realism.jitter import CONDITIONS, degraded, jitter, low_passed, still_steps, tracked_motion  # noqa: E402
 from realism.metrics import changed  # noqa: E402
 from realism.posed import render_all  # noqa: E402
 from realism.raster import project_pixels  # noqa: E402
@@ -49,12 +57,13 @@ from realism.scene import FACING, FOV_DEG, head_pose, make_scene, rotation  # no
 from realism.scoring import YAW_BINS  # noqa: E402
 
 from facesculpt.geometry.head_angles import euler_from_rotation  # noqa: E402
+from facesculpt.nodes.fitter.config import FitterConfig  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
 #: A visible vertex within this distance (px) of the true silhouette is an outline vertex.
 OUTLINE_PX = 3.0
-#: A frame is still when the fitted mesh's smooth motion moves its median vertex less than this (px).
-STILL_PX = 1.0
+#: Frames of the still synthetic head left out of its jitter: the fit is learning the person.
+STILL_SKIP_FRAMES = 20
 
 
 def silhouette_distance(image: np.ndarray, background: np.ndarray) -> np.ndarray:
@@ -134,35 +143,19 @@ def run(frames: list, truths: list, background: np.ndarray, scene, fitter_option
     return by_yaw(rows), shape_snr(neutral, scene.rest), float(np.median(took))
 
 
-def jitter(tracks: np.ndarray, still_px: float = STILL_PX) -> tuple[float, int]:
-    """(median jitter px, frames it is taken over) of a fitted mesh's pixels ``tracks`` (F, V, 2) over
-    consecutive frames: the smooth motion (a Gaussian over ±3 frames) removed, the median vertex
-    displacement of what remains from one frame to the next, on still frames (the smooth motion's
-    median vertex speed under ``still_px`` px a frame)."""
-    smooth = cv2.GaussianBlur(tracks.reshape(len(tracks), -1), (1, 7), 0, sigmaY=1.5).reshape(tracks.shape)
-    rest = tracks - smooth
-    step = np.median(np.linalg.norm(np.diff(rest, axis=0), axis=2), axis=1)
-    speed = np.median(np.linalg.norm(np.diff(smooth, axis=0), axis=2), axis=1)
-    still = speed < still_px
-    still[:3] = still[-3:] = False   # the filter's ends
-    return (float(np.median(step[still])) if still.any() else float("nan")), int(still.sum())
-
-
-def real_jitter(data: Path, name: str, count: int, model: str, options: dict) -> tuple[float, int]:
-    """:func:`jitter` of ``model``'s fit over the first ``count`` frames of the shared video ``name``
-    (frames without a fit end the run there)."""
-    from realism.sequences import read_video
-
+def fitted_pixels(frames: list, model: str, options: dict, **pipeline) -> np.ndarray:
+    """(F, V, 2) ``model``'s fitted pixels over ``frames`` (``Pipeline`` options ``options`` and
+    ``pipeline``; 25 frames/s), up to the first frame without a fit."""
     from facesculpt.app.pipeline import Pipeline
 
     tracks = []
-    with Pipeline(model, **options) as pipe:
-        for i, frame in enumerate(read_video(data / "video" / f"{name}.mp4", count)):
+    with Pipeline(model, **options, **pipeline) as pipe:
+        for i, frame in enumerate(frames):
             fit = pipe.fit_frame(frame, i / 25.0)
             if fit is None:
                 break
             tracks.append(np.asarray(fit.projected, np.float64))
-    return jitter(np.array(tracks))
+    return np.array(tracks)
 
 
 #: The fits compared: the project's default, the same without the landmark network's rotation
@@ -174,6 +167,73 @@ METHODS = {
 }
 
 
+def still_head_jitter(data: Path, workers: int, out: Path, frames: int) -> dict:
+    """The synthetic head held nearly still (``make_scene(motion="still")``: its true motion
+    smooth, so all jitter is the fit's), under each image condition of :data:`CONDITIONS`:
+    condition -> model -> {method: :func:`jitter` (px) of the fitted pixels, "face's tracked
+    motion": that of :func:`.tracked_motion` started from the landmark fit (the tracker's own noise,
+    here)}, the first STILL_SKIP_FRAMES left out (the fit is still learning the person)."""
+    scene = make_scene(data, frames=frames, motion="still")
+    clean = [t["image"] for t in render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]]
+    figures = {}
+    for condition, (noise, crf) in CONDITIONS.items():
+        images = degraded(clean, noise, crf, out)
+        for model in ("facemesh", "sfm"):
+            methods = {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
+            tracks = {k: fitted_pixels(images, model, o, fov_deg=FOV_DEG) for k, o in methods.items()}
+            row = {k: jitter(t[STILL_SKIP_FRAMES:])[0] for k, t in tracks.items()}
+            base = tracks["landmarks only"][STILL_SKIP_FRAMES:]
+            motion = tracked_motion(images[STILL_SKIP_FRAMES:STILL_SKIP_FRAMES + len(base)], base)
+            row["face's tracked motion"] = jitter(motion, still=still_steps(base))[0]
+            figures.setdefault(condition, {})[model] = row
+    return figures
+
+
+def real_video_jitter(data: Path, videos: list[str], count: int) -> dict:
+    """"video model" -> {method: :func:`jitter` px, "face's tracked motion": the jitter of
+    :func:`.tracked_motion` started from the landmark fit, "low-passed": that of the same motion
+    through the fitter's smoothing of a still head (:func:`.low_passed`), both on the landmark fit's
+    still frames, "still_frames": their number} over the first ``count`` frames of each shared video."""
+    from realism.sequences import read_video
+
+    out = {}
+    for video in videos:
+        frames = read_video(data / "video" / f"{video}.mp4", count)
+        for model in ("facemesh", "sfm"):
+            # the network's rotation is a sparse fit's prior: facemesh has no row without it
+            methods = {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
+            tracks = {k: fitted_pixels(frames, model, o) for k, o in methods.items()}
+            figures = {k: jitter(t) for k, t in tracks.items()}
+            base = tracks["landmarks only"]
+            motion, still = tracked_motion(frames[:len(base)], base), still_steps(base)
+            out[f"{video} {model}"] = {
+                **{k: f[0] for k, f in figures.items()}, "face's tracked motion": jitter(motion, still=still)[0],
+                "low-passed": jitter(low_passed(motion, FitterConfig().smooth_min_cutoff), still=still)[0],
+                "still_frames": figures["landmarks only"][1]}
+    return out
+
+
+def real_table(real: dict) -> list[str]:
+    lines = ["", "| video | model | " + " | ".join(f"jitter, {name} (px)" for name in METHODS)
+             + " | the face's tracked motion (px) | the same, low-passed as the fit (px) | still frames |",
+             "| --- | --- | " + "--- | " * (len(METHODS) + 2) + "--- |"]
+    for key, row in real.items():
+        cells = [f"{row[k]:.3f}" if k in row else "–" for k in (*METHODS, "face's tracked motion", "low-passed")]
+        lines.append(f"| {' | '.join(key.split(' '))} | {' | '.join(cells)} | {row['still_frames']} |")
+    return lines
+
+
+def still_table(still: dict) -> list[str]:
+    lines = ["", "Jitter against the truth: the synthetic head held nearly still (its true motion smooth)",
+             "", "| image | model | " + " | ".join(f"jitter, {name} (px)" for name in METHODS)
+             + " | the face's tracked motion (px) |", "| --- | --- | " + "--- | " * (len(METHODS) + 1)]
+    for condition, models in still.items():
+        for model, row in models.items():
+            cells = [f"{row[k]:.4f}" if k in row else "–" for k in (*METHODS, "face's tracked motion")]
+            lines.append(f"| {condition} | {model} | {' | '.join(cells)} |")
+    return lines
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
@@ -181,6 +241,8 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--real-videos", default="d0,d3,d12,s18", help="shared videos for the jitter figure ('' for none)")
     p.add_argument("--real-frames", type=int, default=150, help="frames of each real video (default 150)")
+    p.add_argument("--still-frames", type=int, default=120,
+                   help="frames of the still synthetic head for the jitter against the truth (default 120; 0: none)")
     args = p.parse_args(argv)
     data = shared_data_dir()
     if data is None:
@@ -189,7 +251,8 @@ def main(argv=None) -> int:
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_appearance_"))
     out.mkdir(parents=True, exist_ok=True)
     scene = make_scene(data, frames=args.frames)
-    truths = render_all(scene, [(0.0, 0.0)], args.workers or max(1, min(4, len(os.sched_getaffinity(0)))))[(0.0, 0.0)]
+    workers = args.workers or max(1, min(4, len(os.sched_getaffinity(0))))
+    truths = render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]
     frames = [t["image"] for t in truths]
     results = {}
     for name, options in METHODS.items():
@@ -206,19 +269,15 @@ def main(argv=None) -> int:
     lines += ["", "| method | identity SNR (dB, the learned neutral) | fit ms (median, landmarks included) |",
               "| --- | --- | --- |"]
     lines += [f"| {name} | {r['shape_snr_db']:.2f} | {r['fit_ms_median']:.1f} |" for name, r in results.items()]
+    if args.still_frames:
+        still = still_head_jitter(data, workers, out, args.still_frames)
+        results["still head jitter"] = still
+        lines += still_table(still)
     videos = [v for v in args.real_videos.split(",") if v]
     if videos:
-        lines += ["", "| video | model | " + " | ".join(f"jitter, {name} (px)" for name in METHODS) + " | still frames |",
-                  "| --- | --- | " + "--- | " * len(METHODS) + "--- |"]
-    for video in videos:
-        for model in ("facemesh", "sfm"):
-            # the network's rotation is a sparse fit's prior: facemesh has no row without it
-            methods = {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
-            figures = {k: real_jitter(data, video, args.real_frames, model, o) for k, o in methods.items()}
-            results.setdefault("jitter", {})[f"{video} {model}"] = {
-                **{k: f[0] for k, f in figures.items()}, "still_frames": figures["landmarks only"][1]}
-            cells = [f"{figures[k][0]:.3f}" if k in figures else "–" for k in METHODS]
-            lines.append(f"| {video} | {model} | {' | '.join(cells)} | {figures['landmarks only'][1]} |")
+        real = real_video_jitter(data, videos, args.real_frames)
+        results["jitter"] = real
+        lines += real_table(real)
     table = "\n".join(lines)
     (out / "results.md").write_text(table + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=1))

@@ -10,7 +10,7 @@ import numpy as np
 from facesculpt.geometry.head_angles import euler_from_rotation, rotation_from_euler
 
 from .raster import project, render_textured, visible_vertices
-from .scene import FACING, PIVOT, Scene, head_pose, rotation
+from .scene import FACING, PIVOT, Scene, rotation
 
 _SCENE: Scene | None = None
 
@@ -22,7 +22,7 @@ def _init(scene: Scene) -> None:
 
 def posed_vertices(scene: Scene, i: int, d_yaw: float = 0.0, d_pitch: float = 0.0) -> np.ndarray:
     """(V, 3) camera mm: frame ``i``'s head with its own yaw and pitch increased by the deltas."""
-    yaw, pitch, t = head_pose(i)
+    yaw, pitch, t = scene.pose(i)
     y, p, r = euler_from_rotation(rotation(yaw, pitch) @ FACING)
     R = rotation_from_euler(y + d_yaw, p + d_pitch, r)
     return (scene.rest - PIVOT) @ R.T + t

@@ -1,8 +1,8 @@
 """The synthetic scene: the Surrey Face Model with a random identity, textured from a real face
 (a frame of ../shared/data/video/s18.mp4, fitted with the project's landmarks and SFM fitter:
 analysis only), over a real background (a face-free region of the same frame), turning smoothly
-(yaw ±25°, pitch ±10°) in front of a pinhole camera with a 60° horizontal field of view (the
-default ``facesculpt process --fov``).
+(yaw ±25°, pitch ±10°; or held nearly still, :data:`MOTIONS`) in front of a pinhole camera with a
+60° horizontal field of view (the default ``facesculpt process --fov``).
 
 Model space is the SFM's: mm, x to the subject's left, y up, z out of the face.
 """
@@ -24,6 +24,11 @@ FOV_DEG = 60.0
 YAW_DEG, YAW_PERIOD = 25.0, 60
 PITCH_DEG, PITCH_PERIOD = 10.0, 45
 DRIFT_MM, DRIFT_PERIOD = 12.0, 90
+#: The head's motions: "turning" (the amplitudes above), or "still" (a head held nearly still, slowly
+#: swaying by a tenth of them about a pose turned a little: jitter shows where true motion is smooth).
+MOTIONS = ("turning", "still")
+STILL_SHARE = 0.1
+STILL_YAW_DEG, STILL_PITCH_DEG = 8.0, 3.0
 #: The point the head turns about (model space, mm: behind the face) and its distance (mm).
 PIVOT = np.array([0.0, 0.0, -90.0])
 DISTANCE_MM = 510.0
@@ -51,6 +56,7 @@ class Scene:
     landmarks: dict[str, int]
     frames: int
     model_triangles: np.ndarray
+    motion: str = "turning"
 
     @property
     def model_vertices(self) -> int:
@@ -60,20 +66,26 @@ class Scene:
 
     def pose(self, i: int) -> tuple[float, float, np.ndarray]:
         """Frame ``i``'s yaw, pitch (degrees) and head translation (3,) camera mm."""
-        return head_pose(i)
+        return head_pose(i, self.motion)
 
     def to_camera(self, V: np.ndarray, i: int) -> np.ndarray:
         """Model-space vertices (V, 3) mm into frame ``i``'s camera space (V, 3) mm."""
-        yaw, pitch, t = head_pose(i)
+        yaw, pitch, t = head_pose(i, self.motion)
         R = rotation(yaw, pitch) @ FACING
         return (np.asarray(V, np.float64) - PIVOT) @ R.T + t
 
 
-def head_pose(i: int) -> tuple[float, float, np.ndarray]:
-    """Yaw, pitch (degrees) and translation (3,) camera mm of frame ``i``."""
-    yaw = YAW_DEG * np.sin(2 * np.pi * i / YAW_PERIOD)
-    pitch = PITCH_DEG * np.sin(2 * np.pi * i / PITCH_PERIOD + 0.6)
-    t = np.array([DRIFT_MM * np.sin(2 * np.pi * i / DRIFT_PERIOD), 6.0, DISTANCE_MM])
+def head_pose(i: int, motion: str = "turning") -> tuple[float, float, np.ndarray]:
+    """Yaw, pitch (degrees) and translation (3,) camera mm of frame ``i`` of the head's ``motion``
+    (one of :data:`MOTIONS`)."""
+    if motion not in MOTIONS:
+        raise ValueError(f"the head's motion must be one of {MOTIONS}, got {motion!r}")
+    share, yaw0, pitch0 = (1.0, 0.0, 0.0) if motion == "turning" else (STILL_SHARE, STILL_YAW_DEG, STILL_PITCH_DEG)
+    # the still head sways at a third of the turning one's pace as well: smooth at any frame
+    pace = 1.0 if motion == "turning" else 1.0 / 3.0
+    yaw = yaw0 + share * YAW_DEG * np.sin(2 * np.pi * pace * i / YAW_PERIOD)
+    pitch = pitch0 + share * PITCH_DEG * np.sin(2 * np.pi * pace * i / PITCH_PERIOD + 0.6)
+    t = np.array([share * DRIFT_MM * np.sin(2 * np.pi * pace * i / DRIFT_PERIOD), 6.0, DISTANCE_MM])
     return float(yaw), float(pitch), t
 
 
@@ -179,8 +191,10 @@ def random_identity(model, seed: int, sigma: float = 0.8, components: int = 20) 
     return np.asarray(model.instance(alpha), np.float64)
 
 
-def make_scene(data: Path, frames: int = 90, seed: int = 7) -> Scene:
-    """The benchmark's scene from the shared data folder ``data`` (../shared/data)."""
+def make_scene(data: Path, frames: int = 90, seed: int = 7, motion: str = "turning") -> Scene:
+    """The benchmark's scene from the shared data folder ``data`` (../shared/data), the head moving
+    as ``motion`` says (:data:`MOTIONS`)."""
+    head_pose(0, motion)   # an unknown motion fails here, before the texture's fit
     from facesculpt.nodes.fitter import load_model
 
     model = load_model("sfm")
@@ -190,4 +204,4 @@ def make_scene(data: Path, frames: int = 90, seed: int = 7) -> Scene:
     return Scene(rest=rest, triangles=tris, texcoords=tex, alpha=border_alpha(rest, outer),
                  texture=frame, background=background_from(frame), K=intrinsics(),
                  landmarks={str(k): int(v) for k, v in zip(model.landmark_names, model.landmark_vertices)},
-                 frames=int(frames), model_triangles=np.asarray(model.triangles, np.int64))
+                 frames=int(frames), model_triangles=np.asarray(model.triangles, np.int64), motion=motion)
