@@ -1,7 +1,7 @@
 """Expression parameters against ground truth on the synthetic SFM set (issue 19).
 
     python benchmarks/bench_expression_synthetic.py [--frames 120] [--neutral-frames 30] [--strip FILE.png]
-        [--model sfm|facemesh] [--no-exact]
+        [--model sfm|facemesh] [--refine appearance] [--no-exact]
 
 The realism benchmark's scene (:mod:`benchmarks.realism.scene`: the Surrey Face Model with a random
 identity, textured from a real face, turning yaw ±25°, pitch ±10° over a real background), with
@@ -76,7 +76,8 @@ def fit_sequence(args, scene, model, exact: bool) -> dict:
     out = {k: [] for k in ("truth", "fitted", "weights", "betas", "snr", "frames")}
     fitter = make_fitter(model, FitterConfig(neutral_frames=args.neutral_frames), size,
                          intrinsics_from_fov(*size, 60.0)) if exact else None
-    with nullcontext() if exact else Pipeline(args.model, neutral_frames=args.neutral_frames) as pipe:
+    refine = getattr(args, "refine", None)   # a caller's Namespace may predate the option
+    with nullcontext() if exact else Pipeline(args.model, neutral_frames=args.neutral_frames, refine=refine) as pipe:
         for i in range(args.frames):
             w = activation(i, args.neutral_frames)
             shape = scene.rest.copy()
@@ -144,6 +145,8 @@ def main() -> None:
     p.add_argument("--strip", default="", metavar="FILE.png")
     p.add_argument("--model", default="sfm", choices=("sfm", "facemesh"),
                    help="the model fitted to the frames (default sfm, whose blendshapes made them)")
+    p.add_argument("--refine", default=None, choices=("appearance",),
+                   help="refine the detected landmarks' fit by appearance (process --refine; default off)")
     p.add_argument("--exact", action=argparse.BooleanOptionalAction, default=True,
                    help="also fit the SFM to the true landmarks (no detector): what the fitter and the "
                         "parameters reach with exact points (default on)")
@@ -162,7 +165,8 @@ def main() -> None:
     model = load_model("sfm")
     scene = make_scene(data, frames=args.frames)
     detected = fit_sequence(args, scene, model, exact=False)
-    report(f"{args.model}, the project's landmarks (after {args.neutral_frames} neutral frames)", detected,
+    refined = ", refined by appearance" if args.refine else ""
+    report(f"{args.model}, the project's landmarks{refined} (after {args.neutral_frames} neutral frames)", detected,
            args.model == "sfm")
     if args.exact:
         report("sfm, the true landmarks (no detector)", fit_sequence(args, scene, model, exact=True), True)

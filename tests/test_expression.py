@@ -101,3 +101,35 @@ def test_the_sfm_fit_of_exact_landmarks_recovers_the_true_expression(data_dir):
         k = NAMES.index(name)
         assert np.corrcoef(truth[:, k], fitted[:, k])[0, 1] > 0.85, name
     assert np.median(run["snr"]) > 25.0
+
+
+def test_a_refined_fit_measures_its_expression_against_the_landmark_fit(data_dir):
+    """The appearance refinement moves the head off the landmarks; that move is not an expression:
+    with the landmark fit carried along (``FitResult.landmark_fit``), a refined fit moved by a few
+    pixels reads the same expression as its landmark fit, and without it the move shows as one."""
+    if not (data_dir / "sfm").is_dir():
+        pytest.skip("needs ../shared/data/sfm")
+    import dataclasses
+
+    from facesculpt.geometry.projection import project
+    from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
+    from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
+    from facesculpt.nodes.fitter.expression import face_expression, ibug_vertex_ids
+
+    model = load_model("sfm")
+    K = intrinsics_from_fov(640, 480, 60.0)
+    beta = np.zeros(model.num_expression)
+    beta[3] = 0.6                                       # a smile
+    X = model.instance(beta=beta) * np.array([1.0, -1.0, -1.0]) + np.array([0.0, 0.0, 600.0])
+    ids = ibug_vertex_ids(False, model.landmark_names, model.landmark_vertices)
+    points = project(X[ids], K)
+    fitter = make_fitter(model, FitterConfig(smoothing=False), (640, 480), K)
+    fit = fitter.fit(points, stamp=0.0)
+    neutral = fitter.neutral
+    shift = np.array([4.0, -3.0, 0.0])                  # mm: about 4 px at this distance
+    moved = dataclasses.replace(fit, vertices=fit.vertices + shift, t=np.asarray(fit.t) + shift,
+                                projected=project(fit.vertices + shift, K).astype(np.float32), landmark_fit=fit)
+    own = face_expression(fit, model, neutral, points)
+    assert np.nanmax(np.abs(face_expression(moved, model, neutral, points) - own)) < 1e-4
+    unaware = face_expression(dataclasses.replace(moved, landmark_fit=None), model, neutral, points)
+    assert np.nanmax(np.abs(unaware - own)) > 1.0

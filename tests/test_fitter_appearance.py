@@ -96,6 +96,11 @@ def test_the_fitter_option_is_checked_and_refines_real_frames(data_dir, models_d
     moved = [np.abs(a.projected - b.projected).max() for a, b in zip(fits[None], fits["appearance"])]
     assert moved[0] < 1e-3                 # nothing to track from, nothing learned yet
     assert 0.0 < max(moved[1:]) < 10.0     # then the pose moves, a little
+    # a refined fit carries the landmark fit it came from (the expression measures against it)
+    assert all(f.landmark_fit is None for f in fits[None])
+    last = fits["appearance"][-1].landmark_fit
+    assert last is not None and last.landmark_fit is None
+    assert np.abs(last.projected - fits["appearance"][-1].projected).max() > 0.0
     make_fitter("facemesh", FitterConfig(refine="appearance"))  # without an image nothing changes
 
 

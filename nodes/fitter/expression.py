@@ -165,13 +165,16 @@ def face_expression(fit, model, neutral: np.ndarray, observed_px: np.ndarray | N
     """(E,) float32 the expression of one fit (:class:`FitResult`) of ``model`` against the
     person's ``neutral`` (V, 3) model space, mm. observed_px: the landmarks the fit was made from,
     (468, 2|3) face-mesh points or (68, 2) iBUG, pixels; a sparse model then adds what its
-    blendshapes could not follow (:func:`with_landmark_residual`)."""
+    blendshapes could not follow (:func:`with_landmark_residual`), measured against the landmark
+    fit itself (``fit.landmark_fit`` when the fit was refined by appearance: the refinement moves
+    the head off the landmarks, and that move is not an expression)."""
     names, lv = model.landmark_names, model.landmark_vertices
     points = expression_points(fit.model_vertices, model.dense, names, lv)
     if not model.dense and observed_px is not None:
         observed = np.asarray(observed_px, np.float64)
         observed = to_ibug68(observed) if observed.shape[0] == 468 else observed[:, :2]
-        points = with_landmark_residual(points, observed, fit.R, fit.scale, fit.K, fit.vertices, fit.projected,
+        by = fit if fit.landmark_fit is None else fit.landmark_fit
+        points = with_landmark_residual(points, observed, by.R, by.scale, by.K, by.vertices, by.projected,
                                         ibug_vertex_ids(False, names, lv))
     return expression_parameters(points, expression_points(neutral, model.dense, names, lv))
 

@@ -116,7 +116,8 @@ class Fitter:
         self._last_time = now
         self._frame += 1
         if refining and image is not None:
-            result = self.refiner.refine(self.model, result, image)
+            # the landmark fit goes along: the expression's landmark residual is its, not the refined pose's
+            result = dataclasses.replace(self.refiner.refine(self.model, result, image), landmark_fit=result)
         if self._rigid_smoothing_deferred:
             result = self._smoothed_rigid(result, now)
         return result

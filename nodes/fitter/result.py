@@ -30,7 +30,9 @@ class FitResult:
     landmark of each (L,); expression (E,) float32 the
     expression parameters (:mod:`.expression`) when the caller computed them; pose_edit the
     pose edit a caller applies to this frame (the in-process pipeline): (its
-    :class:`facesculpt.geometry.pose_offset.PoseOffset`, the head's pivot (3,) model mm), None: none."""
+    :class:`facesculpt.geometry.pose_offset.PoseOffset`, the head's pivot (3,) model mm), None: none;
+    landmark_fit: the fit this one was refined from by appearance (its pose not yet smoothed), what
+    the landmarks alone say; None when not refined."""
 
     vertices: np.ndarray
     projected: np.ndarray
@@ -48,6 +50,7 @@ class FitResult:
     expression: np.ndarray | None = field(default=None, repr=False)
     correspondence_ids: list[str] = field(default_factory=list, repr=False)
     pose_edit: tuple | None = field(default=None, repr=False)
+    landmark_fit: FitResult | None = field(default=None, repr=False)
 
     @property
     def yaw_pitch_roll(self) -> tuple[float, float, float]:
