@@ -167,6 +167,12 @@ METHODS = {
 }
 
 
+def methods_for(model: str) -> dict:
+    """The :data:`METHODS` that apply to ``model``: the network's rotation is a sparse fit's prior,
+    so facemesh has no row without it."""
+    return {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
+
+
 def still_head_jitter(data: Path, workers: int, out: Path, frames: int) -> dict:
     """The synthetic head held nearly still (``make_scene(motion="still")``: its true motion
     smooth, so all jitter is the fit's), under each image condition of :data:`CONDITIONS`:
@@ -179,8 +185,7 @@ def still_head_jitter(data: Path, workers: int, out: Path, frames: int) -> dict:
     for condition, (noise, crf) in CONDITIONS.items():
         images = degraded(clean, noise, crf, out)
         for model in ("facemesh", "sfm"):
-            methods = {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
-            tracks = {k: fitted_pixels(images, model, o, fov_deg=FOV_DEG) for k, o in methods.items()}
+            tracks = {k: fitted_pixels(images, model, o, fov_deg=FOV_DEG) for k, o in methods_for(model).items()}
             row = {k: jitter(t[STILL_SKIP_FRAMES:])[0] for k, t in tracks.items()}
             base = tracks["landmarks only"][STILL_SKIP_FRAMES:]
             motion = tracked_motion(images[STILL_SKIP_FRAMES:STILL_SKIP_FRAMES + len(base)], base)
@@ -200,9 +205,7 @@ def real_video_jitter(data: Path, videos: list[str], count: int) -> dict:
     for video in videos:
         frames = read_video(data / "video" / f"{video}.mp4", count)
         for model in ("facemesh", "sfm"):
-            # the network's rotation is a sparse fit's prior: facemesh has no row without it
-            methods = {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
-            tracks = {k: fitted_pixels(frames, model, o) for k, o in methods.items()}
+            tracks = {k: fitted_pixels(frames, model, o) for k, o in methods_for(model).items()}
             figures = {k: jitter(t) for k, t in tracks.items()}
             base = tracks["landmarks only"]
             motion, still = tracked_motion(frames[:len(base)], base), still_steps(base)

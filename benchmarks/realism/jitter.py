@@ -7,8 +7,8 @@ benchmark, issue 20).
 * :func:`degraded`: frames as a camera and a codec give them, for a synthetic clip whose true
   motion is smooth (so that all its jitter is the fit's): Gaussian camera noise, then H.264.
 * :func:`tracked_motion`: a reference for real video, whose true motion is unknown. The face's
-  own image motion from frame to frame (corners on it tracked with Lucas-Kanade, an affine motion
-  fitted to them) carried along from the first frame; its jitter is what a tracker that follows
+  own image motion from frame to frame (corners on it tracked with Lucas-Kanade as the refinement
+  tracks them, an affine motion fitted to them) carried along from the first frame; its jitter is what a tracker that follows
   the pixels faithfully shows by the same metric, and :func:`low_passed` what is left of it
   through the fitter's smoothing of a still head.
 """
@@ -25,10 +25,9 @@ STILL_PX = 1.0
 #: Image conditions of the synthetic clip: camera noise (standard deviation, grey levels) and
 #: the H.264 quality (CRF) it is encoded with (None: not encoded).
 CONDITIONS = {"clean": (0.0, None), "camera noise": (3.0, None), "camera noise, H.264": (3.0, 23)}
-#: Lucas-Kanade window (px), pyramid levels, forward-backward tolerance (px), Huber scale (px) of
-#: the affine fit, corners at most, and their margin (px) inside the face's outline.
-TRACK_WINDOW_PX, TRACK_LEVELS, TRACK_RETURN_PX, TRACK_HUBER_PX = 15, 2, 0.3, 0.3
-TRACK_CORNERS, TRACK_MARGIN_PX = 300, 10
+#: Huber scale (px) of the affine fit to the tracked corners, and the corners picked per frame at most.
+TRACK_HUBER_PX = 0.3
+TRACK_CORNERS = 300
 
 
 def _smooth(tracks: np.ndarray) -> np.ndarray:
@@ -77,15 +76,6 @@ def degraded(frames: list, noise: float, crf: int | None, folder: Path, seed: in
     return [frame[:h, :w] for frame in read_video(path)]   # the writer pads an odd side by one
 
 
-def _face_corners(grey: np.ndarray, outline: np.ndarray) -> np.ndarray | None:
-    """(P, 1, 2) float32 corners of ``grey`` inside the convex hull of ``outline`` (N, 2) px, at
-    least TRACK_MARGIN_PX from its edge; None when there are none."""
-    mask = np.zeros(grey.shape[:2], np.uint8)
-    cv2.fillConvexPoly(mask, cv2.convexHull(np.asarray(outline, np.float32)).astype(np.int32), 255)
-    mask = cv2.erode(mask, np.ones((2 * TRACK_MARGIN_PX + 1,) * 2, np.uint8))
-    return cv2.goodFeaturesToTrack(grey, TRACK_CORNERS, 0.01, 5, mask=mask)
-
-
 def affine_motion(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(2, 3) the affine map taking the points ``a`` (P, 2) to ``b`` (P, 2) px, least squares with
     Huber weights beyond TRACK_HUBER_PX (a corner on a moving mouth counts less)."""
@@ -100,26 +90,23 @@ def affine_motion(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def tracked_motion(frames: list, projected: np.ndarray) -> np.ndarray:
     """(F, V, 2) px: the first frame's fitted pixels ``projected[0]`` carried from frame to frame
-    of ``frames`` ((H, W, 3) uint8 BGR) by the face's own image motion: corners inside each frame's
-    fitted face (``projected`` (F, V, 2) px) tracked forward and back with Lucas-Kanade (kept
-    when they return within TRACK_RETURN_PX) and an affine motion fitted to them (the last one
-    again when fewer than 6 corners are kept)."""
-    lk = dict(winSize=(TRACK_WINDOW_PX, TRACK_WINDOW_PX), maxLevel=TRACK_LEVELS,
-              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01))
+    of ``frames`` ((H, W, 3) uint8 BGR) by the face's own image motion: up to TRACK_CORNERS corners
+    inside each frame's fitted face (``projected`` (F, V, 2) px), picked and tracked forward and
+    back as the appearance refinement's are (:mod:`facesculpt.nodes.fitter.surface_features`), and
+    an affine motion fitted to those that return (the last one again when fewer than 6 do)."""
+    from facesculpt.nodes.fitter.surface_features import surface_features, track_features
+
     greys = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) for f in frames]
     total, M = np.eye(3), np.c_[np.eye(2), np.zeros(2)]
     first = np.asarray(projected[0], np.float64)
     out = [first]
     for i in range(1, len(greys)):
-        corners = _face_corners(greys[i - 1], projected[i - 1])
+        every = np.ones(len(projected[i - 1]), bool)
+        corners = surface_features(greys[i - 1], projected[i - 1], every, max_features=TRACK_CORNERS)
         if corners is not None:
-            found, ok, _ = cv2.calcOpticalFlowPyrLK(greys[i - 1], greys[i], corners, None, **lk)
-            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(greys[i], greys[i - 1], found, None, **lk)
-            miss = np.linalg.norm((back - corners).reshape(-1, 2), axis=1)
-            kept = (ok.ravel() == 1) & (ok_back.ravel() == 1) & (miss < TRACK_RETURN_PX)
+            found, kept, _ = track_features(greys[i - 1], greys[i], corners)
             if kept.sum() >= 6:
-                M = affine_motion(corners.reshape(-1, 2)[kept].astype(np.float64),
-                                  found.reshape(-1, 2)[kept].astype(np.float64))
+                M = affine_motion(corners.pixels[kept], found[kept])
         total = np.vstack([M, [0.0, 0.0, 1.0]]) @ total
         out.append(first @ total[:2, :2].T + total[:2, 2])
     return np.array(out)

@@ -24,10 +24,11 @@ FOV_DEG = 60.0
 YAW_DEG, YAW_PERIOD = 25.0, 60
 PITCH_DEG, PITCH_PERIOD = 10.0, 45
 DRIFT_MM, DRIFT_PERIOD = 12.0, 90
-#: The head's motions: "turning" (the amplitudes above), or "still" (a head held nearly still, slowly
-#: swaying by a tenth of them about a pose turned a little: jitter shows where true motion is smooth).
+#: The head's motions: "turning" (the amplitudes above), or "still" (a head held nearly still,
+#: swaying by STILL_SHARE of them at STILL_PACE of their pace about a pose turned a little: jitter
+#: shows where true motion is smooth).
 MOTIONS = ("turning", "still")
-STILL_SHARE = 0.1
+STILL_SHARE, STILL_PACE = 0.1, 1.0 / 3.0
 STILL_YAW_DEG, STILL_PITCH_DEG = 8.0, 3.0
 #: The point the head turns about (model space, mm: behind the face) and its distance (mm).
 PIVOT = np.array([0.0, 0.0, -90.0])
@@ -80,9 +81,9 @@ def head_pose(i: int, motion: str = "turning") -> tuple[float, float, np.ndarray
     (one of :data:`MOTIONS`)."""
     if motion not in MOTIONS:
         raise ValueError(f"the head's motion must be one of {MOTIONS}, got {motion!r}")
-    share, yaw0, pitch0 = (1.0, 0.0, 0.0) if motion == "turning" else (STILL_SHARE, STILL_YAW_DEG, STILL_PITCH_DEG)
-    # the still head sways at a third of the turning one's pace as well: smooth at any frame
-    pace = 1.0 if motion == "turning" else 1.0 / 3.0
+    # the still head also sways at a fraction of the turning one's pace: smooth at any frame
+    share, pace, yaw0, pitch0 = ((1.0, 1.0, 0.0, 0.0) if motion == "turning"
+                                 else (STILL_SHARE, STILL_PACE, STILL_YAW_DEG, STILL_PITCH_DEG))
     yaw = yaw0 + share * YAW_DEG * np.sin(2 * np.pi * pace * i / YAW_PERIOD)
     pitch = pitch0 + share * PITCH_DEG * np.sin(2 * np.pi * pace * i / PITCH_PERIOD + 0.6)
     t = np.array([share * DRIFT_MM * np.sin(2 * np.pi * pace * i / DRIFT_PERIOD), 6.0, DISTANCE_MM])
