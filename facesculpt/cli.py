@@ -22,6 +22,7 @@ COMMAND_MODULES = [
     "facesculpt.app.reenact",  # reenact
     "facesculpt.app.coding_commands",  # encode, decode
     "facesculpt.app.bench",  # bench
+    "facesculpt.app.docs_command",  # docs: serve the documentation site
 ]
 
 
