@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -24,6 +25,10 @@ REPO = Path(__file__).resolve().parents[2]
 INSTALLED_AS = {"msgs": "msgs", "nodes": "nodes", "launch": "launch"}
 # mkdocs.yml's mkdocstrings `paths` names this folder (build/ is ignored by git).
 API_TREE = REPO / "build" / "docs-api"
+
+# The docstrings cross-reference with Sphinx roles (:class:`Name`), which mkdocstrings shows
+# as written; the API pages keep the name in code and drop the role.
+SPHINX_ROLE = re.compile(r":(?:class|func|meth|mod|data|attr|exc|obj):(?=<code>)")
 
 GENERATED = {
     "graph/nodes.md": lambda: node_params_markdown(BUILTIN_NODES),
@@ -54,3 +59,7 @@ def on_files(files, config):
     for src_uri, render in GENERATED.items():
         files.append(File.generated(config, src_uri, content=render()))
     return files
+
+
+def on_page_content(html, page, config, files):
+    return SPHINX_ROLE.sub("", html) if page.file.src_uri.startswith("api/") else html
