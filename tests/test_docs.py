@@ -88,3 +88,21 @@ def test_the_site_builds_strictly_with_the_generated_pages(tmp_path):
     nodes = (tmp_path / "graph" / "nodes" / "index.html").read_text()
     assert "pace_in_flight" in nodes and "rotation_prior_px" in nodes
     assert "FitterConfig" in (tmp_path / "api" / "fitter" / "index.html").read_text()
+
+
+def _python_blocks(text: str) -> list[str]:
+    return [block for block in re.findall(r"```python\n(.*?)```", text, flags=re.S)]
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/guide/library.md"])
+def test_the_library_example_runs_on_a_real_photo(page, models_dir, tmp_path):
+    """The first Python example of the page, run as written on the embedded photo saved as face.jpg."""
+    import cv2
+    import skimage.data
+
+    cv2.imwrite(str(tmp_path / "face.jpg"), cv2.cvtColor(skimage.data.astronaut(), cv2.COLOR_RGB2BGR))
+    code = _python_blocks((REPO / page).read_text())[0]
+    check = "\nassert fit.vertices.shape == (468, 3) and fit.projected.shape == (468, 2) and face.score > 0.5\n"
+    result = subprocess.run([sys.executable, "-c", code + check], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr[-3000:]
