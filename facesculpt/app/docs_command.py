@@ -40,12 +40,14 @@ def cmd_docs(args) -> int:
     if importlib.util.find_spec("mkdocs") is None:
         raise RuntimeError("MkDocs is not installed: pip install -e \".[docs]\" adds it")
     config = find_mkdocs_config()
+    env = dict(os.environ, NO_MKDOCS_2_WARNING="1")  # Material's banner about its successor
     if args.build:
         command = ["build", "--strict", "-f", str(config), "-d", str(Path(args.build).resolve())]
-    else:
-        if not 0 < args.port < 65536:
-            raise ValueError(f"--port {args.port} is not a port (1-65535)")
-        print(f"serving the documentation on http://127.0.0.1:{args.port} (Ctrl-C stops)")
-        command = ["serve", "-f", str(config), "-a", f"127.0.0.1:{args.port}"]
-    env = dict(os.environ, NO_MKDOCS_2_WARNING="1")  # Material's banner about its successor
-    return subprocess.call([sys.executable, "-m", "mkdocs", *command], cwd=config.parent, env=env)
+        return subprocess.call([sys.executable, "-m", "mkdocs", *command], cwd=config.parent, env=env)
+    if not 0 < args.port < 65536:
+        raise ValueError(f"--port {args.port} is not a port (1-65535)")
+    print(f"serving the documentation on http://127.0.0.1:{args.port} (Ctrl-C stops)", flush=True)
+    # The server replaces this process, so stopping `facesculpt docs` stops the server.
+    os.chdir(config.parent)
+    os.execve(sys.executable, [sys.executable, "-m", "mkdocs", "serve", "-f", str(config),
+                               "-a", f"127.0.0.1:{args.port}"], env)
