@@ -7,7 +7,7 @@ Start a graph (`facesculpt launch ...` with a deformer), then, in another termin
 It finds the running graph through the master (FACESCULPT_MASTER) and publishes InputEvents on
 `input/events`; the deformer moves the landmark, the renderer shows it. Any device or program
 can drive the face the same way: subclass Node, advertise input/events, publish InputEvents
-(README "Input events" lists the kinds).
+(docs/graph/input-events.md lists the kinds).
 """
 
 import math

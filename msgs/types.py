@@ -129,7 +129,7 @@ INPUT_COMMANDS = ("reset", "undo", "save_preset", "load_preset", "select_edit", 
 @register
 @dataclass
 class InputEvent(Message):
-    """One user input (see README "Input events" for an example of each kind).
+    """One user input (docs/graph/input-events.md has an example of each kind).
 
     kind: one of INPUT_KINDS.  x, y: frame pixels (press/drag/release/toggle_static).
     landmark: a model landmark name to press at instead of a pixel.
@@ -250,8 +250,8 @@ class FaceExpression(Message):
     """One fitted face's head pose and expression parameters, on `face/expression`.
 
     face_id: as FaceState.face_id.  pose: (6,) float64 yaw, pitch, roll (degrees) and the
-    camera-space translation (mm).  names[i] names values[i] ((E,) float32; units in README
-    "Expression parameters": percent of the inter-ocular distance, eye closure 0..1).
+    camera-space translation (mm).  names[i] names values[i] ((E,) float32; units in
+    docs/guide/expressions.md: percent of the inter-ocular distance, eye closure 0..1).
     """
 
     TYPE = "FaceExpression"

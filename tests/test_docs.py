@@ -51,6 +51,16 @@ def test_every_page_the_readme_links_to_exists():
     assert not missing, missing
 
 
+def test_every_docs_page_the_code_names_exists():
+    """Help texts and docstrings point at documentation pages by path (docs/guide/new-views.md)."""
+    named = {(path.relative_to(REPO), page) for folder in ("facesculpt", "nodes", "msgs", "examples", "benchmarks")
+             for path in (REPO / folder).rglob("*.py")
+             for page in re.findall(r"docs/[\w/.-]+?\.md", path.read_text())}
+    assert named
+    missing = sorted((str(path), page) for path, page in named if not (REPO / page).is_file())
+    assert not missing, missing
+
+
 def test_the_node_reference_lists_every_parameter_of_every_built_in_node():
     page = node_params_markdown(BUILTIN_NODES)
     for short_name, target in BUILTIN_NODES.items():

@@ -95,7 +95,7 @@ def register(sub) -> None:
                    help="measure at this frame size, e.g. 1280x720 (the input is scaled to cover it and cropped "
                         "to its aspect); default: the paper's 856x480 pixel count at the input's aspect")
     p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,...",
-                   help="the graph's edit also turns the head by this pose offset (README \"New views\")")
+                   help="the graph's edit also turns the head by this pose offset (docs/guide/new-views.md)")
     p.add_argument("--load", type=int, default=0, metavar="N",
                    help="run N busy loops (one core's demand each) beside the measurement, as a browser or a video "
                         "call would (default 0)")
@@ -104,10 +104,10 @@ def register(sub) -> None:
                         "holds a preset load, nose drags, a reset and a second load (use --window 60)")
     p.add_argument("--refine", choices=("off", "appearance"), default="off",
                    help="the fitter refines each fit on its frame's pixels, in-process and in the graph "
-                        "(fitter.refine; README \"Appearance refinement\")")
+                        "(fitter.refine; docs/guide/face-models.md)")
     p.add_argument("--memory", choices=("off", "on"), default="off",
                    help="the renderer's background plate and texture atlas on, in-process and in the graph "
-                        "(renderer.plate, renderer.atlas; README \"Texture memory of the face\")")
+                        "(renderer.plate, renderer.atlas; docs/guide/process.md)")
     p.add_argument("--no-graph", action="store_true", help="only the in-process stages")
     p.add_argument("--json", default="", metavar="FILE", help="write the figures here")
     p.set_defaults(func=cmd_bench)

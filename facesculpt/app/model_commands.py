@@ -31,7 +31,7 @@ def register(subparsers) -> None:
         "train-appearance",
         help="learn the appearance model of Fitter.fit_image (a 3D AAM, seed 004) from photos",
         description="Find the faces in the photos, fit the model to their landmarks, and keep the mean and leading "
-        "components of the frontal ones' grey levels at the model's vertices (README: Appearance refinement).",
+        "components of the frontal ones' grey levels at the model's vertices (docs/guide/face-models.md).",
     )
     train.add_argument("photos", nargs="+", type=Path, help="photos (.jpg, .png) or folders of them")
     train.add_argument("--model", default="sfm", help="a sparse model: 'sfm' or a .npz (default sfm)")

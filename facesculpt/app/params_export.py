@@ -3,7 +3,7 @@
 One row per frame and fitted face: ``frame`` (index from 0), ``time_s``, ``face`` (the face key:
 0 for the largest face, else its number from the left minus 1), the pose columns
 (:data:`facesculpt.nodes.fitter.expression.POSE_NAMES`) and the expression components
-(:data:`~facesculpt.nodes.fitter.expression.NAMES`, README "Expression parameters"). A frame
+(:data:`~facesculpt.nodes.fitter.expression.NAMES`, docs/guide/expressions.md). A frame
 without a fitted face has one row with ``face`` and every value empty (CSV) or null (JSON). The
 file is written beside its target under a temporary name and renamed when complete.
 """

@@ -43,27 +43,27 @@ def _add_fit_arguments(p) -> None:
                    help="horizontal field of view assumed for the camera (default 60)")
     p.add_argument("--refine", choices=("off", "appearance"), default="off",
                    help="refine each frame's landmark fit on its pixels against the person's learned appearance "
-                        "(issue 20; README: Appearance refinement)")
+                        "(issue 20; docs/guide/face-models.md)")
     p.add_argument("--rotation-prior", type=float, default=100.0, metavar="PX",
                    help="with --model sfm: hold each fit's pitch toward the landmark network's own 3D rotation "
-                        "with this weight, px per radian (default 100; 0: the landmarks alone; README: The "
-                        "head's pitch from the network's depth)")
+                        "with this weight, px per radian (default 100; 0: the landmarks alone; "
+                        "docs/guide/face-models.md)")
 
 
 def _add_pose_arguments(p) -> None:
-    """--pose, --face-camera, --face-camera-limit, --keyframes (README "New views")."""
+    """--pose, --face-camera, --face-camera-limit, --keyframes (docs/guide/new-views.md)."""
     p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,roll=D,x=MM,y=MM,z=MM",
                    help="turn (degrees, added to the head's own angles) and move (mm, camera axes) every fitted head, "
-                        "e.g. yaw=10,pitch=-5 (README: New views, for the angles results hold to)")
+                        "e.g. yaw=10,pitch=-5 (docs/guide/new-views.md, for the angles results hold to)")
     p.add_argument("--face-camera", type=float, default=0.0, metavar="F",
                    help="turn each face F (0-1) of the way toward looking into the camera, every frame "
                         "(at most --face-camera-limit degrees; on top of --pose)")
     p.add_argument("--face-camera-limit", type=float, default=FACE_CAMERA_LIMIT_DEG, metavar="DEG",
                    help=f"the largest turn --face-camera applies, yaw and pitch each (default {FACE_CAMERA_LIMIT_DEG:g}, "
-                        "the largest the README's figures hold for; at most 45)")
+                        "the largest the new-views benchmark's figures hold for; at most 45)")
     p.add_argument("--face-camera-smoothing", type=float, default=FACE_CAMERA_SMOOTHING_S, metavar="S",
                    help="time constant (s) smoothing the direction to the camera over the frames (default 0: none, "
-                        "which follows the head best; README \"New views\")")
+                        "which follows the head best; docs/guide/new-views.md)")
     p.add_argument("--keyframes", choices=("auto", "on", "off"), default="auto",
                    help="render a turned head's surface from the stored view of the video closest to it where that "
                         "sees it better than the frame (image-based rendering); auto (default): with a pose edit")
@@ -101,7 +101,7 @@ def register(sub) -> None:
     _add_fit_arguments(p)
     p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
     p.add_argument("--export-params", default="", metavar="FILE.csv|json",
-                   help="also write each frame's head pose and expression parameters (README: Expression parameters); "
+                   help="also write each frame's head pose and expression parameters (docs/guide/expressions.md); "
                         "in a batch, beside each output video with this suffix")
     p.add_argument("--codec", default=None, metavar="NAME",
                    help="video encoder (default by suffix: libx264 (H.264) for .mp4/.mov/.m4v/.mkv, mjpeg for .avi; "

@@ -26,13 +26,13 @@ MAX_OFFSET_MM = 200.0
 OFFSET_NAMES = ("yaw", "pitch", "roll", "x", "y", "z")
 OFFSET_LIMITS = (MAX_OFFSET_DEG,) * 3 + (MAX_OFFSET_MM,) * 3
 #: Face-the-camera: its default largest turn (degrees, yaw and pitch each): the largest offset the
-#: new-views benchmark measures (benchmarks/bench_new_views.py; README "New views").
+#: new-views benchmark measures (benchmarks/bench_new_views.py; docs/results/new-views.md).
 FACE_CAMERA_LIMIT_DEG = 20.0
 #: Face-the-camera: the range of that limit, degrees.
 FACE_CAMERA_LIMIT_RANGE = (1.0, 45.0)
 #: Face-the-camera: default time constant of the smoothing of the direction to the camera, s. None:
 #: turned all the way each frame, the tracker's pose jitter cancels in the turned head, and any
-#: smoothing of the fitted position only adds lag (README "New views").
+#: smoothing of the fitted position only adds lag (docs/results/new-views.md).
 FACE_CAMERA_SMOOTHING_S = 0.0
 FACE_CAMERA_SMOOTHING_MAX_S = 60.0
 

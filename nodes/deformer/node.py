@@ -210,7 +210,7 @@ class DeformerNode(Node):
         """Keep the rounds' solves within ``solve_share`` of one core. A drag solves every round
         while it moves and settles; with a large mesh and several edits those solves take CPU the
         frame path (fitter, renderer) needs on a small machine, and the frames' latency rises
-        during drags (README, "The deformer rests between solves"). Waiting merges the drag's
+        during drags (docs/results/live-graph.md, "The deformer rests between solves"). Waiting merges the drag's
         events into fewer solves."""
         share = self.params.solve_share
         self.rest_until = time.monotonic() + min(MAX_REST_S, spent_s * (1.0 / share - 1.0))

@@ -8,8 +8,8 @@ neutral, 1 closed). Both built-in models give the points: the face mesh through 
 correspondence (``IBUG68_FROM_MESH`` of :mod:`facesculpt.geometry.ibug68`), the Surrey Face Model through its iBUG-68
 landmark vertices; the cheeks are the models' named ``right_cheek`` / ``left_cheek``.
 
-:data:`COMPONENTS` names every component with its unit and meaning (README "Expression
-parameters" has the same table). :func:`expression_points` takes the points of a mesh,
+:data:`COMPONENTS` names every component with its unit and meaning (docs/guide/expressions.md
+has the same table). :func:`expression_points` takes the points of a mesh,
 :func:`expression_parameters` compares them with the neutral's.
 """
 

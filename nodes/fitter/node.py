@@ -71,8 +71,8 @@ class FitterNode(Node):
         "faces": Param("largest", "which faces to fit: largest, all, or a face number from 1 (numbered from the "
                                   "left as first seen; the landmarks node's max_faces must cover them)"),
         "refine": Param("off", "appearance: refine each fit on its frame's pixels (camera/image): the person's "
-                               "learned appearance and corners tracked from the last frame (README: Appearance "
-                               "refinement); off: landmarks only", choices=("off", "appearance")),
+                               "learned appearance and corners tracked from the last frame (docs/guide/"
+                               "face-models.md); off: landmarks only", choices=("off", "appearance")),
     }
     #: Frames kept for the landmarks that have not arrived yet (refine=appearance).
     FRAMES_KEPT = 8

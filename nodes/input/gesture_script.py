@@ -1,4 +1,4 @@
-"""The gesture-script format (README "Input events"): YAML steps compiled into timed actions,
+"""The gesture-script format (docs/graph/scripts.md): YAML steps compiled into timed actions,
 and their player (time -> events). No sockets, no clocks: callers pass text or a path and
 times (seconds) in, and get plain dicts of ``InputEvent`` fields out
 (facesculpt.msgs.InputEvent(**fields) builds the message).
@@ -94,7 +94,7 @@ def load_script(path: str | Path, default_handle: int = 2) -> GestureScript:
 
 def parse_script(text: str, source: str = "<script>", base_dir: str | Path | None = None,
                  default_handle: int = 2) -> GestureScript:
-    """Compile a gesture script (YAML text, format in README "Input events") into timed actions.
+    """Compile a gesture script (YAML text, format in docs/graph/scripts.md) into timed actions.
 
     Raises ScriptError with ``"SOURCE line N: ..."`` for a YAML syntax error or a step that does
     not fit the format."""

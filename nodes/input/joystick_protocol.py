@@ -3,7 +3,7 @@ input events. No sockets, no devices, no clocks: callers pass bytes, times (seco
 callbacks in, and get plain dicts of ``InputEvent`` fields out
 (facesculpt.msgs.InputEvent(**fields) builds the message).
 
-Joystick line protocol (README "Input events")::
+Joystick line protocol (docs/graph/joystick.md)::
 
     X Y Z BUTTONS\\n        four whitespace-separated decimal integers, one sample per line
                             X, Y, Z: axes in -1000..1000; BUTTONS: bit mask >= 0 (bit 0 = button 0)

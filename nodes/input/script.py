@@ -1,6 +1,6 @@
 """The scripted-gesture node: ``facesculpt run script script=examples/gestures/nose_pull.yaml``.
 
-Plays a YAML gesture script (format: :mod:`.gesture_script`, README "Input events") as
+Plays a YAML gesture script (format: :mod:`.gesture_script`, docs/graph/scripts.md) as
 ``input/events``: presses at landmarks or pixels, drags by model-space millimetres or by
 pixels over a duration, depth pushes, releases, waits, presets and commands — for demos, tests
 and reproducible edits. Before the first step it waits (each optional) for a fitted face

@@ -9,7 +9,7 @@ keyframe) and ``coding/basis`` (CodedBasis: the expression basis), then one ``co
 missing the face's expression (``refresh_mm``). The decoder node
 (renderer room) renders them, on this machine or another.
 
-Over tcp between hosts, run it with ``transport: tcp`` and CURVE keys (README "Security").
+Over tcp between hosts, run it with ``transport: tcp`` and CURVE keys (docs/security.md).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ def coded_compositor(width: int, height: int, ctx=None) -> Compositor:
     the bicubic kernel and a render mesh only as fine as the face's size needs. The whole head
     moves in every frame, so a decoder warps the head's region, not an edit's; the sinc and the
     finer mesh cost it much of its frame time for no change in the decoded face that the
-    coding benchmark sees (README "Model-based coding")."""
+    coding benchmark sees (docs/results/talking-heads.md)."""
     return Compositor(width, height, ctx=ctx, interpolation="cubic", max_fine_edge_px=AUTO_MAX_FINE_EDGE_PX)
 
 

@@ -1,5 +1,5 @@
-"""The window's landmark correction mode (seed 002's interactive correction; README "Landmark
-correction"): the 68 iBUG landmarks of each fitted face are shown, the one under the cursor is
+"""The window's landmark correction mode (seed 002's interactive correction; docs/guide/
+landmark-correction.md): the 68 iBUG landmarks of each fitted face are shown, the one under the cursor is
 named, and a left-drag puts it where the button is let go.
 
 :class:`CorrectionMode` is plain state, no window and no sockets: the renderer node feeds it the
