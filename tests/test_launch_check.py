@@ -205,3 +205,17 @@ def test_bag_play_loop_reports_every_pass(tmp_path):
     total = 9 + sum(passes)
     counts = ", ".join(map(str, [3, 3, 3, *passes]))
     assert rest[-1] == f"played {total} messages from {bag} in {3 + len(passes)} passes ({counts})"
+
+
+def test_checking_leaves_the_environment_of_the_graphs_processes_as_it_was(tmp_path):
+    """Loading the node classes imports OpenCV, which adds to LD_LIBRARY_PATH; the processes the
+    launcher starts after the check must not inherit that (a fresh interpreter: nothing imported)."""
+    script = ("import os\nfrom facesculpt.nodes import node_class\nfrom facesculpt.paths import launch_file\n"
+              "from facesculpt.runtime.launcher import load_launch\nbefore = dict(os.environ)\n"
+              "load_launch(launch_file('reenact'), [], node_class=node_class)\n"
+              "print(before == dict(os.environ))\n")
+    env = {k: v for k, v in os.environ.items() if k != "LD_LIBRARY_PATH"}
+    result = subprocess.run([sys.executable, "-c", script], env=env, cwd=tmp_path, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "True"

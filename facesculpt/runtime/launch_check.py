@@ -14,6 +14,7 @@ application, which holds the table of built-in nodes.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -23,7 +24,21 @@ from facesculpt.runtime.topics import node_topics, topic_problem
 
 def check_nodes(path: Path, specs: list, node_class: Callable[[str], type]) -> None:
     """Check every :class:`~facesculpt.runtime.launcher.NodeSpec` of launch file ``path`` (as
-    written, overrides applied); ValueError in one sentence at the first problem."""
+    written, overrides applied); ValueError in one sentence at the first problem.
+
+    Loading a class imports its module here; what an import does to the environment is undone
+    (OpenCV's adds its folder and the current directory to LD_LIBRARY_PATH, which slowed every
+    node process started after it), so the graph's processes get the launcher's own."""
+    env = dict(os.environ)
+    try:
+        _check_each(path, specs, node_class)
+    finally:
+        if dict(os.environ) != env:
+            os.environ.clear()
+            os.environ.update(env)
+
+
+def _check_each(path: Path, specs: list, node_class: Callable[[str], type]) -> None:
     for spec in specs:
         where = f"launch file {path}: node {spec.name}"
         try:
