@@ -27,8 +27,8 @@ def check_nodes(path: Path, specs: list, node_class: Callable[[str], type]) -> N
     written, overrides applied); ValueError in one sentence at the first problem.
 
     Loading a class imports its module here; what an import does to the environment is undone
-    (OpenCV's adds its folder and the current directory to LD_LIBRARY_PATH, which slowed every
-    node process started after it), so the graph's processes get the launcher's own."""
+    (OpenCV's adds its folder and the current directory to LD_LIBRARY_PATH), so the graph's
+    processes start with the environment they had before the check."""
     env = dict(os.environ)
     try:
         _check_each(path, specs, node_class)
