@@ -363,7 +363,7 @@ def cmd_bag_play(args) -> int:
     foreign = sum(reader.foreign.values())
     sent = sum(passes)
     print(f"played {sent} messages from {args.file}"
-          + (f" in {len(passes)} passes ({', '.join(map(str, passes))})" if args.loop else "")
+          + (f" in {len(passes)} passes (each one's count above)" if args.loop else "")
           + (f" ({reader.ignored_bytes} trailing bytes ignored)" if reader.ignored_bytes else "")
           + (f"; skipped {foreign} messages of channels that are not facesculpt's "
              f"({', '.join(sorted(reader.foreign))})" if foreign else ""), file=sys.stderr)
