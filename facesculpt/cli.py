@@ -38,7 +38,22 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    describe_subcommands(parser)
     return parser
+
+
+def describe_subcommands(parser: argparse.ArgumentParser) -> None:
+    """Every subcommand's ``--help`` opens with a description: its own, or else the one-line help
+    it is listed with in its parent's ``--help`` (as a sentence)."""
+    for action in parser._actions:
+        if not isinstance(action, argparse._SubParsersAction):
+            continue
+        listed = {choice.dest: choice.help for choice in action._choices_actions}
+        for name, subparser in action.choices.items():
+            line = (listed.get(name) or "").strip()
+            if not subparser.description and line:
+                subparser.description = line[0].upper() + line[1:] + ("" if line.endswith(".") else ".")
+            describe_subcommands(subparser)
 
 
 def main(argv: list[str] | None = None) -> int:

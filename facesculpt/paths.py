@@ -77,6 +77,15 @@ def launch_file(name_or_path: str) -> Path:
     return _shipped_file(name_or_path, Path(launch_pkg.__file__).parent, ".yaml", "launch file")
 
 
+def shipped_launch_files() -> list[Path]:
+    """The launch files shipped in launch/ (those with a top-level ``nodes:`` list; a gesture
+    script such as demo_gestures.yaml is not one), sorted by name."""
+    from facesculpt import launch as launch_pkg
+
+    folder = Path(launch_pkg.__file__).parent
+    return sorted(p for p in folder.glob("*.yaml") if "\nnodes:" in "\n" + p.read_text())
+
+
 def preset_file(name_or_path: str) -> Path:
     """Resolve a deformer preset given as a path, or as the name of one shipped with the deformer
     (``nose_longer``, ``chin``, ``cheeks``: the paper's Fig. 6e edits)."""

@@ -19,3 +19,11 @@ BUILTIN_NODES = {
     "encoder": "facesculpt.nodes.reenact.encoder_node:EncoderNode",
     "decoder": "facesculpt.nodes.renderer.decoder_node:DecoderNode",
 }
+
+
+def node_class(name: str):
+    """The Node subclass a launch file or `facesculpt run` names: a built-in name above,
+    ``module:Class`` or ``path/file.py:Class`` (:func:`facesculpt.runtime.node.load_node_class`)."""
+    from facesculpt.runtime.node import load_node_class
+
+    return load_node_class(name, BUILTIN_NODES)

@@ -84,3 +84,26 @@ def test_a_node_script_logs_like_facesculpt_run(tmp_path):
     for result in (own, run):
         assert result.returncode == 0, result.stderr
         assert " I [facesculpt.mine] hello from setup" in result.stderr, result.stderr
+
+
+def test_a_json_object_that_is_not_a_preset_names_its_file(tmp_path):
+    video = tmp_path / "in.avi"
+    import cv2
+    import numpy as np
+
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (64, 48))
+    writer.write(np.zeros((48, 64, 3), np.uint8))
+    writer.release()
+    other = tmp_path / "settings.json"
+    other.write_text('{"theme": "dark", "edits": []}')
+    newer = tmp_path / "newer.json"
+    newer.write_text('{"format": "facesculpt-deformer-preset", "version": 7, "edits": []}')
+    for preset, sentence in (
+            (other, f"preset {other} is a JSON object without \"format\": \"facesculpt-deformer-preset\", not a "
+                    f"deformer preset (a JSON object with 'format', 'version' and a list of 'edits', as the window's "
+                    f"S key saves)"),
+            (newer, f"preset {newer}: preset version 7 is not 1")):
+        result = _cli("process", str(video), "-o", str(tmp_path / "out.mp4"), "--edits", str(preset), cwd=tmp_path)
+        assert result.returncode == 1 and "Traceback" not in result.stderr
+        assert result.stderr.strip().splitlines()[-1] == f"facesculpt: {sentence}"
+        assert not (tmp_path / "out.mp4").exists()

@@ -128,13 +128,14 @@ def test_a_bad_value_stops_a_real_node_in_one_sentence_with_exit_code_2():
 
 
 def test_the_launcher_does_not_respawn_a_node_that_exited_2(graph, tmp_path):
-    """Both nodes are marked respawn: the one that crashes (exit 1) comes back, the one with a
-    parameter out of range (exit 2) does not, and says so once."""
+    """Both nodes are marked respawn: the one that crashes (exit 1) comes back, the one whose
+    parameter names what cannot be used (exit 2: a missing video; a value out of range is refused
+    before the graph starts, test_launch_check) does not, and says so once."""
     (tmp_path / "crasher.py").write_text("from facesculpt.runtime import Node\n\n\nclass Crasher(Node):\n"
                                          "    def setup(self):\n        raise RuntimeError('crash')\n")
     launch = tmp_path / "graph.yaml"
     launch.write_text(yaml.safe_dump({"nodes": [
-        {"name": "bad_param", "node": "camera", "respawn": True, "params": {"fov_deg": 500}},
+        {"name": "bad_param", "node": "camera", "respawn": True, "params": {"source": str(tmp_path / "missing.mp4")}},
         {"name": "bad_file", "node": f"{tmp_path / 'crasher.py'}:Crasher", "respawn": True, "respawn_delay_s": 0.1},
     ]}))
     log = tmp_path / "launch.txt"
@@ -147,5 +148,5 @@ def test_the_launcher_does_not_respawn_a_node_that_exited_2(graph, tmp_path):
     assert text.count("[bad_file] died") >= 3, text
     assert "[bad_param] died" not in text and text.count("[bad_param] running (pid") == 1
     assert text.count("[bad_param] ended (exit code 2)") == 1 and "not respawning" in text
-    assert text.count("facesculpt: bad_param.fov_deg=500.0 is out of range [1.0, 179.0]") == 1
+    assert text.count(f"facesculpt: camera: video file {tmp_path / 'missing.mp4'} not found") == 1
     assert proc.poll() is None  # the rest of the graph goes on

@@ -232,8 +232,8 @@ def test_shipped_presets_resolve_by_name_and_a_missing_one_lists_them(tmp_path):
 
     assert preset_file("chin") == preset_file("chin.json") == (PRESETS / "chin.json").resolve()
     own = tmp_path / "chin.json"  # a file the user names wins over the shipped preset
-    own.write_text('{"edits": []}')
-    assert read_preset(own) == {"edits": []}
+    own.write_text('{"format": "facesculpt-deformer-preset", "version": 1, "edits": []}')
+    assert read_preset(own)["edits"] == []
     with pytest.raises(FileNotFoundError, match="nose_longer"):
         read_preset("no_such_preset")
 

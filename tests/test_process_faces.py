@@ -92,3 +92,22 @@ def test_three_people_in_the_shared_photo(data_dir, models_dir):
         x0, x1 = int(px[:, 0].min()), int(px[:, 0].max())
         y0, y1 = int(px[:, 1].min()), int(px[:, 1].max())
         assert moved[y0:y1, x0:x1].sum() > 50, k
+
+
+def test_a_face_number_beyond_the_faces_found_says_how_many_were_found(two_people, data_dir, models_dir, tmp_path):
+    """`--faces 3` on two people (and `--faces 2` on one, in a batch) is an error naming how many
+    faces were found, with no output left behind, not an unedited copy that exits 0."""
+    video, _ = two_people
+    out = tmp_path / "three.mp4"
+    r = process(video, "-o", out, "--faces", "3", "--edits", "nose_longer", "--neutral-frames", "2", "--max-frames", "3")
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.strip().splitlines()[-1] == (
+        f"facesculpt: --faces 3: only 2 faces were found (faces 1 to 2, from the left) in {video}, "
+        f"so there is no face 3 to fit; no output written")
+    assert not out.exists()
+    one = data_dir / "video" / "d0.mp4"
+    r = process(one, "-o", f"{tmp_path / 'batch'}/", "--workers", "1", "--faces", "2", "--max-frames", "3")
+    assert r.returncode == 1, r.stderr
+    assert (f"FAILED {one}: --faces 2: only 1 face was found (face 1) in {one}, so there is no face 2 to fit; "
+            f"no output written") in r.stderr
+    assert not list((tmp_path / "batch").glob("*.mp4"))

@@ -97,6 +97,7 @@ def timing_table(listener: DemoListener) -> tuple[str, dict]:
 
 
 def cmd_demo(args) -> int:
+    from facesculpt.nodes import node_class
     from facesculpt.paths import launch_file
     from facesculpt.runtime.launcher import Launcher, load_launch
 
@@ -109,7 +110,7 @@ def cmd_demo(args) -> int:
     specs = load_launch(launch_file("demo"), [
         f"camera.max_frames={args.frames}", f"camera.source={args.source}",
         f"fitter.model={args.model}", f"renderer.output={video}", "camera.wait_subscribers=3",
-    ])
+    ], node_class=node_class)
     launcher = Launcher(specs, status=lambda line: print(line, flush=True))
     launcher.start_master()  # the listener needs it before the nodes start
     master_proc, launcher.master_proc = launcher.master_proc, None  # stopped after the listener

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -24,9 +25,13 @@ def register(sub) -> None:
     p.add_argument("args", nargs="...", help="[--name N] [--remap from=to] [param=value ...]; NODE --help lists params")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("launch", help="start a graph from a launch file")
-    p.add_argument("file", help="a launch file path, or the name of a shipped one (webcam, video, demo, ...)")
-    p.add_argument("overrides", nargs="*", metavar="node.param=value")
+    p = sub.add_parser("launch", help="start a graph from a launch file", description=LAUNCH_DESCRIPTION,
+                       epilog=shipped_launch_list(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", help="a launch file path, or the name of a shipped one (listed below)")
+    p.add_argument("overrides", nargs="*", metavar="node.param=value",
+                   help="override a node's param, or NODE.enabled=true|false to start or leave out a node")
+    p.add_argument("--check", action="store_true",
+                   help="check the file (node types, params, remaps) and say ok in one line; start nothing")
     p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("node", help="nodes of the running graph")
@@ -71,7 +76,8 @@ def register(sub) -> None:
     rate = q.add_mutually_exclusive_group()
     rate.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: as recorded)")
     rate.add_argument("--fast", action="store_true", help="as fast as subscribers take them, losing none")
-    q.add_argument("--loop", action="store_true")
+    q.add_argument("--loop", action="store_true",
+                   help="play the bag again from the start until stopped; each pass's count is printed")
     q.add_argument("--start", type=float, default=0.0,
                    help="begin S seconds after the bag's first message (found through the MCAP index)")
     q.add_argument("--wait", type=float, default=2.0, help="seconds to wait for subscribers before playing")
@@ -107,22 +113,47 @@ built-in nodes:
 
 
 def cmd_run(args) -> int:
-    from facesculpt.nodes import BUILTIN_NODES
-    from facesculpt.runtime.node import load_node_class, run_node
+    from facesculpt.nodes import BUILTIN_NODES, node_class
+    from facesculpt.runtime.node import run_node
 
     if args.node is None:
         width = max(map(len, BUILTIN_NODES))
         print(RUN_USAGE + "\n".join(f"  {name:<{width}}  {target}" for name, target in BUILTIN_NODES.items()))
         return 0 if args.run_help else 2
-    return run_node(load_node_class(args.node, BUILTIN_NODES), args.args)
+    return run_node(node_class(args.node), args.args)
+
+
+LAUNCH_DESCRIPTION = """Start a graph from a launch file: a master and one process per node, respawned as the file
+says, all stopped on Ctrl-C. Before anything starts, every node's type, parameters and remaps are
+checked against the node itself; a file with a problem is refused in one sentence (exit 1)."""
+
+
+def shipped_launch_list() -> str:
+    """``launch --help``'s epilog: the shipped launch files, each with the first line of its comment."""
+    from facesculpt.paths import shipped_launch_files
+
+    lines = ["shipped launch files (facesculpt launch NAME):"]
+    files = shipped_launch_files()
+    width = max((len(f.stem) for f in files), default=0)
+    for path in files:
+        first = next((line.lstrip("# ").strip() for line in path.read_text().splitlines() if line.startswith("#")), "")
+        lines.append(f"  {path.stem:<{width}}  {first}")
+    return "\n".join(lines).replace("%", "%%")  # argparse formats an epilog with %
 
 
 def cmd_launch(args) -> int:
+    from facesculpt.nodes import node_class
     from facesculpt.paths import launch_file
+    from facesculpt.runtime.launch_check import summary
     from facesculpt.runtime.launcher import Launcher, load_launch
 
-    specs = load_launch(launch_file(args.file), args.overrides)
-    return Launcher(specs, status=lambda line: print(line, flush=True)).run()
+    path = launch_file(args.file)
+    specs = load_launch(path, args.overrides, node_class=node_class, left_out=True)
+    if args.check:
+        print(summary(path, specs), flush=True)
+        return 0
+    started = [spec for spec in specs if spec.enabled]
+    return Launcher(started, status=lambda line: print(line, flush=True)).run()
 
 
 # -- introspection ------------------------------------------------------------------------------
@@ -316,36 +347,49 @@ def cmd_bag_play(args) -> int:
     signal.signal(signal.SIGINT, lambda *a: node.shutdown())
     signal.signal(signal.SIGTERM, lambda *a: node.shutdown())
     node.start()
-    sent = 0
+    passes: list[int] = []  # messages sent in each pass (the last one may be cut short by a stop)
     try:
         for pub in publishers.values():
             pub.wait_for_subscribers(1, args.wait)
         while node.running:
-            t0_rec = t0_wall = None
-            for rec in reader.messages(start_ns):
-                if not node.running:
-                    break
-                if not args.fast:
-                    if t0_rec is None:
-                        t0_rec, t0_wall = rec.time_ns, time.monotonic()
-                    due = t0_wall + (rec.time_ns - t0_rec) / 1e9 / args.rate
-                    while node.running and time.monotonic() < due:
-                        node.spin_once(min(0.05, max(0.0, due - time.monotonic())))
-                # --fast never drops: wait for a slow subscriber for as long as we are not stopped.
-                while not publishers[rec.topic].publish_frames(rec.frames, timeout_s=1.0) and node.running:
-                    node.spin_once(0.0)
-                sent += 1
+            passes.append(_play_pass(node, reader, publishers, start_ns, args))
             if not args.loop:
                 break
+            print(f"pass {len(passes)}{'' if node.running else ' (stopped)'}: played {passes[-1]} messages "
+                  f"from {args.file}", file=sys.stderr, flush=True)
         node.spin_once(0.0)
     finally:
         node.close()
     foreign = sum(reader.foreign.values())
+    sent = sum(passes)
     print(f"played {sent} messages from {args.file}"
+          + (f" in {len(passes)} passes (each one's count above)" if args.loop else "")
           + (f" ({reader.ignored_bytes} trailing bytes ignored)" if reader.ignored_bytes else "")
           + (f"; skipped {foreign} messages of channels that are not facesculpt's "
              f"({', '.join(sorted(reader.foreign))})" if foreign else ""), file=sys.stderr)
     return 0
+
+
+def _play_pass(node, reader, publishers: dict, start_ns, args) -> int:
+    """One pass over the bag from ``start_ns`` (None: its first message), paced as recorded
+    divided by ``args.rate`` or, with ``args.fast``, as fast as subscribers take the messages;
+    returns how many were sent before the end or a stop."""
+    sent = 0
+    t0_rec = t0_wall = None
+    for rec in reader.messages(start_ns):
+        if not node.running:
+            break
+        if not args.fast:
+            if t0_rec is None:
+                t0_rec, t0_wall = rec.time_ns, time.monotonic()
+            due = t0_wall + (rec.time_ns - t0_rec) / 1e9 / args.rate
+            while node.running and time.monotonic() < due:
+                node.spin_once(min(0.05, max(0.0, due - time.monotonic())))
+        # --fast never drops: wait for a slow subscriber for as long as we are not stopped.
+        while not publishers[rec.topic].publish_frames(rec.frames, timeout_s=1.0) and node.running:
+            node.spin_once(0.0)
+        sent += 1
+    return sent
 
 
 def cmd_bag_info(args) -> int:

@@ -37,8 +37,8 @@ from facesculpt.geometry.pose_offset import (
     check_face_camera,
 )
 from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
-from facesculpt.nodes.deformer import EditStack
-from facesculpt.nodes.deformer.preset_format import merge_presets, preset_pose
+from facesculpt.nodes.deformer import DeformerError, EditStack
+from facesculpt.nodes.deformer.preset_format import PRESET_FORMAT, merge_presets, preset_pose, validate_preset
 from facesculpt.nodes.fitter import (
     FaceFitters,
     Fitter,
@@ -74,7 +74,8 @@ def load_face_model(name_or_path: str) -> MorphableModel:
 def read_preset(path: str | Path) -> dict:
     """A deformer preset file (JSON, as :meth:`EditStack.save_preset` writes), or the name of a
     shipped one (:func:`facesculpt.paths.preset_file`), as a dict; FileNotFoundError or ValueError
-    naming the file when it is missing, cannot be read, is not JSON or not a JSON object."""
+    naming the file when it is missing, cannot be read, is not JSON, not a JSON object or not a
+    valid preset (:func:`facesculpt.nodes.deformer.preset_format.validate_preset`)."""
     import json
 
     from facesculpt.paths import preset_file
@@ -92,6 +93,14 @@ def read_preset(path: str | Path) -> dict:
         what = kinds.get(type(doc), "an object whose 'edits' is not a list")
         raise ValueError(f"preset {path} is {what}, not a deformer preset (a JSON object with 'format', "
                          f"'version' and a list of 'edits', as the window's S key saves)")
+    if doc.get("format") != PRESET_FORMAT:
+        raise ValueError(f"preset {path} is a JSON object without \"format\": \"{PRESET_FORMAT}\", not a deformer "
+                         f"preset (a JSON object with 'format', 'version' and a list of 'edits', as the window's "
+                         f"S key saves)")
+    try:
+        validate_preset(doc)
+    except DeformerError as exc:
+        raise ValueError(f"preset {path}: {exc}") from None
     return doc
 
 
@@ -205,6 +214,7 @@ class Pipeline:
         self.displacements: dict[int, np.ndarray | None] = {}  # face key -> (V, 3) mm, solved once per face
         self.fitted_frames = 0  # frames with at least one fitted face
         self.fitted_per_face: dict[int, int] = {}
+        self.track_ids_seen: set[int] = set()  # the detector's track ids (face N is track N - 1) found so far
 
     # -- set-up per frame size --------------------------------------------------------------------
     def _prepare(self, width: int, height: int) -> None:
@@ -241,6 +251,7 @@ class Pipeline:
         t0 = time.perf_counter()
         found = track_at_working_resolution(self.detector, frame_bgr, self.analysis_pixels)
         timings["landmarks"] = (time.perf_counter() - t0) * 1e3
+        self.track_ids_seen.update(f.track_id for f in found)
         if not found:
             return {}
         t0 = time.perf_counter()

@@ -260,6 +260,18 @@ def parse_edits(specs: list[str], selection) -> list[tuple[int | None, str]]:
     return out
 
 
+def missing_face(selection, track_ids: set[int], video) -> str:
+    """The sentence for ``--faces N`` on ``video`` when face N (track id N - 1) was never found
+    among the tracks ``track_ids`` found in it, naming how many were; "" when it was found or
+    ``selection`` names no one face ("all", "largest")."""
+    if not isinstance(selection, int) or selection - 1 in track_ids:
+        return ""
+    found = len(track_ids)
+    how = ("no face was found" if found == 0 else "only 1 face was found (face 1)" if found == 1
+           else f"only {found} faces were found (faces 1 to {found}, from the left)")
+    return f"--faces {selection}: {how} in {video}, so there is no face {selection} to fit; no output written"
+
+
 def _calibrate(pipeline, args, total, fps: float, stop, presets) -> None:
     """First pass: the person's neutral from the first frames, then the edit solved on it once."""
     calib = open_input(args.input)
@@ -434,10 +446,11 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
         source.close()
         texture = pipeline.texture() if save_texture else None
         pipeline.close()
-    if output.frames == 0:
-        if hasattr(output, "discard"):
-            output.discard()
-        raise ValueError(f"cannot read {args.input}: it holds no frames")
+    problem = (f"cannot read {args.input}: it holds no frames" if output.frames == 0
+               else missing_face(selection, pipeline.track_ids_seen, args.input))
+    if problem:
+        getattr(output, "discard", lambda: None)()  # an image sequence has no discard: its frames stay
+        raise ValueError(problem)
     _finish(output, completed=True)
     if export is not None:
         export.write()

@@ -21,6 +21,8 @@ Optional top-level keys: ``transport: tcp`` (default ipc) with ``host: ADDRESS``
       server: graph                  # the graph's server keypair name (default graph)
       client: graph                  # the nodes' client keypair name (default: the server's)
 
+Before anything starts, every node's type, params and remaps are checked against its class
+(:mod:`facesculpt.runtime.launch_check`; ``facesculpt launch --check FILE`` checks only).
 ``facesculpt launch FILE name.param=value ...`` overrides params (``name.enabled=true|false``
 starts or leaves out an optional node; it is no param). A string param
 starting with ``./`` is a path relative to the launch file. Children are
@@ -49,11 +51,13 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
+from facesculpt.runtime.launch_check import check_nodes
 from facesculpt.runtime.master import master_address, master_alive
 from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER, EXIT_NODE_CLOSED, EXIT_STOP_GRAPH, parse_assignments
 
@@ -83,8 +87,12 @@ class NodeSpec:
     enabled: bool = True                            # false: listed but not started (NAME.enabled=true starts it)
 
 
-def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> list[NodeSpec]:
-    """Parse and validate a launch file; ``overrides`` are ``name.param=value`` strings."""
+def load_launch(path: str | os.PathLike, overrides: list[str] | None = None,
+                node_class: Callable[[str], type] | None = None, left_out: bool = False) -> list[NodeSpec]:
+    """Parse and validate a launch file; ``overrides`` are ``name.param=value`` strings. With
+    ``node_class`` (a node type -> its Node subclass, from the application), every node is also
+    checked against its class, its type, params and remaps (:mod:`.launch_check`), before anything
+    starts. Returns the nodes to start, and with ``left_out`` those listed but not enabled too."""
     path = Path(path)
     try:
         doc = yaml.safe_load(path.read_text())
@@ -144,7 +152,9 @@ def load_launch(path: str | os.PathLike, overrides: list[str] | None = None) -> 
             by_name[node_name].enabled = value.strip().lower() == "true"
             continue
         by_name[node_name].params[param] = value
-    return [spec for spec in specs if spec.enabled]
+    if node_class is not None:
+        check_nodes(path, specs, node_class)
+    return [spec for spec in specs if spec.enabled or left_out]
 
 
 def _check_node_fields(path: Path, i: int, entry: dict) -> None:

@@ -70,8 +70,8 @@ from facesculpt.runtime.process_limits import limit_threads
 from facesculpt.runtime.pubsub import Publisher, Receiver, Subscription, new_endpoint
 from facesculpt.runtime.qos import SENSOR_DATA, QoSProfile
 from facesculpt.runtime.security import SecurityError, check_exposure, insecure_allowed
+from facesculpt.runtime.topics import DIAGNOSTICS_TOPIC, check_declared
 
-DIAGNOSTICS_TOPIC = "diagnostics"
 # One log format for every process of the graph (facesculpt.cli uses it too).
 LOG_FORMAT = "%(asctime)s %(levelname).1s [%(name)s] %(message)s"
 
@@ -213,6 +213,7 @@ class Node:
 
     NAME = "node"
     PARAMS: dict[str, Any] = {}
+    TOPICS: tuple[str, ...] = ()  # topics it advertises or subscribes by name (facesculpt.runtime.topics)
     DIAGNOSTICS_PERIOD_S = 1.0
 
     def __init__(self, name: str | None = None, params: dict | None = None, remap: dict | None = None,
@@ -278,6 +279,7 @@ class Node:
         """Publish ``msg_type`` on ``topic`` (remapped), delivered as ``qos`` says
         (:mod:`facesculpt.runtime.qos`): e.g. ``LATCHED``, the master keeps the last message
         for nodes that join later; ``EVENTS``, block instead of dropping."""
+        check_declared(self, topic)
         topic = self.resolve(topic)
         pub = Publisher(self.ctx, topic, msg_type, qos=qos, endpoint=new_endpoint(self.transport, self.host),
                         on_latch=self.link.push_latched, security=self.security)
@@ -294,6 +296,7 @@ class Node:
         order, up to its depth. ``msg_type=None`` accepts any registered type. ``raw=True``
         calls ``callback(msg, frames)`` with the received frames as well (for recording).
         """
+        check_declared(self, topic)
         sub = Subscription(self.resolve(topic), msg_type, callback, qos=qos, raw=raw)
         self.subscriptions.append(sub)
         self.receiver.add(sub)
@@ -520,8 +523,11 @@ def load_node_class(spec: str, builtin: dict[str, str] | None = None) -> type[No
     target = builtin.get(spec, spec)
     module_name, sep, class_name = target.rpartition(":")
     if not sep or not module_name or not class_name:
-        known = ", ".join(sorted(builtin)) or "none"
-        raise ValueError(f"unknown node {spec!r}: give a built-in name ({known}) or module:Class")
+        import difflib
+
+        known, close = ", ".join(sorted(builtin)) or "none", difflib.get_close_matches(spec, list(builtin), n=1)
+        raise ValueError(f"unknown node {spec!r}" + (f" (did you mean {close[0]}?)" if close else "")
+                         + f": give a built-in name ({known}), module:Class or path/file.py:Class")
     if module_name.endswith(".py"):
         path = Path(module_name)
         if not path.is_file():
@@ -554,11 +560,8 @@ def params_help(cls: type[Node]) -> str:
     return "\n".join(lines)
 
 
-def run_node(cls: type[Node], argv: list[str]) -> int:
-    """Parse ``[--name N] [--remap from=to ...] [--config-json J] [param=value ...]`` and run.
-
-    A parameter the node cannot run with (:class:`ParameterError`) is reported in one sentence
-    and the exit code is :data:`EXIT_BAD_PARAMETER`, which the launcher does not respawn."""
+def node_parser(cls: type[Node]):
+    """``facesculpt run NODE``'s parser: the first line of the node's docstring, its parameters."""
     import argparse
 
     parser = argparse.ArgumentParser(prog=f"facesculpt run {cls.NAME}",
@@ -568,7 +571,15 @@ def run_node(cls: type[Node], argv: list[str]) -> int:
     parser.add_argument("--remap", action="append", default=[], metavar="FROM=TO", help="rename a topic")
     parser.add_argument("--config-json", help=argparse.SUPPRESS)  # used by `facesculpt launch`
     parser.add_argument("params", nargs="*", metavar="param=value", help="parameters (listed below)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run_node(cls: type[Node], argv: list[str]) -> int:
+    """Parse ``[--name N] [--remap from=to ...] [--config-json J] [param=value ...]`` and run.
+
+    A parameter the node cannot run with (:class:`ParameterError`) is reported in one sentence
+    and the exit code is :data:`EXIT_BAD_PARAMETER`, which the launcher does not respawn."""
+    args = node_parser(cls).parse_args(argv)
     config = json.loads(args.config_json) if args.config_json else {}
     params = dict(config.get("params", {}))
     params.update(parse_assignments(args.params))

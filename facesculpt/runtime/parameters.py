@@ -25,6 +25,8 @@ from typing import Any
 
 import yaml
 
+from facesculpt.runtime.topics import topic_problem
+
 # Exit status of a node stopped by a parameter it cannot run with.
 EXIT_BAD_PARAMETER = 2
 # Exit status of a node that ends because the user asked the whole graph to stop (the window's
@@ -49,12 +51,15 @@ class ConfigurationError(ParameterError):
 class Param:
     """One declared parameter: its default (whose type is the parameter's type), what it does
     (with its unit), and the values it may take: ``range=(lo, hi)`` inclusive for numbers
-    (``None`` on a side: unbounded), or ``choices`` for a fixed set of values."""
+    (``None`` on a side: unbounded), or ``choices`` for a fixed set of values. ``topic=True``: the
+    value names a topic the node uses (``""``: none), which a launch file may remap
+    (:mod:`facesculpt.runtime.topics`)."""
 
     default: Any
     description: str = ""
     range: tuple | None = None
     choices: tuple | None = None
+    topic: bool = False
 
     def __post_init__(self):
         if self.range is not None and self.choices is not None:
@@ -85,6 +90,8 @@ class Param:
                 return f"is out of range {self.range_text()}"
         if self.choices is not None and value not in self.choices:
             return f"is not one of {', '.join(map(str, self.choices))}"
+        if self.topic and value and topic_problem(value):
+            return "is not a topic name (words of letters, digits, _ . - joined by /, as in camera/image)"
         return ""
 
     def range_text(self) -> str:
@@ -98,6 +105,8 @@ class Param:
             text += f", range {self.range_text()}"
         if self.choices is not None:
             text += f", one of {', '.join(map(str, self.choices))}"
+        if self.topic:
+            text += ", a topic"
         return text + (f": {self.description}" if self.description else "")
 
 

@@ -52,6 +52,7 @@ class CameraNode(Node):
     """Publishes camera/image from a webcam, video, image or bag."""
 
     NAME = "camera"
+    TOPICS = ("camera/image", "camera/analysis")
     PARAMS = {
         "source": Param("0", "webcam index, video file, image file, bag:FILE, or embedded"),
         "width": Param(0, "resize to this width, px (0: keep; aspect kept if height is 0)", range=(0, 16384)),
@@ -70,7 +71,7 @@ class CameraNode(Node):
                                       "acknowledging publisher), s", range=(0.0, 3600.0)),
         "wait_for": Param("", "offline lockstep: the topic of FrameDone acknowledgements (render/done) to wait "
                               "for before sending more frames, so every frame is processed and written; "
-                              "\"\": live, at the source's pace (see pace_by)"),
+                              "\"\": live, at the source's pace (see pace_by)", topic=True),
         "max_in_flight": Param(1, "with wait_for: frames sent but not yet acknowledged (1: no latest-only "
                                   "node can skip a frame; more overlaps the stages, but a node that keeps "
                                   "only the newest frame may then skip one)", range=(1, 4)),
@@ -84,7 +85,7 @@ class CameraNode(Node):
                                         "while fewer than pace_in_flight sent frames wait for theirs, and the "
                                         "newest frame read meanwhile goes out with the next one (older ones are "
                                         "skipped); every frame goes out while nothing publishes the topic, or "
-                                        "with \"\""),
+                                        "with \"\"", topic=True),
         "pace_in_flight": Param(2, "with pace_by: frames sent but not yet acknowledged (2: the analysis of one "
                                    "overlaps the rendering of the one before)", range=(1, 8)),
         "pace_timeout_s": Param(0.5, "with pace_by: a sent frame unacknowledged after this long no longer "

@@ -47,7 +47,10 @@ SELECTED_KINDS = ("depth", "move", "axes", "pose")
 
 
 class DeformerNode(Node):
+    """Turns input/events (drags of points of the face) into face/deformation (ARAP)."""
+
     NAME = "deformer"
+    TOPICS = ("face/deformation", "face/model", "face/state", "input/events")
     PARAMS = {
         "roi_radius": Param(40.0, "default ROI of a new handle, mm on the neutral mesh", range=(0.1, 1000.0)),
         "roi_metric": Param("geodesic", "distance the ROI radius is measured in",

@@ -43,7 +43,10 @@ def valid_intrinsics(K) -> bool:
 
 
 class FitterNode(Node):
+    """Fits the face model to face/landmarks: publishes face/state, face/expression and face/model."""
+
     NAME = "fitter"
+    TOPICS = ("face/state", "face/model", "face/expression", "face/landmarks", "input/events", "camera/image")
     PARAMS = {
         "model": Param("facemesh", "\"facemesh\" (built in), or a .npz model file (facesculpt model import-eos)"),
         "iterations": Param(5, "pose / correspondence / coefficient iterations per frame (cold start)",

@@ -62,7 +62,11 @@ class _Listener:
 
 
 class FoxgloveNode(Node):
+    """Serves the running graph to Foxglove over its WebSocket protocol (images, landmarks, 3D scene)."""
+
     NAME = "foxglove"
+    TOPICS = ("input/events", "camera/image", "render/image", "face/landmarks", "face/state", "face/model",
+              "face/deformation")
     PARAMS = {
         "port": Param(8765, "TCP port of the Foxglove WebSocket server (0: any free port)", range=(0, 65535)),
         "host": Param("127.0.0.1", "address the server binds; not loopback needs FACESCULPT_INSECURE=1"),

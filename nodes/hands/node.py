@@ -20,6 +20,7 @@ class HandsNode(Node):
     """Publishes hands/landmarks for every camera/image (latest-only)."""
 
     NAME = "hands"
+    TOPICS = ("hands/landmarks", "camera/image")
     PARAMS = {
         "models_dir": Param("", "directory filled by `facesculpt setup` (\"\": FACESCULPT_HOME / cache)"),
         "threads": Param(1, "onnxruntime intra-op threads per network (0: onnxruntime's default)", range=(0, 64)),

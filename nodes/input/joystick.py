@@ -130,6 +130,7 @@ class JoystickNode(Node):
     """Serial joystick: `X Y Z BUTTONS` lines -> input/events (move, press, release, reset)."""
 
     NAME = "joystick"
+    TOPICS = ("input/events", "face/model", "face/state")
     PARAMS = {
         "port": Param("", "device path or pyserial URL (loop://, socket://host:port, rfc2217://host:port)"),
         "baudrate": Param(115200, "serial speed, bit/s", range=(50, 4000000)),

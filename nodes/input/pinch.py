@@ -22,6 +22,7 @@ class PinchNode(Node):
     """Publishes press / drag / depth / release on input/events from hands/landmarks."""
 
     NAME = "pinch"
+    TOPICS = ("input/events", "hands/landmarks")
     PARAMS = {
         "close_ratio": Param(0.25, "thumb-index tip distance / hand size below which a pinch closes",
                              range=(0.01, 2.0)),

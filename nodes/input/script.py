@@ -30,6 +30,7 @@ class ScriptNode(Node):
     """Plays a YAML gesture script as input/events."""
 
     NAME = "script"
+    TOPICS = ("input/events", "face/state", "face/model")
     PARAMS = {
         "script": Param("", "path of the gesture script (YAML)"),
         "loop": Param(False, "start again when it ends (end the script with `command: reset` to undo each pass)"),

@@ -26,6 +26,7 @@ class LandmarksNode(Node):
     """Publishes face/landmarks for every camera/image (latest-only)."""
 
     NAME = "landmarks"
+    TOPICS = ("face/landmarks",)
     PARAMS = {
         "models_dir": Param("", "directory filled by `facesculpt setup` (\"\": FACESCULPT_HOME / cache)"),
         "threads": Param(1, "onnxruntime intra-op threads per network (0: onnxruntime's default)", range=(0, 64)),
@@ -37,7 +38,7 @@ class LandmarksNode(Node):
         "redetect_interval": Param(15, "frames between detector runs while fewer than max_faces are tracked",
                                    range=(1, 1000)),
         "image_topic": Param("camera/image", "the frames to track: camera/image, or camera/analysis (a halved "
-                                             "copy the camera sends with analysis_pixels set)"),
+                                             "copy the camera sends with analysis_pixels set)", topic=True),
         "max_pixels": Param(ANALYSIS_PIXELS, "track a larger frame on a copy halved until it holds at most this "
                                              "many pixels (0: the frame as it comes)", range=(0, None)),
         "track": Param(True, "track faces from frame to frame (false: run the detector on every frame)"),

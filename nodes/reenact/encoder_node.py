@@ -36,6 +36,7 @@ class EncoderNode(Node):
     """Publishes coding/key and coding/frame (see the module docstring)."""
 
     NAME = "encoder"
+    TOPICS = ("coding/key", "coding/basis", "coding/frame", "face/model", "camera/image", "face/state")
     PARAMS = {
         "components": Param(12, "expression coefficients per frame (one byte each)", range=(1, 64)),
         "learn_frames": Param(90, "frames with a face the expression basis is learnt from before the key is sent",

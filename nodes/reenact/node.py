@@ -24,6 +24,7 @@ class ReenactNode(Node):
     """Publishes face/deformation = the driver's expression displacement (see the module docstring)."""
 
     NAME = "reenact"
+    TOPICS = ("face/deformation", "driver/model", "driver/state")
     PARAMS = {
         "gain": Param(1.0, "scale of the carried expression (0: none, 1: as the driver, up to 3)", range=(0.0, 3.0)),
     }

@@ -29,6 +29,7 @@ class DecoderNode(Node):
     """Renders coding/frame with coding/key (see the module docstring)."""
 
     NAME = "decoder"
+    TOPICS = ("render/image", "coding/key", "coding/basis", "coding/frame")
     PARAMS = {
         "window": Param(False, "show the decoded frames in a window (Q or Escape stops the graph)"),
         "output": Param("", "video file to write (\"\": none)"),

@@ -67,6 +67,8 @@ class RendererNode(Node):
     """Renders the deformed face into the video: window, video file and/or render/image."""
 
     NAME = "renderer"
+    TOPICS = ("render/image", "input/events", "render/done", "face/texture", "camera/image", "face/state",
+              "face/model", "face/deformation", "hands/landmarks")
     PARAMS = {
         "window": Param(False, "open a window (shows the result, mouse drags become input/events)"),
         "pairing": Param("latest", "frames with face states: latest (the newest state) or sync (each frame's own)",
