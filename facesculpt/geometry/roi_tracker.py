@@ -62,7 +62,7 @@ class RoiTracker:
 
     def __init__(self, options: DetectorOptions):
         self.options = options
-        self.max_tracked = max(int(options.max_tracked), 1)
+        self.max_tracked = options.max_tracked
         self.min_detection_score = float(options.min_detection_score)
         self.min_tracking_score = float(options.min_tracking_score)
         self.nms_iou = float(options.nms_iou)
@@ -71,6 +71,15 @@ class RoiTracker:
         self._next_track_id = 0
         self._frames_since_detect = 0
         self.last_ran_detector = False
+
+    @property
+    def max_tracked(self) -> int:
+        """The most objects tracked at once (at least 1; may be changed between frames)."""
+        return self._max_tracked
+
+    @max_tracked.setter
+    def max_tracked(self, value: int) -> None:
+        self._max_tracked = max(int(value), 1)
 
     # ---- the hooks a detector implements ---------------------------------------------------
     def prepare(self, image) -> np.ndarray | None:

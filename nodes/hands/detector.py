@@ -156,14 +156,7 @@ class HandDetector(RoiTracker):
         self.mirrored = bool(options.mirrored)
         self.anchors = ssd_anchors(PALM_SIZE, ANCHOR_STRIDES)
 
-    @property
-    def max_hands(self) -> int:
-        """How many hands are tracked (:attr:`max_tracked`)."""
-        return self.max_tracked
-
-    @max_hands.setter
-    def max_hands(self, value: int) -> None:
-        self.max_tracked = max(int(value), 1)
+    max_hands = RoiTracker.max_tracked  # this detector's name for it
 
     # ---- the steps the loop calls --------------------------------------------------------------
     def prepare(self, image) -> np.ndarray | None:

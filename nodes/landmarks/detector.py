@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from facesculpt.geometry.bgr_image import as_bgr_uint8
-from facesculpt.geometry.crops import crop_to_image, network_input, pixel_indices, rotated_box
+from facesculpt.geometry.crops import crop_image, crop_to_image, network_input, pixel_indices, rotated_box
 from facesculpt.geometry.detections import (
     Detection,
     decode_ssd,
@@ -50,7 +50,7 @@ from facesculpt.networks import load_networks
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Detection", "Face", "LandmarkDetector", "as_bgr_uint8", "detection_tiles", "project_points",
+__all__ = ["Detection", "Face", "LandmarkDetector", "as_bgr_uint8", "crop_image", "detection_tiles", "project_points",
            "roi_from_detection", "roi_from_points", "weighted_nms"]
 
 DETECTOR_SIZE = 128
@@ -178,14 +178,7 @@ class LandmarkDetector(RoiTracker):
         self.min_face = max(float(options.min_face), 0.0)
         self.anchors = ssd_anchors(DETECTOR_SIZE, _ANCHOR_STRIDES)
 
-    @property
-    def max_faces(self) -> int:
-        """How many faces are tracked (:attr:`max_tracked`)."""
-        return self.max_tracked
-
-    @max_faces.setter
-    def max_faces(self, value: int) -> None:
-        self.max_tracked = max(int(value), 1)
+    max_faces = RoiTracker.max_tracked  # this detector's name for it
 
     # ---- the steps the loop calls --------------------------------------------------------------
     def prepare(self, image) -> np.ndarray | None:
