@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from facesculpt.geometry.bgr_image import as_bgr_uint8
 from facesculpt.geometry.crops import crop_to_image, in_central_half, network_input
 from facesculpt.geometry.detections import Detection
-from facesculpt.geometry.detector_options import DetectorOptions
+from facesculpt.geometry.detector_options import DetectorOptions, with_values
 
 
 @dataclass
@@ -49,6 +51,8 @@ def sigmoid(logit: float) -> float:
 class RoiTracker:
     """The loop over the last crops with the detector run when needed (see the module).
 
+    Constructed with ``models_dir`` and ``options`` (None: the class's ``defaults``), and single
+    options as keyword arguments (field names, or the detector's ``aliases`` for them).
     A subclass sets ``crop_size`` (the landmark network's input side, pixels) and
     ``keep_largest`` (True: every detection is refined and the largest objects are kept, as the
     face detector does; False: detections are refined best first until ``max_tracked`` are
@@ -59,8 +63,12 @@ class RoiTracker:
 
     crop_size = 0
     keep_largest = False
+    #: The detector's own options, and its own names for some of their fields.
+    defaults = DetectorOptions()
+    aliases: dict[str, str] = {}
 
-    def __init__(self, options: DetectorOptions):
+    def __init__(self, models_dir: str | Path | None = None, options: DetectorOptions | None = None, **values):
+        options = with_values(options or self.defaults, self.aliases, {"models_dir": models_dir, **values})
         self.options = options
         self.max_tracked = options.max_tracked
         self.min_detection_score = float(options.min_detection_score)
@@ -71,6 +79,7 @@ class RoiTracker:
         self._next_track_id = 0
         self._frames_since_detect = 0
         self.last_ran_detector = False
+        self.load(options)
 
     @property
     def max_tracked(self) -> int:
@@ -82,9 +91,14 @@ class RoiTracker:
         self._max_tracked = max(int(value), 1)
 
     # ---- the hooks a detector implements ---------------------------------------------------
-    def prepare(self, image) -> np.ndarray | None:
-        """The image as (H, W, 3) uint8 BGR, or None when it cannot be one."""
+    def load(self, options: DetectorOptions) -> None:
+        """Load the networks (and keep what else the detector takes from ``options``)."""
         raise NotImplementedError
+
+    def prepare(self, image) -> np.ndarray | None:
+        """The image as (H, W, 3) uint8 BGR, or None when it cannot be one (by default
+        :func:`~facesculpt.geometry.bgr_image.as_bgr_uint8`)."""
+        return as_bgr_uint8(image)
 
     def run_detector(self, bgr: np.ndarray) -> list[Detection]:
         """Every detection in a BGR uint8 image (continuous pixels), best first."""

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -45,7 +44,7 @@ from facesculpt.geometry.crops import (
     rotated_box,
 )
 from facesculpt.geometry.detections import decode_ssd, detections_in_image, ssd_anchors
-from facesculpt.geometry.detector_options import DetectorOptions, with_values
+from facesculpt.geometry.detector_options import DetectorOptions
 from facesculpt.geometry.roi_tracker import RoiTracker, Track
 from facesculpt.networks import load_networks
 
@@ -147,19 +146,18 @@ class HandDetector(RoiTracker):
 
     crop_size = HAND_SIZE
     keep_largest = False
+    defaults, aliases = HAND_OPTIONS, HAND_ALIASES
+    max_hands = RoiTracker.max_tracked  # this detector's name for it
 
-    def __init__(self, models_dir: str | Path | None = None, options: DetectorOptions | None = None, **values):
-        options = with_values(options or HAND_OPTIONS, HAND_ALIASES, {"models_dir": models_dir, **values})
-        super().__init__(options)
+    def load(self, options: DetectorOptions) -> None:
         self.palm_net, self.hand_net = load_networks(options.models_dir, _FILES, options.backend, options.threads,
                                                      "hand")
         self.mirrored = bool(options.mirrored)
         self.anchors = ssd_anchors(PALM_SIZE, ANCHOR_STRIDES)
 
-    max_hands = RoiTracker.max_tracked  # this detector's name for it
-
     # ---- the steps the loop calls --------------------------------------------------------------
     def prepare(self, image) -> np.ndarray | None:
+        """:func:`as_bgr`: uint8 images only."""
         return as_bgr(image)
 
     def run_detector(self, bgr: np.ndarray) -> list[Palm]:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -44,7 +43,7 @@ from facesculpt.geometry.detections import (
     merged_detections,
     ssd_anchors,
 )
-from facesculpt.geometry.detector_options import DetectorOptions, with_values
+from facesculpt.geometry.detector_options import DetectorOptions
 from facesculpt.geometry.roi_tracker import RoiTracker, Track, sigmoid
 from facesculpt.networks import load_networks
 
@@ -169,21 +168,16 @@ class LandmarkDetector(RoiTracker):
 
     crop_size = MESH_SIZE
     keep_largest = True
+    defaults, aliases = FACE_OPTIONS, FACE_ALIASES
+    max_faces = RoiTracker.max_tracked  # this detector's name for it
 
-    def __init__(self, models_dir: str | Path | None = None, options: DetectorOptions | None = None, **values):
-        options = with_values(options or FACE_OPTIONS, FACE_ALIASES, {"models_dir": models_dir, **values})
-        super().__init__(options)
+    def load(self, options: DetectorOptions) -> None:
         self.detector_net, self.mesh_net = load_networks(options.models_dir, _DETECTOR_FILES, options.backend,
                                                          options.threads, "face")
         self.min_face = max(float(options.min_face), 0.0)
         self.anchors = ssd_anchors(DETECTOR_SIZE, _ANCHOR_STRIDES)
 
-    max_faces = RoiTracker.max_tracked  # this detector's name for it
-
     # ---- the steps the loop calls --------------------------------------------------------------
-    def prepare(self, image) -> np.ndarray | None:
-        return as_bgr_uint8(image)
-
     def run_detector(self, bgr: np.ndarray) -> list[Detection]:
         """All detections in a BGR uint8 image (continuous pixels), merged over tiles."""
         h, w = bgr.shape[:2]
