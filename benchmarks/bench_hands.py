@@ -15,41 +15,21 @@ difference between the runtimes as a fraction of the crop size (target <= 1e-3).
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-import time
-from pathlib import Path
 
 import cv2
 import numpy as np
+from runtime_pair import BACKENDS, report, runtime_arguments, timed
 
 from facesculpt.nodes.hands.detector import HandDetector
-from facesculpt.paths import model_home, shared_data_dir
-
-BACKENDS = ("onnxruntime", "litert")
-
-
-def timed(fn, *args) -> float:
-    t0 = time.perf_counter()
-    fn(*args)
-    return (time.perf_counter() - t0) * 1000.0
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--repeats", type=int, default=40, help="rounds over the five photos")
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--models", type=Path, default=None, help="model directory (default: model home)")
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
-    args = parser.parse_args(argv)
-
-    data = shared_data_dir()
+    args, data, models = runtime_arguments(__doc__, lambda parser: parser.add_argument(
+        "--repeats", type=int, default=40, help="rounds over the five photos"), argv)
     if data is None:
-        print("shared data not found (set FACESCULPT_DATA)", file=sys.stderr)
         return 2
     photos = [cv2.imread(str(p)) for p in sorted((data / "hands").glob("*.jpg"))]
-    models = args.models or model_home()
     detectors = {b: HandDetector(models, threads=args.threads, backend=b) for b in BACKENDS}
     trackers = {b: [HandDetector(models, threads=args.threads, backend=b) for _ in photos] for b in BACKENDS}
 
@@ -78,21 +58,13 @@ def main(argv=None) -> int:
                 times[f"palm_net/{b}"].append(timed(detectors[b].palm_net.run, x_palm))
                 times[f"hand_net/{b}"].append(timed(detectors[b].hand_net.run, x_hand))
 
-    med = {k: float(np.median(v)) for k, v in times.items()}
-    print(f"hands on the {len(photos)} shared photos ({hands} hands), {args.threads} thread(s), "
-          f"{args.repeats} rounds, median ms per call")
-    print(f"{'':28s}{'onnxruntime':>12s}{'litert':>10s}{'ratio':>8s}")
     rows = [("detection (detect)", "detect"), ("tracking (track)", "track"),
             ("  palm detector 192px", "palm_net"), ("  hand landmarks 224px", "hand_net")]
     result = {"photos": len(photos), "hands": hands, "threads": args.threads, "repeats": args.repeats,
               "max_point_difference_of_crop": agreement}
-    for label, key in rows:
-        ours, peer = med[f"{key}/onnxruntime"], med[f"{key}/litert"]
-        print(f"{label:28s}{ours:12.2f}{peer:10.2f}{ours / peer:8.2f}")
-        result[key] = {"onnxruntime_ms": ours, "litert_ms": peer, "ratio": ours / peer}
+    report(f"hands on the {len(photos)} shared photos ({hands} hands), {args.threads} thread(s), "
+           f"{args.repeats} rounds, median ms per call", rows, times, result, args.json)
     print(f"largest landmark difference between the runtimes: {agreement:.2e} of the crop size")
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=2))
     return 0
 
 

@@ -13,45 +13,30 @@ and each network alone on one input. Reported: medians (ms), the ratio onnxrunti
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+from runtime_pair import BACKENDS, report, runtime_arguments, timed
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from renderer_scene import read_frames  # noqa: E402
 
 from facesculpt.nodes.landmarks.detector import LandmarkDetector  # noqa: E402
-from facesculpt.paths import model_home, shared_data_dir  # noqa: E402
 
 PAPER_MS = 36.28
-BACKENDS = ("onnxruntime", "litert")
 
 
-def timed(fn, *args) -> float:
-    t0 = time.perf_counter()
-    fn(*args)
-    return (time.perf_counter() - t0) * 1000.0
+def _arguments(parser):
+    parser.add_argument("--video", default="s18", help="shared video name (default s18)")
+    parser.add_argument("--frames", type=int, default=120)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--video", default="s18", help="shared video name (default s18)")
-    parser.add_argument("--frames", type=int, default=120)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--models", type=Path, default=None, help="model directory (default: model home)")
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
-    args = parser.parse_args(argv)
-
-    data = shared_data_dir()
+    args, data, models = runtime_arguments(__doc__, _arguments, argv)
     if data is None:
-        print("shared data not found (set FACESCULPT_DATA)", file=sys.stderr)
         return 2
-    models = args.models or model_home()
     frames = read_frames(data, args.video, args.frames, size=(856, 480))
     trackers = {b: LandmarkDetector(models, threads=args.threads, backend=b) for b in BACKENDS}
     detectors = {b: LandmarkDetector(models, threads=args.threads, backend=b) for b in BACKENDS}
@@ -80,24 +65,16 @@ def main(argv=None) -> int:
             times[f"detector_net/{b}"].append(timed(detectors[b].detector_net.run, x_det))
             times[f"mesh_net/{b}"].append(timed(detectors[b].mesh_net.run, x_mesh))
 
-    med = {k: float(np.median(v)) for k, v in times.items()}
-    print(f"landmarks at 856x480 ({args.video}.mp4, {len(frames)} frames), {args.threads} thread(s), "
-          f"median ms per call")
-    print(f"{'':26s}{'onnxruntime':>12s}{'litert':>10s}{'ratio':>8s}")
     rows = [("detection frame (detect)", "detect"), ("tracking frame (track)", "track"),
             ("  detector network 128px", "detector_net"), ("  mesh network 192px", "mesh_net")]
     result = {"frames": len(frames), "threads": args.threads, "video": args.video, "paper_ms": PAPER_MS,
               "max_point_difference_px": agreement, "faces_tracked": tracked}
-    for label, key in rows:
-        ours, peer = med[f"{key}/onnxruntime"], med[f"{key}/litert"]
-        print(f"{label:26s}{ours:12.2f}{peer:10.2f}{ours / peer:8.2f}")
-        result[key] = {"onnxruntime_ms": ours, "litert_ms": peer, "ratio": ours / peer}
+    med = report(f"landmarks at 856x480 ({args.video}.mp4, {len(frames)} frames), {args.threads} thread(s), "
+                 f"median ms per call", rows, times, result, args.json)
     print(f"paper (landmark detection, i7-3770 + GTX TITAN): {PAPER_MS} ms; tracking frame here is "
           f"{PAPER_MS / med['track/onnxruntime']:.1f}x faster, detection frame "
           f"{PAPER_MS / med['detect/onnxruntime']:.1f}x")
     print(f"faces tracked: {tracked}; largest point difference between runtimes: {agreement:.4f} px")
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=2))
     return 0
 
 

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facesculpt.paths import MissingModelsError, model_home
+
 
 class OnnxNetwork:
     """OnnxNetwork(path, threads=1): the converted network at ``path`` (.onnx) on onnxruntime's
@@ -49,3 +51,23 @@ class LiteRtNetwork:
         self.interpreter.set_tensor(self.input_index, x)
         self.interpreter.invoke()
         return [self.interpreter.get_tensor(i).copy() for i in self.output_indices]
+
+
+def load_networks(models_dir, files: tuple[str, ...], backend: str = "onnxruntime", threads: int = 1,
+                  what: str = "face") -> list:
+    """The networks ``files`` (names ending .onnx) of ``models_dir`` (None or "": :func:`model_home`)
+    on ``backend``: "onnxruntime" (:class:`OnnxNetwork`) or "litert" (:class:`LiteRtNetwork` on
+    the .tflite of the same name). A missing file raises :class:`MissingModelsError` naming
+    `facesculpt setup` and ``what`` networks it fetches; an unknown backend ValueError."""
+    home = Path(models_dir) if models_dir else model_home()
+    ext = {"onnxruntime": ".onnx", "litert": ".tflite"}.get(backend)
+    if ext is None:
+        raise ValueError(f"unknown backend {backend!r} (onnxruntime or litert)")
+    paths = [home / name.replace(".onnx", ext) for name in files]
+    for path in paths:
+        if not path.is_file():
+            raise MissingModelsError(
+                f"{path} is missing: run `facesculpt setup` to fetch and convert the {what} networks "
+                f"(or point FACESCULPT_HOME / models_dir at the directory where it put them)")
+    network = OnnxNetwork if backend == "onnxruntime" else LiteRtNetwork
+    return [network(p, threads) for p in paths]

@@ -4,29 +4,16 @@ empty message (N = 0)."""
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
+from detector_checks import collect, empty_messages
 
-from facesculpt.msgs import HandLandmarks, Image
-from facesculpt.runtime.node import Node
-from facesculpt.runtime.qos import EVERY_MESSAGE
+from facesculpt.msgs import HandLandmarks
 
-
-def _collect(graph, models_dir, source, frames, timeout=60):
-    images, hands = {}, []
-    node = graph.node(Node(name="hands_collector"))
-    node.subscribe("camera/image", Image, lambda m: images.__setitem__(m.stamp, m.image.shape), qos=EVERY_MESSAGE)
-    node.subscribe("hands/landmarks", HandLandmarks, hands.append, qos=EVERY_MESSAGE)
-    graph.spawn("run", "hands", f"models_dir={models_dir}")
-    cam = graph.spawn("run", "camera", f"source={source}", "fps=10", f"max_frames={frames}", "wait_subscribers=2",
-                      "wait_timeout_s=30")
-    graph.spin_until(node, lambda: cam.poll() is not None and hands and hands[-1].stamp == max(images), timeout)
-    node.spin_once(0.5)
-    return images, hands
+RUN = {"node": "hands", "topic": "hands/landmarks", "msg_type": HandLandmarks, "fps": 10}
 
 
 def test_node_publishes_both_hands_with_the_source_stamp(graph, models_dir, data_dir):
-    images, hands = _collect(graph, models_dir, data_dir / "hands" / "google_sample_woman_hands.jpg", 8)
+    images, hands = collect(graph, models_dir, data_dir / "hands" / "google_sample_woman_hands.jpg", 8, **RUN)
     assert len(images) == 8 and len(hands) >= 4
     assert [m.stamp for m in hands] == sorted(m.stamp for m in hands) and {m.stamp for m in hands} <= set(images)
     for msg in hands:
@@ -40,9 +27,5 @@ def test_node_publishes_both_hands_with_the_source_stamp(graph, models_dir, data
 
 
 def test_node_publishes_an_empty_message_when_there_is_no_hand(graph, models_dir, tmp_path):
-    grey = tmp_path / "grey.png"
-    cv2.imwrite(str(grey), np.full((240, 320, 3), 127, np.uint8))
-    images, hands = _collect(graph, models_dir, grey, 4)
-    assert hands
-    for msg in hands:
-        assert msg.stamp in images and msg.points.shape == (0, 21, 3) and msg.image_size == [320, 240]
+    for msg in empty_messages(graph, models_dir, tmp_path, 4, **RUN):
+        assert msg.points.shape == (0, 21, 3)

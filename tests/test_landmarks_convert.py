@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import onnx
 import pytest
+from detector_checks import reader_matches_litert
 
 from facesculpt.app.setup_models import DOWNLOADS_DIR, WHEEL_NAME
 from facesculpt.networks import LiteRtNetwork, OnnxNetwork
@@ -61,19 +62,7 @@ def crops(models_dir, data_dir):
 
 def test_reader_sees_the_tensors_and_operators_litert_sees(models_dir):
     for name in ("face_detector", "face_landmark"):
-        path = models_dir / f"{name}.tflite"
-        graph = read_tflite(path.read_bytes())
-        interpreter = Interpreter(model_path=str(path))
-        details = interpreter.get_tensor_details()
-        assert len(details) == len(graph.tensors)
-        for d in details:
-            t = graph.tensors[d["index"]]
-            assert (t.name, t.shape) == (d["name"], tuple(int(v) for v in d["shape"]))
-        assert graph.inputs == [d["index"] for d in interpreter.get_input_details()]
-        assert graph.outputs == [d["index"] for d in interpreter.get_output_details()]
-        ops = interpreter._get_ops_details()  # the only way litert lists operators
-        assert [op.name for op in graph.operators] == [o["op_name"] for o in ops]
-        assert [op.inputs for op in graph.operators] == [list(o["inputs"]) for o in ops]
+        assert reader_matches_litert(models_dir / f"{name}.tflite", Interpreter)
 
 
 def test_reader_refuses_bytes_that_are_not_tflite():

@@ -19,6 +19,7 @@ from conftest import free_port
 
 from facesculpt.msgs import FaceLandmarks, FrameDone, Image, encode
 from facesculpt.runtime.bag import BagWriter
+from facesculpt.runtime.master import MasterClient
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVERY_MESSAGE
 
@@ -182,18 +183,23 @@ def test_replay_of_a_bag_writes_every_frame_into_the_video(data_dir, models_dir,
 def test_ctrl_c_stops_each_node_once_and_the_master_last(data_dir, models_dir, tmp_path):
     bag = tmp_path / "recording.bag"
     _write_bag(bag, _video_frames(data_dir / "video" / "d0.mp4", 60))
+    env = _graph_env(tmp_path)
     launch = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", "launch", "replay", f"camera.source=bag:{bag}",
                                f"renderer.output={tmp_path / 'out.mp4'}", "camera.fps=5"],
-                              env=_graph_env(tmp_path), cwd=tmp_path, stdout=subprocess.PIPE,
+                              env=env, cwd=tmp_path, stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(launch.stdout.readline, "")), daemon=True)
     reader.start()
+    master = MasterClient(env["FACESCULPT_MASTER"], timeout_s=1.0)
     try:
-        deadline = time.monotonic() + 60
-        while not any("in lockstep" in line for line in lines) and time.monotonic() < deadline:
+        # Every node set up and registered (the camera's "in lockstep" line comes from its own
+        # setup alone: on a slow machine the others were still loading their networks).
+        deadline = time.monotonic() + 120
+        while not set(GRAPH_NODES) <= _registered(master) and time.monotonic() < deadline:
             assert launch.poll() is None, "".join(lines)[-3000:]
             time.sleep(0.1)
+        assert set(GRAPH_NODES) <= _registered(master), "".join(lines)[-3000:]
         assert any("in lockstep" in line for line in lines), "".join(lines)[-3000:]
         time.sleep(1.0)  # frames are flowing
         children = psutil.Process(launch.pid).children(recursive=True)
@@ -204,7 +210,14 @@ def test_ctrl_c_stops_each_node_once_and_the_master_last(data_dir, models_dir, t
         gone, alive = psutil.wait_procs(children, timeout=5)
         assert not alive, f"left behind: {alive}"
     finally:
+        master.close()
         if launch.poll() is None:
             os.killpg(launch.pid, signal.SIGKILL)
             launch.wait()
     _check_shutdown_log("".join(lines), stopping=GRAPH_NODES)
+
+
+def _registered(master: MasterClient) -> set[str]:
+    """The names of the nodes registered with the master now (none while it does not answer)."""
+    answer = master.request("nodes")
+    return {n["node"] for n in answer[0]["nodes"]} if answer else set()

@@ -147,10 +147,16 @@ def test_a_renderer_that_falls_behind_renders_only_the_newest_frame_unless_told_
     feeder.model_pub.publish(FaceModel(stamp=1, model_id=model.model_id, vertices=model.mean.astype(np.float32),
                                        triangles=model.triangles.astype(np.int32)))
     rendered = {}
+    before: set[str] = set()  # the previous renderer's render/image and render/done endpoints
     for run, backlog in enumerate(("auto", "all")):
         renderer = graph.spawn("run", "renderer", "pairing=sync", f"backlog={backlog}", "--name", f"renderer{run}")
+        # This renderer connected both ways (the previous one's subscriptions are gone, below): it
+        # takes the frames and states, and the feeder hears its render/image and render/done.
         for pub in (feeder.image_pub, feeder.state_pub):
-            assert pub.wait_for_subscribers(1, 30.0), f"the renderer never subscribed to {pub.topic}"
+            assert pub.wait_for_subscribers(1, 60.0), f"the renderer never subscribed to {pub.topic}"
+        assert graph.spin_until(feeder, lambda: all(s.endpoints and not s.endpoints & before
+                                                    for s in feeder.subscriptions), 30.0), "renderer not heard"
+        before = set().union(*(s.endpoints for s in feeder.subscriptions))
         graph.spin_until(feeder, lambda: False, 1.0)
         feeder.rendered.clear()
         feeder.done.clear()
@@ -170,6 +176,9 @@ def test_a_renderer_that_falls_behind_renders_only_the_newest_frame_unless_told_
         assert sum(not d.rendered for d in feeder.done) == len(stamps) - len(feeder.rendered)
         renderer.terminate()
         renderer.wait(10)
+        # Until its subscriptions are gone, the next renderer's wait_for_subscribers would count them.
+        assert graph.spin_until(feeder, lambda: feeder.image_pub.subscriber_count() == 0
+                                and feeder.state_pub.subscriber_count() == 0, 30.0)
     # Live (no video file): the frames that queued up while it rendered are skipped, the newest drawn.
     assert 1 <= len(rendered["auto"]) < 12 and rendered["auto"][-1] == (0 * 100 + 12) * 40 * MS
     assert rendered["all"] == [(100 + i + 1) * 40 * MS for i in range(12)]  # backlog=all: every one, in order

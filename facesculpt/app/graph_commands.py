@@ -113,6 +113,9 @@ built-in nodes:
 
 
 def cmd_run(args) -> int:
+    from facesculpt.runtime.stop_signals import hold_stop_signals
+
+    hold_stop_signals()  # a Ctrl-C while the node's libraries load: the node stops, saying so
     from facesculpt.nodes import BUILTIN_NODES, node_class
     from facesculpt.runtime.node import run_node
 

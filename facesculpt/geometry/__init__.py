@@ -8,7 +8,9 @@
 * :mod:`.ibug68`: the 468 face-mesh points in the iBUG-68 landmark scheme;
 * :mod:`.axes_velocity`: joystick axes to a model-space velocity (and its parameters);
 * :mod:`.hand_regions`: the 21 hand joints by name, a hand's size, the region hands cover;
-* :mod:`.point_bounds`: the bounding box and the centroid of a point set.
+* :mod:`.point_bounds`: the bounding box and the centroid of a point set;
+* :mod:`.roi_tracker`, :mod:`.detector_options`: the face and hand detectors' track-and-redetect
+  loop and their options.
 
 Nodes import from here instead of from each other (docs/architecture.md "Layers").
 """

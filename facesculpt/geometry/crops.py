@@ -72,3 +72,53 @@ def crop_image(image: np.ndarray, roi: np.ndarray, size: int, border: int = cv2.
         part = small
     return cv2.warpAffine(part, matrix, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                           borderMode=border, borderValue=(0, 0, 0))
+
+
+def letterbox_roi(width: int, height: int) -> np.ndarray:
+    """The square ROI (5,) that letterboxes a whole (width, height) frame (centred, black bars)."""
+    side = float(max(width, height))
+    return np.array([width / 2.0, height / 2.0, side, side, 0.0])
+
+
+def network_input(image: np.ndarray, roi: np.ndarray, size: int, low: float = 0.0,
+                  border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
+    """A network's input (1, size, size, 3) float32 RGB with values in [low, 1]: the rotated ``roi``
+    (continuous pixels) of an (H, W, 3) uint8 BGR image, resampled by :func:`crop_image`."""
+    crop = crop_image(image, roi, size, border)
+    return (crop[:, :, ::-1].astype(np.float32) * ((1.0 - low) / 255.0) + low)[None]
+
+
+def crop_to_image(raw: np.ndarray, roi: np.ndarray, size: int) -> np.ndarray:
+    """Points (N, 3) a network gave in the pixels of a ``size`` crop of ``roi`` -> (N, 3) in image
+    pixels (continuous): x, y through the crop's rotation and scale, z scaled like x."""
+    cx, cy, w, h, angle = (float(v) for v in roi)
+    local = (raw[:, :2] / size - 0.5) * np.array([w, h])
+    xy = local @ rotation_2d(angle).T + np.array([cx, cy])
+    return np.hstack([xy, raw[:, 2:3] / size * w])
+
+
+def rotated_box(points_xy: np.ndarray, angle: float) -> tuple[np.ndarray, float, float]:
+    """The box of points (N, 2) (pixels) along axes turned by ``angle`` radians: its centre (2,)
+    in image pixels, its width and height (pixels) along those axes."""
+    rot = rotation_2d(angle)
+    local = points_xy @ rot  # coordinates along the turned x and y axes
+    lo, hi = local.min(0), local.max(0)
+    w, h = (float(v) for v in (hi - lo))
+    return rot @ ((lo + hi) / 2.0), w, h
+
+
+def in_central_half(point: np.ndarray, roi: np.ndarray) -> bool:
+    """True when ``point`` (2,) lies inside the central half (half the width and height) of the
+    rotated ``roi`` (5,), both in the same pixels."""
+    local = (np.asarray(point) - roi[:2]) @ rotation_2d(float(roi[4]))
+    return bool(np.all(np.abs(local) < roi[2:4] / 4.0))
+
+
+def pixel_indices(points: np.ndarray, roi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 3) and a ROI (5,) in continuous pixels (pixel i spans [i, i + 1]) -> float32
+    copies in pixel indices (the centre of pixel i at i): x, y and the ROI's centre less 0.5."""
+    points = points.astype(np.float32)
+    points[:, :2] -= 0.5
+    roi = roi.astype(np.float32)
+    roi[:2] -= 0.5
+    return points, roi

@@ -5,8 +5,19 @@ detector share them; each passes its own input size, strides and keypoint count)
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+
+
+@dataclass
+class Detection:
+    """A detector result in image pixels (continuous coordinates): ``box`` (4,) float32
+    [xmin, ymin, xmax, ymax], ``keypoints`` (K, 2) float32, ``score`` in [0, 1]."""
+
+    box: np.ndarray
+    keypoints: np.ndarray
+    score: float
 
 
 def ssd_anchors(size: int, strides) -> np.ndarray:
@@ -81,3 +92,19 @@ def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
         out.append(((boxes[cluster] * w[:, None]).sum(0).astype(np.float32),
                     (keypoints[cluster] * w[:, None, None]).sum(0).astype(np.float32), float(scores[i])))
     return out
+
+
+def detections_in_image(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray, x0: float, y0: float,
+                        side: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Decoded detections of a square input (normalised boxes (N, 4), keypoints (N, K, 2), scores
+    (N,), as :func:`decode_ssd` gives them) in the pixels of the image that input showed: the
+    square of ``side`` pixels whose top-left corner is (``x0``, ``y0``)."""
+    return (boxes * side + np.array([x0, y0, x0, y0], np.float32),
+            keypoints * side + np.array([x0, y0], np.float32), scores)
+
+
+def merged_detections(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
+                      iou_threshold: float = 0.3) -> list[Detection]:
+    """:func:`weighted_nms` of detections in image pixels as :class:`Detection` objects, best first."""
+    return [Detection(box=b, keypoints=k, score=sc) for b, k, sc in weighted_nms(boxes, keypoints, scores,
+                                                                                 iou_threshold)]

@@ -70,6 +70,7 @@ from facesculpt.runtime.process_limits import limit_threads
 from facesculpt.runtime.pubsub import Publisher, Receiver, Subscription, new_endpoint
 from facesculpt.runtime.qos import SENSOR_DATA, QoSProfile
 from facesculpt.runtime.security import SecurityError, check_exposure, insecure_allowed
+from facesculpt.runtime.stop_signals import held_signal
 from facesculpt.runtime.topics import DIAGNOSTICS_TOPIC, check_declared
 
 # One log format for every process of the graph (facesculpt.cli uses it too).
@@ -354,7 +355,7 @@ class Node:
         self.timer(self.DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
         self.receiver.start()
         self.link.start()
-        self.running = True
+        self.running = not self._stopped.is_set()  # a stop asked for during setup holds
 
     def spin_once(self, timeout_s: float = 0.05) -> int:
         """Run what is ready (callbacks, due timers), waiting up to ``timeout_s``. Returns callbacks run."""
@@ -460,9 +461,13 @@ class Node:
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGINT, _on_signal)
             signal.signal(signal.SIGTERM, _on_signal)
+            held = held_signal()  # one that came while the process was starting: stop before setup
+            if held is not None:
+                _on_signal(held, None)
         try:
             try:
-                self.start()
+                if not self._stopped.is_set():
+                    self.start()
             except ParameterError as exc:  # e.g. ConfigurationError from setup: one sentence, no respawn
                 print(f"facesculpt: {exc}", file=sys.stderr, flush=True)
                 return EXIT_BAD_PARAMETER

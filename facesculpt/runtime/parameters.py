@@ -18,6 +18,7 @@ which the launcher does not respawn (the same values would fail again).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from types import SimpleNamespace
@@ -113,6 +114,23 @@ class Param:
 def declared(params: dict[str, Any]) -> dict[str, Param]:
     """A node's ``PARAMS`` with plain defaults read as undescribed, unbounded :class:`Param`."""
     return {name: value if isinstance(value, Param) else Param(value) for name, value in params.items()}
+
+
+def option_params(options, fields, aliases: dict[str, str] | None = None) -> dict[str, Param]:
+    """Node parameters declared by an options dataclass (an instance, whose values are the
+    defaults): one :class:`Param` per name in ``fields``, in that order, with the description,
+    range and choices of the field's metadata (``help``, ``unit``, ``range``, ``choices``). A
+    node's own name for a field maps to the field's name through ``aliases``."""
+    aliases = aliases or {}
+    meta = {f.name: f.metadata for f in dataclasses.fields(options)}
+    out = {}
+    for name in fields:
+        field_name = aliases.get(name, name)
+        m = meta[field_name]
+        text, unit = m.get("help", ""), m.get("unit", "")
+        out[name] = Param(getattr(options, field_name), f"{text} ({unit})" if unit and unit not in text else text,
+                          range=m.get("range"), choices=m.get("choices"))
+    return out
 
 
 def default_values(params: dict[str, Any]) -> dict[str, Any]:

@@ -14,7 +14,9 @@ The pipeline follows mediapipe's hand-tracking graph, written out here:
    frame, shifted a tenth of its height towards the fingers, 2x its longer side); the palm
    detector runs again when a hand is lost (presence below ``min_tracking_score``) or, while
    fewer than ``max_hands`` are tracked, every ``redetect_interval`` frames. Two crops that
-   end on one hand become one.
+   end on one hand become one. The loop is :class:`facesculpt.geometry.roi_tracker.RoiTracker`,
+   which the face detector shares, and the options
+   :class:`~facesculpt.geometry.detector_options.DetectorOptions` (:data:`HAND_OPTIONS`).
 
 Handedness: the network was trained on mirrored (selfie) images; :class:`Hand` reports the
 person's own hand in the image as given (``mirrored=False``, a camera that does not flip), or
@@ -26,18 +28,39 @@ crops use continuous coordinates internally (pixel i spans [i, i + 1]).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from facesculpt.geometry.crops import crop_image, rotation_2d
-from facesculpt.geometry.detections import decode_ssd, ssd_anchors
-from facesculpt.networks import LiteRtNetwork, OnnxNetwork
-from facesculpt.paths import MissingModelsError, model_home
+from facesculpt.geometry.bgr_image import as_bgr_uint8
+from facesculpt.geometry.crops import (
+    crop_image,
+    crop_to_image,
+    letterbox_roi,
+    network_input,
+    pixel_indices,
+    rotated_box,
+)
+from facesculpt.geometry.detections import decode_ssd, detections_in_image, ssd_anchors
+from facesculpt.geometry.detector_options import DetectorOptions
+from facesculpt.geometry.roi_tracker import RoiTracker, Track
+from facesculpt.networks import load_networks
 
-from .palm import ANCHOR_STRIDES, NUM_PALM_KEYPOINTS, PALM_SIZE, roi_from_palm, transform_roi, up_angle, weighted_nms
+from .palm import (
+    ANCHOR_STRIDES,
+    NUM_PALM_KEYPOINTS,
+    PALM_SIZE,
+    Palm,
+    roi_from_palm,
+    transform_roi,
+    up_angle,
+    weighted_nms,
+)
+
+__all__ = ["HAND_OPTIONS", "Hand", "HandDetector", "as_bgr", "crop_image", "letterbox_roi", "palm_centre",
+           "project_hand", "roi_from_hand"]
 
 HAND_SIZE = 224
 NUM_HAND_POINTS = 21
@@ -47,6 +70,10 @@ _ROI_JOINTS = (0, 1, 2, 3, 5, 6, 9, 10, 13, 14, 17, 18)
 WRIST, INDEX_MCP, MIDDLE_MCP, RING_MCP = 0, 5, 9, 13
 _TRACK_ROI_SCALE, _TRACK_ROI_SHIFT_Y = 2.0, -0.1
 _FILES = ("palm_detector.onnx", "hand_landmark.onnx")
+#: The hands detector's options: :class:`DetectorOptions` with two hands, the palm detector every
+#: 10 frames while fewer are tracked (``max_hands`` is ``max_tracked``).
+HAND_OPTIONS = DetectorOptions(max_tracked=2, redetect_interval=10)
+HAND_ALIASES = {"max_hands": "max_tracked"}
 
 
 @dataclass
@@ -73,18 +100,9 @@ class Hand:
 # ---------------------------------------------------------------------------------------------
 # Crops
 # ---------------------------------------------------------------------------------------------
-def letterbox_roi(width: int, height: int) -> np.ndarray:
-    """The square ROI that letterboxes a whole (width, height) frame (centred, black bars)."""
-    side = float(max(width, height))
-    return np.array([width / 2.0, height / 2.0, side, side, 0.0])
-
-
 def project_hand(raw: np.ndarray, roi: np.ndarray, size: int = HAND_SIZE) -> np.ndarray:
     """Network points (21, 3) in crop pixels -> (21, 3) image pixels (continuous; z scaled like x)."""
-    cx, cy, w, h, angle = (float(v) for v in roi)
-    local = (raw[:, :2] / size - 0.5) * np.array([w, h])
-    xy = local @ rotation_2d(angle).T + np.array([cx, cy])
-    return np.hstack([xy, raw[:, 2:3] / size * w])
+    return crop_to_image(raw, roi, size)
 
 
 def roi_from_hand(points_xy: np.ndarray) -> np.ndarray:
@@ -92,11 +110,7 @@ def roi_from_hand(points_xy: np.ndarray) -> np.ndarray:
     knuckles = (points_xy[INDEX_MCP] + points_xy[RING_MCP]) / 2.0
     knuckles = (knuckles + points_xy[MIDDLE_MCP]) / 2.0
     angle = up_angle(points_xy[WRIST], knuckles)
-    rot = rotation_2d(angle)
-    local = points_xy[list(_ROI_JOINTS)] @ rot  # along the crop's x and y axes
-    lo, hi = local.min(0), local.max(0)
-    centre = rot @ ((lo + hi) / 2.0)
-    w, h = (float(v) for v in (hi - lo))
+    centre, w, h = rotated_box(points_xy[list(_ROI_JOINTS)], angle)
     return transform_roi(centre, w, h, angle, _TRACK_ROI_SCALE, _TRACK_ROI_SHIFT_Y)
 
 
@@ -107,184 +121,99 @@ def palm_centre(points_xy: np.ndarray) -> np.ndarray:
 
 def as_bgr(image) -> np.ndarray | None:
     """(H, W, 3) uint8 BGR from a BGR, BGRA or grey uint8 image; None for anything else."""
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.size == 0:
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8:
         return None
-    if image.ndim == 2:
-        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    if image.ndim == 3 and image.shape[2] in (3, 4):
-        return np.ascontiguousarray(image[:, :, :3])
-    return None
+    return as_bgr_uint8(image)
 
 
-@dataclass
-class _Track:
-    """A tracked hand, continuous coordinates."""
+class HandDetector(RoiTracker):
+    """Palm detector + 21-point hand landmarks with ROI tracking (:class:`RoiTracker`), up to
+    ``max_hands`` hands.
 
-    crop_roi: np.ndarray
-    points: np.ndarray
-    score: float
-    right: float
-    next_roi: np.ndarray
-    track_id: int = -1
-
-
-class HandDetector:
-    """Palm detector + 21-point hand landmarks with ROI tracking, up to ``max_hands`` hands.
-
-    models_dir: the directory `facesculpt setup` filled (default :func:`model_home`); a missing
-    file raises :class:`MissingModelsError` naming `facesculpt setup`. threads: onnxruntime
-    intra-op threads. min_detection_score: palm score threshold; min_tracking_score: hand
-    presence below which a hand counts as lost; nms_iou: palm NMS overlap;
-    redetect_interval: frames between palm-detector runs while fewer than ``max_hands`` are
-    tracked; mirrored: the images are mirrored (a selfie view), for handedness; backend:
-    "onnxruntime" (the converted networks) or "litert" (the original .tflite ones, a reference).
+    Options (:class:`DetectorOptions`; ``options`` replaces :data:`HAND_OPTIONS`, keyword
+    arguments replace single fields; ``max_hands`` is ``max_tracked``): models_dir, the directory
+    `facesculpt setup` filled (default :func:`model_home`; a missing file raises
+    :class:`MissingModelsError` naming `facesculpt setup`); threads, onnxruntime intra-op threads;
+    min_detection_score, palm score threshold; min_tracking_score, hand presence below which a
+    hand counts as lost; nms_iou, palm NMS overlap; redetect_interval, frames between
+    palm-detector runs while fewer than ``max_hands`` are tracked; mirrored, the images are
+    mirrored (a selfie view), for handedness; backend, "onnxruntime" (the converted networks) or
+    "litert" (the original .tflite ones, a reference).
 
     ``detect(image)`` always runs the palm detector; ``track(image)`` reuses the last crops.
     Both return a list of :class:`Hand` (empty when none) and never raise on bad images.
     """
 
-    def __init__(self, models_dir: str | Path | None = None, threads: int = 1, max_hands: int = 2,
-                 min_detection_score: float = 0.5, min_tracking_score: float = 0.5, nms_iou: float = 0.3,
-                 redetect_interval: int = 10, mirrored: bool = False, backend: str = "onnxruntime"):
-        home = Path(models_dir) if models_dir is not None else model_home()
-        ext = {"onnxruntime": ".onnx", "litert": ".tflite"}.get(backend)
-        if ext is None:
-            raise ValueError(f"unknown backend {backend!r} (onnxruntime or litert)")
-        paths = [home / name.replace(".onnx", ext) for name in _FILES]
-        for path in paths:
-            if not path.is_file():
-                raise MissingModelsError(
-                    f"{path} is missing: run `facesculpt setup` to fetch and convert the hand networks "
-                    f"(or point FACESCULPT_HOME / models_dir at the directory where it put them)")
-        network = OnnxNetwork if backend == "onnxruntime" else LiteRtNetwork
-        self.palm_net, self.hand_net = (network(p, threads) for p in paths)
-        self.max_hands = max(int(max_hands), 1)
-        self.min_detection_score = float(min_detection_score)
-        self.min_tracking_score = float(min_tracking_score)
-        self.nms_iou = float(nms_iou)
-        self.redetect_interval = max(int(redetect_interval), 1)
-        self.mirrored = bool(mirrored)
+    crop_size = HAND_SIZE
+    keep_largest = False
+    defaults, aliases = HAND_OPTIONS, HAND_ALIASES
+    max_hands = RoiTracker.max_tracked  # this detector's name for it
+
+    def load(self, options: DetectorOptions) -> None:
+        self.palm_net, self.hand_net = load_networks(options.models_dir, _FILES, options.backend, options.threads,
+                                                     "hand")
+        self.mirrored = bool(options.mirrored)
         self.anchors = ssd_anchors(PALM_SIZE, ANCHOR_STRIDES)
-        self._tracks: list[_Track] = []
-        self._next_track_id = 0
-        self._frames_since_detect = 0
-        self.last_ran_detector = False
 
-    def reset(self) -> None:
-        """Forget the tracked hands; track ids start again from 0."""
-        self._tracks = []
-        self._next_track_id = 0
+    # ---- the steps the loop calls --------------------------------------------------------------
+    def prepare(self, image) -> np.ndarray | None:
+        """:func:`as_bgr`: uint8 images only."""
+        return as_bgr(image)
 
-    def detect(self, image) -> list[Hand]:
-        """Run the palm detector, then the landmarks on each hand found (a still image)."""
-        bgr = as_bgr(image)
-        if bgr is None:
-            self._tracks = []
-            return []
-        self._next_track_id = 0
-        self._tracks = self._detect_tracks(bgr, [])
-        self._frames_since_detect = 0
-        self.last_ran_detector = True
-        return self._hands()
-
-    def track(self, image) -> list[Hand]:
-        """Landmarks from the last crops; the palm detector reruns when a hand is lost or, while
-        fewer than ``max_hands`` are tracked, every ``redetect_interval`` frames."""
-        bgr = as_bgr(image)
-        if bgr is None:
-            self._tracks = []
-            return []
-        self.last_ran_detector = False
-        tracks: list[_Track] = []
-        for old in self._tracks:
-            track = self._refine(bgr, old.next_roi)
-            if track is not None and not any(_same_hand(track, t) for t in tracks):
-                track.track_id = old.track_id
-                tracks.append(track)
-        lost = len(tracks) < len(self._tracks)
-        self._frames_since_detect += 1
-        if not tracks or lost or (len(tracks) < self.max_hands
-                                  and self._frames_since_detect >= self.redetect_interval):
-            tracks = self._detect_tracks(bgr, tracks)
-            self._frames_since_detect = 0
-            self.last_ran_detector = True
-        self._tracks = tracks
-        return self._hands()
-
-    # ---- steps ---------------------------------------------------------------------------
-    def run_palm_detector(self, bgr: np.ndarray) -> list:
+    def run_detector(self, bgr: np.ndarray) -> list[Palm]:
         """Every palm in a BGR uint8 image (continuous pixels), best first."""
         h, w = bgr.shape[:2]
         roi = letterbox_roi(w, h)
-        patch = crop_image(bgr, roi, PALM_SIZE, cv2.BORDER_CONSTANT)
-        x = (patch[:, :, ::-1].astype(np.float32) * (1.0 / 255.0))[None]
+        x = network_input(bgr, roi, PALM_SIZE, border=cv2.BORDER_CONSTANT)
         raw_boxes, raw_scores = self.palm_net.run(x)
         boxes, keypoints, scores = decode_ssd(raw_boxes[0], raw_scores[0, :, 0], self.anchors, PALM_SIZE,
                                              NUM_PALM_KEYPOINTS, self.min_detection_score)
         if not len(scores):
             return []
-        x0, y0, side = roi[0] - roi[2] / 2.0, roi[1] - roi[3] / 2.0, roi[2]
-        boxes = boxes * side + np.array([x0, y0, x0, y0], np.float32)
-        keypoints = keypoints * side + np.array([x0, y0], np.float32)
-        return weighted_nms(boxes, keypoints, scores, self.nms_iou)
+        detections = detections_in_image(boxes, keypoints, scores, roi[0] - roi[2] / 2.0, roi[1] - roi[3] / 2.0,
+                                         roi[2])
+        return weighted_nms(*detections, self.nms_iou)
 
-    def _refine(self, bgr: np.ndarray, roi: np.ndarray) -> _Track | None:
-        """Landmarks on one crop; None when the hand presence is below ``min_tracking_score``."""
-        if not (np.all(np.isfinite(roi)) and roi[2] >= 4.0):
-            return None
-        crop = crop_image(bgr, roi, HAND_SIZE)
-        x = (crop[:, :, ::-1].astype(np.float32) * (1.0 / 255.0))[None]
+    def run_palm_detector(self, bgr: np.ndarray) -> list[Palm]:
+        """Deprecated name of :meth:`run_detector` (warns once)."""
+        global _WARNED_PALM
+        if not _WARNED_PALM:
+            _WARNED_PALM = True
+            warnings.warn("HandDetector.run_palm_detector is deprecated: call run_detector",
+                          DeprecationWarning, stacklevel=2)
+        return self.run_detector(bgr)
+
+    def detection_roi(self, detection: Palm) -> np.ndarray:
+        return roi_from_palm(detection)
+
+    def run_landmarks(self, x: np.ndarray) -> tuple[np.ndarray, float, float]:
         raw_points, presence, handedness, _world = self.hand_net.run(x)
-        score = float(presence.reshape(-1)[0])
-        if score < self.min_tracking_score:
-            return None
-        points = project_hand(raw_points.reshape(NUM_HAND_POINTS, 3).astype(np.float64), roi)
         # The network's handedness score is mediapipe's "Left" in a mirrored (selfie) view, which
         # is the person's right hand in the image as the camera saw it.
         right = float(handedness.reshape(-1)[0])
         right = 1.0 - right if self.mirrored else right
-        return _Track(crop_roi=roi, points=points, score=score, right=right, next_roi=roi_from_hand(points[:, :2]))
+        return raw_points.reshape(NUM_HAND_POINTS, 3).astype(np.float64), float(presence.reshape(-1)[0]), right
 
-    def _detect_tracks(self, bgr: np.ndarray, tracks: list[_Track]) -> list[_Track]:
-        """Add hands from the palm detector to the tracked ones, up to ``max_hands``."""
-        found: list[_Track] = []
-        for palm in self.run_palm_detector(bgr):
-            if len(tracks) + len(found) >= self.max_hands:
-                break
-            roi = roi_from_palm(palm)
-            if any(_inside(palm_centre(t.points[:, :2]), roi) for t in tracks + found):
-                continue
-            track = self._refine(bgr, roi)
-            if track is not None:
-                # Refined once more from its own points: palm boxes are coarse, and a still
-                # image has no next frame to correct the crop.
-                track = self._refine(bgr, track.next_roi) or track
-            if track is not None and not any(_same_hand(track, t) for t in tracks + found):
-                found.append(track)
-        for track in sorted(found, key=lambda t: t.next_roi[0]):  # new hands numbered left to right
-            track.track_id = self._next_track_id
-            self._next_track_id += 1
-        return tracks + found
+    def landmarks_roi(self, points_xy: np.ndarray) -> np.ndarray:
+        return roi_from_hand(points_xy)
 
-    def _hands(self) -> list[Hand]:
+    def anchor(self, points: np.ndarray) -> np.ndarray:
+        """The palm's centre (:func:`palm_centre`)."""
+        return palm_centre(points[:, :2])
+
+    def same(self, a: Track, b: Track) -> bool:
+        """Two tracks on one hand: palm centres closer than half the larger palm (wrist -> middle knuckle)."""
+        pa, pb = a.points[:, :2], b.points[:, :2]
+        palm = max(np.linalg.norm(pa[MIDDLE_MCP] - pa[WRIST]), np.linalg.norm(pb[MIDDLE_MCP] - pb[WRIST]))
+        return bool(np.linalg.norm(palm_centre(pa) - palm_centre(pb)) < 0.5 * palm)
+
+    def results(self) -> list[Hand]:
+        """The tracked hands in track-id order, in pixel indices."""
         out = []
         for t in sorted(self._tracks, key=lambda t: t.track_id):
-            points = t.points.astype(np.float32)
-            points[:, :2] -= 0.5
-            roi = t.crop_roi.astype(np.float32)
-            roi[:2] -= 0.5
-            out.append(Hand(points=points, score=t.score, right=t.right, roi=roi, track_id=t.track_id))
+            points, roi = pixel_indices(t.points, t.crop_roi)
+            out.append(Hand(points=points, score=t.score, right=t.label, roi=roi, track_id=t.track_id))
         return out
 
 
-def _inside(point: np.ndarray, roi: np.ndarray) -> bool:
-    """True when ``point`` lies inside the central half of the rotated ``roi``."""
-    local = (point - roi[:2]) @ rotation_2d(float(roi[4]))
-    return bool(np.all(np.abs(local) < roi[2:4] / 4.0))
-
-
-def _same_hand(a: _Track, b: _Track) -> bool:
-    """Two tracks on one hand: palm centres closer than half the larger palm (wrist -> middle knuckle)."""
-    pa, pb = a.points[:, :2], b.points[:, :2]
-    palm = max(np.linalg.norm(pa[MIDDLE_MCP] - pa[WRIST]), np.linalg.norm(pb[MIDDLE_MCP] - pb[WRIST]))
-    return bool(np.linalg.norm(palm_centre(pa) - palm_centre(pb)) < 0.5 * palm)
+_WARNED_PALM = False

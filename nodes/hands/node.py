@@ -11,9 +11,13 @@ import numpy as np
 
 from facesculpt.msgs import HandLandmarks, Image
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import Param
+from facesculpt.runtime.parameters import Param, option_params
 
-from .detector import NUM_HAND_POINTS, HandDetector
+from .detector import HAND_ALIASES, HAND_OPTIONS, NUM_HAND_POINTS, HandDetector
+
+# The detector's options the node declares as parameters (their defaults, ranges and help: HAND_OPTIONS).
+DETECTOR_PARAMS = ("models_dir", "threads", "max_hands", "min_detection_score", "min_tracking_score",
+                   "redetect_interval", "mirrored")
 
 
 class HandsNode(Node):
@@ -22,24 +26,13 @@ class HandsNode(Node):
     NAME = "hands"
     TOPICS = ("hands/landmarks", "camera/image")
     PARAMS = {
-        "models_dir": Param("", "directory filled by `facesculpt setup` (\"\": FACESCULPT_HOME / cache)"),
-        "threads": Param(1, "onnxruntime intra-op threads per network (0: onnxruntime's default)", range=(0, 64)),
-        "max_hands": Param(2, "hands tracked", range=(1, 4)),
-        "min_detection_score": Param(0.5, "palm detector score threshold", range=(0.0, 1.0)),
-        "min_tracking_score": Param(0.5, "hand-presence score below which the palm detector reruns",
-                                    range=(0.0, 1.0)),
-        "redetect_interval": Param(10, "frames between palm-detector runs while fewer than max_hands are tracked",
-                                   range=(1, 1000)),
-        "mirrored": Param(False, "the camera image is mirrored (a selfie view): swaps handedness"),
+        **option_params(HAND_OPTIONS, DETECTOR_PARAMS, HAND_ALIASES),
         "track": Param(True, "track hands from frame to frame (false: run the palm detector on every frame)"),
     }
 
     def setup(self):
         p = self.params
-        self.detector = HandDetector(
-            models_dir=p.models_dir or None, threads=p.threads, max_hands=p.max_hands,
-            min_detection_score=p.min_detection_score, min_tracking_score=p.min_tracking_score,
-            redetect_interval=p.redetect_interval, mirrored=p.mirrored)
+        self.detector = HandDetector(**{name: getattr(p, name) for name in DETECTOR_PARAMS})
         self.pub = self.advertise("hands/landmarks", HandLandmarks)
         self.subscribe("camera/image", Image, self.on_image)
         self.log.info("hand networks loaded (threads=%d, max_hands=%d)", p.threads, p.max_hands)

@@ -15,11 +15,10 @@ the box's longer side. Coordinates are continuous image pixels (pixel i spans [i
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from facesculpt.geometry.detections import weighted_nms as nms
+from facesculpt.geometry.detections import Detection, merged_detections
 
 PALM_SIZE = 192
 NUM_PALM_KEYPOINTS = 7
@@ -29,20 +28,15 @@ PALM_ROI_SCALE = 2.6
 PALM_ROI_SHIFT_Y = -0.5
 
 
-@dataclass
-class Palm:
-    """A palm detection in image pixels (continuous): ``box`` (4,) [xmin, ymin, xmax, ymax],
-    ``keypoints`` (7, 2), ``score`` in [0, 1]."""
-
-    box: np.ndarray
-    keypoints: np.ndarray
-    score: float
+#: A palm detection in image pixels (continuous): ``box`` (4,) [xmin, ymin, xmax, ymax],
+#: ``keypoints`` (7, 2), ``score`` in [0, 1].
+Palm = Detection
 
 
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
                  iou_threshold: float = 0.3) -> list[Palm]:
-    """:func:`facesculpt.geometry.detections.weighted_nms` as :class:`Palm` objects, best first."""
-    return [Palm(box=b, keypoints=k, score=sc) for b, k, sc in nms(boxes, keypoints, scores, iou_threshold)]
+    """:func:`facesculpt.geometry.detections.merged_detections`: weighted NMS as :class:`Palm` objects."""
+    return merged_detections(boxes, keypoints, scores, iou_threshold)
 
 
 def up_angle(base: np.ndarray, tip: np.ndarray) -> float:

@@ -16,10 +16,14 @@ import numpy as np
 from facesculpt.geometry.halving import frame_intrinsics, halve, halvings
 from facesculpt.msgs import FaceLandmarks, Image
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import Param
+from facesculpt.runtime.parameters import Param, option_params
 
-from .detector import NUM_POINTS, LandmarkDetector
+from .detector import FACE_ALIASES, FACE_OPTIONS, NUM_POINTS, LandmarkDetector
 from .working_resolution import ANALYSIS_PIXELS, to_full_resolution
+
+# The detector's options the node declares as parameters (their defaults, ranges and help: FACE_OPTIONS).
+DETECTOR_PARAMS = ("models_dir", "threads", "max_faces", "min_detection_score", "min_tracking_score", "min_face",
+                   "redetect_interval")
 
 
 class LandmarksNode(Node):
@@ -28,15 +32,7 @@ class LandmarksNode(Node):
     NAME = "landmarks"
     TOPICS = ("face/landmarks",)
     PARAMS = {
-        "models_dir": Param("", "directory filled by `facesculpt setup` (\"\": FACESCULPT_HOME / cache)"),
-        "threads": Param(1, "onnxruntime intra-op threads per network (0: onnxruntime's default)", range=(0, 64)),
-        "max_faces": Param(1, "faces tracked, largest first", range=(1, 16)),
-        "min_detection_score": Param(0.5, "detector score threshold", range=(0.0, 1.0)),
-        "min_tracking_score": Param(0.5, "face-presence score below which the detector reruns", range=(0.0, 1.0)),
-        "min_face": Param(0.15, "smallest face to detect, fraction of the short image side (0: whole image only)",
-                          range=(0.0, 1.0)),
-        "redetect_interval": Param(15, "frames between detector runs while fewer than max_faces are tracked",
-                                   range=(1, 1000)),
+        **option_params(FACE_OPTIONS, DETECTOR_PARAMS, FACE_ALIASES),
         "image_topic": Param("camera/image", "the frames to track: camera/image, or camera/analysis (a halved "
                                              "copy the camera sends with analysis_pixels set)", topic=True),
         "max_pixels": Param(ANALYSIS_PIXELS, "track a larger frame on a copy halved until it holds at most this "
@@ -46,10 +42,7 @@ class LandmarksNode(Node):
 
     def setup(self):
         p = self.params
-        self.detector = LandmarkDetector(
-            models_dir=p.models_dir or None, threads=p.threads, max_faces=p.max_faces,
-            min_detection_score=p.min_detection_score, min_tracking_score=p.min_tracking_score,
-            min_face=p.min_face, redetect_interval=p.redetect_interval)
+        self.detector = LandmarkDetector(**{name: getattr(p, name) for name in DETECTOR_PARAMS})
         self.pub = self.advertise("face/landmarks", FaceLandmarks)
         self.scale = None  # (this node's halvings, the camera's): a change restarts tracking
         self.subscribe(p.image_topic, Image, self.on_image)
