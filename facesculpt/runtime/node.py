@@ -37,6 +37,7 @@ Example (a complete custom node)::
 from __future__ import annotations
 
 import contextlib
+import difflib
 import importlib
 import importlib.util
 import json
@@ -528,8 +529,6 @@ def load_node_class(spec: str, builtin: dict[str, str] | None = None) -> type[No
     target = builtin.get(spec, spec)
     module_name, sep, class_name = target.rpartition(":")
     if not sep or not module_name or not class_name:
-        import difflib
-
         known, close = ", ".join(sorted(builtin)) or "none", difflib.get_close_matches(spec, list(builtin), n=1)
         raise ValueError(f"unknown node {spec!r}" + (f" (did you mean {close[0]}?)" if close else "")
                          + f": give a built-in name ({known}), module:Class or path/file.py:Class")
