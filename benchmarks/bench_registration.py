@@ -1,0 +1,266 @@
+"""Registration of the landmark network's points on the model (issue 46): the diagnosis, and the
+fitted head's rotation with and without a calibration.
+
+    python benchmarks/bench_registration.py [--frames 90] [--out DIR] [--models sfm,facemesh]
+
+The realism benchmark's synthetic scene (:mod:`realism.scene`: the Surrey Face Model with a random
+identity, textured from a real face, turning yaw ±25°, pitch ±10°) is rendered with its true pose
+and vertices, and the project's landmark network is run on every frame. Reported
+(:mod:`realism.registration`):
+
+* per inner iBUG point (18-68, the SFM's landmark vertices): the image offset of the network's
+  point from the true head's vertex, regressed on sin(yaw) and sin(pitch) (px per unit sine, and
+  the share of its variance the pose explains);
+* the implied 3D offset of each point (the model-space point that explains its image positions
+  at the true pose) and of all 468 network points from the true surface;
+* how much of the error one global parameter explains (the face flattened along its depth: the
+  image signature of a head turned less than the truth) against a fixed 3D offset per point;
+* the network's own 3D points' rotation against the truth (slope of yaw and pitch), and the depth
+  scale that makes it right;
+* the fitted head's rotation error (``Pipeline.fit_frame``, default settings, as ``process`` fits)
+  for each model: mean angle, mean after the constant offset between the model's head frame and
+  the truth's is removed, the correlation of the pitch error with the pitch, and (SFM) the inner
+  and outline vertices' image error.
+
+Writes ``registration.json`` and ``registration.md`` to ``--out`` and prints the tables. Needs the
+shared data (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_appearance import OUTLINE_PX, silhouette_distance  # noqa: E402
+from realism import registration as reg  # noqa: E402
+from realism.landmark_oracle import INNER  # noqa: E402
+from realism.posed import render_all  # noqa: E402
+from realism.raster import project_pixels  # noqa: E402
+from realism.scene import FOV_DEG, make_scene  # noqa: E402
+
+from facesculpt.geometry.head_angles import euler_from_rotation  # noqa: E402
+from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH, IBUG68_GROUPS  # noqa: E402
+from facesculpt.paths import shared_data_dir  # noqa: E402
+
+GROUPS = ("right_eyebrow", "left_eyebrow", "nose_bridge", "nose_base", "right_eye", "left_eye",
+          "outer_lips", "inner_lips")
+
+
+def render(scene, workers: int) -> list:
+    """:func:`realism.posed.render_all` of the scene at its own pose: per frame image, vertices."""
+    return render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]
+
+
+def detect(frames: list) -> np.ndarray:
+    """(F, 468, 3) the landmark network's points (x, y px, relative depth px) tracked over
+    ``frames``, NaN where no face was found."""
+    from facesculpt.nodes.landmarks.detector import LandmarkDetector
+
+    detector = LandmarkDetector()
+    out = np.full((len(frames), 468, 3), np.nan)
+    for i, frame in enumerate(frames):
+        faces = detector.track(frame)
+        if faces:
+            out[i] = np.asarray(faces[0].points, np.float64)[:, :3]
+    return out
+
+
+def inner_rows(scene) -> tuple[list[int], np.ndarray]:
+    """The inner iBUG points (0-based) with an SFM landmark vertex, and those vertices."""
+    rows = [k for k in INNER if str(k + 1) in scene.landmarks]
+    return rows, np.array([scene.landmarks[str(k + 1)] for k in rows])
+
+
+def diagnose(scene, points: np.ndarray) -> dict:
+    """The diagnosis figures of the network's points (F, 468, 3) on ``scene``."""
+    from scipy.spatial import cKDTree
+
+    from facesculpt.geometry.vertex_normals import vertex_normals
+
+    K = scene.K
+    R, c = reg.poses(scene)
+    angles = np.array([scene.pose(i)[:2] for i in range(scene.frames)])
+    yaw, pitch = angles[:, 0], angles[:, 1]
+    rows, verts = inner_rows(scene)
+    observed = points[:, IBUG68_FROM_MESH[rows], :2]
+    X0 = scene.rest[verts]
+    err = observed - reg.project_model(K, R, c, X0)
+    fit = reg.pose_regression(err, yaw, pitch)
+    X3 = reg.triangulate(K, R, c, observed)
+    k_flat, rms_flat = reg.flattening(K, R, c, observed, X0)
+    const = err - np.nanmean(err, axis=0, keepdims=True)
+    out = {"frames": int(scene.frames), "rms_vertex_px": reg.rms(err), "rms_constant_removed_px": reg.rms(const),
+           "rms_flattened_px": rms_flat, "flattening_scale": k_flat,
+           "rms_3d_offset_px": reg.rms(observed - reg.project_model(K, R, c, X3)),
+           "rms_pose_regression_px": reg.rms(err - fit["fitted"]),
+           "r2_pose_mean": float(np.mean(fit["r2"])), "points": {}}
+    offsets = X3 - X0
+    for j, k in enumerate(rows):
+        out["points"][str(k + 1)] = {"coef_px": fit["coef"][j].round(3).tolist(), "r2": fit["r2"][j].round(3).tolist(),
+                                     "offset_mm": offsets[j].round(2).tolist()}
+    out["groups"] = {}
+    for g in GROUPS:
+        sel = [j for j, k in enumerate(rows) if k in IBUG68_GROUPS[g]]
+        if sel:
+            out["groups"][g] = {"x_per_sin_yaw_px": float(np.mean(fit["coef"][sel, 0, 1])),
+                                "y_per_sin_pitch_px": float(np.mean(fit["coef"][sel, 1, 2])),
+                                "r2": float(np.mean(fit["r2"][sel])),
+                                "offset_mm": np.mean(offsets[sel], axis=0).round(2).tolist(),
+                                "offset_length_mm": float(np.mean(np.linalg.norm(offsets[sel], axis=1)))}
+    # all 468 points: the model-space point each stands for, against the true surface
+    all3 = reg.triangulate(K, R, c, points[:, :, :2])
+    Vm = scene.model_vertices
+    dist, near = cKDTree(scene.rest[:Vm]).query(all3)
+    normals = vertex_normals(scene.rest[:Vm], scene.model_triangles)
+    normal_mm = np.einsum("ij,ij->i", all3 - scene.rest[near], normals[near])
+    out["mesh_points"] = {"median_from_vertex_mm": float(np.median(dist)), "p90_from_vertex_mm": float(np.percentile(dist, 90)),
+                          "median_normal_offset_mm": float(np.median(normal_mm)),
+                          "rms_px": reg.rms(points[:, :, :2] - reg.project_model(K, R, c, all3))}
+    # the network's own 3D points: their rotation against the truth
+    rigid = np.unique(IBUG68_FROM_MESH[27:48])
+    for label, sel in (("all 468", None), ("rigid (nose, eyes)", rigid)):
+        r1 = reg.network_rotation(points, R, 1.0, sel)
+        scale, rb = reg.best_depth_scale(points, R, sel)
+        out.setdefault("network_rotation", {})[label] = {
+            "yaw_slope": r1["yaw_slope"], "pitch_slope": r1["pitch_slope"],
+            "yaw_error_deg": float(np.nanmean(np.abs(r1["yaw"] - r1["true_yaw"]))),
+            "pitch_error_deg": float(np.nanmean(np.abs(r1["pitch"] - r1["true_pitch"]))),
+            "best_depth_scale": scale, "yaw_slope_at_best": rb["yaw_slope"], "pitch_slope_at_best": rb["pitch_slope"]}
+    return out
+
+
+def _offset_removed(R_fit: np.ndarray, R_true: np.ndarray) -> np.ndarray:
+    """Per-frame angle (deg) between the fitted rotations and the true ones after the constant
+    offset (chordal mean of R_trueᵀ R_fit) between the two head frames is taken out."""
+    from facesculpt.nodes.fitter.pose import nearest_rotation
+
+    D = nearest_rotation(sum(Rt.T @ Rf for Rf, Rt in zip(R_fit, R_true)))
+    return np.array([angle(Rf, Rt @ D) for Rf, Rt in zip(R_fit, R_true)])
+
+
+def angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """The angle (deg) of the rotation between two rotations (3, 3)."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def fitted_rotation(scene, frames: list, truths: list, model: str, skip: int = 0, **pipeline) -> dict:
+    """``Pipeline(model)`` over the frames (25 frames/s): rotation error (deg; mean, and mean with
+    the constant head-frame offset removed), pitch error's correlation with the true pitch, and for
+    the SFM the visible inner / outline vertices' image error (px). Frames before ``skip`` are
+    fitted but not scored."""
+    from facesculpt.app.pipeline import Pipeline
+
+    R_true, _ = reg.poses(scene)
+    size = (frames[0].shape[1], frames[0].shape[0])
+    got, inner, outline = [], [], []
+    with Pipeline(model, fov_deg=FOV_DEG, **pipeline) as pipe:
+        for i, frame in enumerate(frames):
+            fit = pipe.fit_frame(frame, i / 25.0)
+            if fit is None or i < skip:
+                continue
+            got.append((i, np.asarray(fit.R, np.float64)))
+            if model == "sfm":
+                truth = truths[i]
+                V = len(fit.projected)
+                vis = truth["visible"][:V]
+                err = np.linalg.norm(np.asarray(fit.projected, np.float64) - project_pixels(scene.K, truth["vertices"][:V]), axis=1)
+                dist = silhouette_distance(truth["image"], scene.background)
+                px = np.clip(np.rint(project_pixels(scene.K, truth["vertices"][:V])).astype(int), 0, [size[0] - 1, size[1] - 1])
+                edge = vis & (dist[px[:, 1], px[:, 0]] <= OUTLINE_PX)
+                inner.append(float(err[vis & ~edge].mean()))
+                outline.append(float(err[edge].mean()) if edge.any() else np.nan)
+    idx = np.array([i for i, _ in got])
+    Rf = np.array([R for _, R in got])
+    Rt = R_true[idx]
+    true_pitch = np.array([euler_from_rotation(R)[1] for R in Rt])
+    pitch_err = np.array([euler_from_rotation(R)[1] for R in Rf]) - true_pitch
+    yaw_err = np.array([euler_from_rotation(R)[0] for R in Rf]) - np.array([euler_from_rotation(R)[0] for R in Rt])
+    out = {"frames": len(idx), "rotation_deg": float(np.mean([angle(a, b) for a, b in zip(Rf, Rt)])),
+           "rotation_offset_removed_deg": float(np.mean(_offset_removed(Rf, Rt))),
+           "pitch_error_mean_deg": float(pitch_err.mean()), "pitch_error_sd_deg": float(pitch_err.std()),
+           "r_pitch_error_pitch": float(np.corrcoef(pitch_err, true_pitch)[0, 1]),
+           "yaw_error_sd_deg": float(yaw_err.std()),
+           "r_yaw_error_yaw": float(np.corrcoef(yaw_err, [euler_from_rotation(R)[0] for R in Rt])[0, 1])}
+    if inner:
+        out["inner_px"], out["outline_px"] = float(np.mean(inner)), float(np.nanmean(outline))
+    return out
+
+
+def diagnosis_lines(d: dict) -> list[str]:
+    """The diagnosis as markdown lines."""
+    lines = [f"Inner iBUG points (51), {d['frames']} frames: RMS image error from the true landmark vertex "
+             f"{d['rms_vertex_px']:.2f} px; its constant part removed {d['rms_constant_removed_px']:.2f}; "
+             f"the face's depth scaled by one factor ({d['flattening_scale']:.2f}) {d['rms_flattened_px']:.2f}; "
+             f"a fixed 3D offset per point {d['rms_3d_offset_px']:.2f}; "
+             f"per-point regression on sin(yaw), sin(pitch) {d['rms_pose_regression_px']:.2f} "
+             f"(mean R² of the pose terms {d['r2_pose_mean']:.2f})", "",
+             "| group | x px per sin(yaw) | y px per sin(pitch) | R² | implied 3D offset (x, y, z) mm | length mm |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for g, v in d["groups"].items():
+        lines.append(f"| {g} | {v['x_per_sin_yaw_px']:+.2f} | {v['y_per_sin_pitch_px']:+.2f} | {v['r2']:.2f} "
+                     f"| {v['offset_mm'][0]:+.1f}, {v['offset_mm'][1]:+.1f}, {v['offset_mm'][2]:+.1f} "
+                     f"| {v['offset_length_mm']:.1f} |")
+    m = d["mesh_points"]
+    lines += ["", f"All 468 network points: the model point each stands for lies {m['median_from_vertex_mm']:.1f} mm "
+              f"(median; 90 %: {m['p90_from_vertex_mm']:.1f}) from the nearest true vertex, "
+              f"{m['median_normal_offset_mm']:+.1f} mm along its normal (median); RMS px at that point "
+              f"{m['rms_px']:.2f}", "",
+              "| network 3D points | yaw slope | pitch slope | yaw error deg | pitch error deg | best depth scale "
+              "| yaw / pitch slope there |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for label, v in d["network_rotation"].items():
+        lines.append(f"| {label} | {v['yaw_slope']:.2f} | {v['pitch_slope']:.2f} | {v['yaw_error_deg']:.2f} "
+                     f"| {v['pitch_error_deg']:.2f} | {v['best_depth_scale']:.2f} "
+                     f"| {v['yaw_slope_at_best']:.2f} / {v['pitch_slope_at_best']:.2f} |")
+    return lines
+
+
+def fit_lines(fits: dict) -> list[str]:
+    """The fitted rotation table as markdown lines."""
+    lines = ["| fit | frames | rotation error deg | offset removed deg | pitch error mean / sd deg | r(pitch error, pitch) "
+             "| r(yaw error, yaw) | inner px | outline px |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for name, f in fits.items():
+        lines.append(f"| {name} | {f['frames']} | {f['rotation_deg']:.2f} | {f['rotation_offset_removed_deg']:.2f} "
+                     f"| {f['pitch_error_mean_deg']:+.2f} / {f['pitch_error_sd_deg']:.2f} | {f['r_pitch_error_pitch']:+.2f} "
+                     f"| {f['r_yaw_error_yaw']:+.2f} | {f.get('inner_px', np.nan):.2f} | {f.get('outline_px', np.nan):.2f} |")
+    return lines
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
+    p.add_argument("--models", default="sfm,facemesh", help="models whose fit is scored ('' for none)")
+    p.add_argument("--workers", type=int, default=0, help="rendering processes (0: one per core, at most 4)")
+    args = p.parse_args(argv)
+    data = shared_data_dir()
+    if data is None:
+        print("bench_registration: the shared data folder is missing (../shared/data or FACESCULPT_DATA)", file=sys.stderr)
+        return 2
+    out = args.out or Path(tempfile.mkdtemp(prefix="bench_registration_"))
+    out.mkdir(parents=True, exist_ok=True)
+    workers = args.workers or max(1, min(4, len(os.sched_getaffinity(0))))
+    scene = make_scene(data, frames=args.frames)
+    truths = render(scene, workers)
+    frames = [t["image"] for t in truths]
+    points = detect(frames)
+    results = {"diagnosis": diagnose(scene, points), "fits": {}}
+    for model in [m for m in args.models.split(",") if m]:
+        results["fits"][model] = fitted_rotation(scene, frames, truths, model)
+    lines = diagnosis_lines(results["diagnosis"]) + [""] + fit_lines(results["fits"])
+    (out / "registration.md").write_text("\n".join(lines) + "\n")
+    (out / "registration.json").write_text(json.dumps(results, indent=1))
+    print("\n".join(lines))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
