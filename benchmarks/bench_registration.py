@@ -46,6 +46,7 @@ from realism.posed import render_all  # noqa: E402
 from realism.raster import project_pixels  # noqa: E402
 from realism.scene import FOV_DEG, make_scene  # noqa: E402
 
+import facesculpt.nodes.fitter.calibration as nodes_calibration  # noqa: E402
 from facesculpt.geometry.head_angles import euler_from_rotation  # noqa: E402
 from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH, IBUG68_GROUPS  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
@@ -151,23 +152,27 @@ def angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def fitted_rotation(scene, frames: list, truths: list, model: str, skip: int = 0, **pipeline) -> dict:
+def fitted_rotation(scene, frames: list, truths: list, model, skip: int = 0, config: dict | None = None,
+                    **pipeline) -> dict:
     """``Pipeline(model)`` over the frames (25 frames/s): rotation error (deg; mean, and mean with
     the constant head-frame offset removed), pitch error's correlation with the true pitch, and for
     the SFM the visible inner / outline vertices' image error (px). Frames before ``skip`` are
-    fitted but not scored."""
+    fitted but not scored; ``config``: :class:`FitterConfig` fields changed from the pipeline's."""
+    import dataclasses
+
     from facesculpt.app.pipeline import Pipeline
 
     R_true, _ = reg.poses(scene)
     size = (frames[0].shape[1], frames[0].shape[0])
     got, inner, outline = [], [], []
     with Pipeline(model, fov_deg=FOV_DEG, **pipeline) as pipe:
+        pipe.fitter_config = dataclasses.replace(pipe.fitter_config, **(config or {}))
         for i, frame in enumerate(frames):
             fit = pipe.fit_frame(frame, i / 25.0)
             if fit is None or i < skip:
                 continue
             got.append((i, np.asarray(fit.R, np.float64)))
-            if model == "sfm":
+            if not pipe.model.dense:
                 truth = truths[i]
                 V = len(fit.projected)
                 vis = truth["visible"][:V]
@@ -196,7 +201,7 @@ def fitted_rotation(scene, frames: list, truths: list, model: str, skip: int = 0
 
 def diagnosis_lines(d: dict) -> list[str]:
     """The diagnosis as markdown lines."""
-    lines = [f"Inner iBUG points (51), {d['frames']} frames: RMS image error from the true landmark vertex "
+    lines = [f"Inner iBUG points ({len(d['points'])}), {d['frames']} frames: RMS image error from the true landmark vertex "
              f"{d['rms_vertex_px']:.2f} px; its constant part removed {d['rms_constant_removed_px']:.2f}; "
              f"the face's depth scaled by one factor ({d['flattening_scale']:.2f}) {d['rms_flattened_px']:.2f}; "
              f"a fixed 3D offset per point {d['rms_3d_offset_px']:.2f}; "
@@ -233,12 +238,145 @@ def fit_lines(fits: dict) -> list[str]:
     return lines
 
 
+def fixed_names(model) -> list[str]:
+    """The model's iBUG landmarks (1-based names) with a fixed vertex: those a calibration learns."""
+    outline = set(model.outline_landmarks_right) | set(model.outline_landmarks_left)
+    return [n for n in model.landmark_names if n.isdigit() and n not in outline]
+
+
+def sequence_of(scene, points: np.ndarray, names: list[str]) -> dict:
+    """A :func:`calibration.learn_calibration` sequence: the scene's poses, the network's points
+    (F, 468, 3) for the landmarks ``names`` and the true head's vertices of them."""
+    R, c = reg.poses(scene)
+    rows = [int(n) - 1 for n in names]
+    return {"K": scene.K, "R": R, "c": c, "observed": points[:, IBUG68_FROM_MESH[rows], :2],
+            "vertices": scene.rest[[scene.landmarks[n] for n in names]],
+            "yaw": np.array([scene.pose(i)[0] for i in range(scene.frames)])}
+
+
+def frames_of(sequence: dict, keep: np.ndarray) -> dict:
+    """``sequence`` with only the frames ``keep`` (F,) bool."""
+    return {**sequence, "R": sequence["R"][keep], "c": sequence["c"][keep], "observed": sequence["observed"][keep],
+            "yaw": sequence["yaw"][keep]}
+
+
+def residual_px(sequence: dict, offsets) -> float:
+    """RMS px of the network's points from the true head's landmark vertices moved by ``offsets``."""
+    s = sequence
+    return reg.rms(s["observed"] - reg.project_model(s["K"], s["R"], s["c"], s["vertices"] + offsets))
+
+
+def leave_one_yaw_bin_out(sequences: list[dict]) -> list[dict]:
+    """For each yaw bin of :data:`realism.scoring.YAW_BINS`: the calibration learned from the
+    calibration frames outside it, scored on the frames inside it (landmark RMS px at the true
+    pose, with the vertices and with the learned points)."""
+    from realism.scoring import YAW_BINS
+
+    rows = []
+    for lo, hi in YAW_BINS:
+        inside = [frames_of(s, (s["yaw"] >= lo) & (s["yaw"] < hi)) for s in sequences]
+        outside = [frames_of(s, ~((s["yaw"] >= lo) & (s["yaw"] < hi))) for s in sequences]
+        learned = nodes_calibration.learn_calibration(outside)["offsets"]
+        test = [s for s in inside if len(s["R"])]
+        rows.append({"bin": f"{lo:+.0f}..{hi:+.0f}", "frames": int(sum(len(s["R"]) for s in test)),
+                     "vertex_px": float(np.mean([residual_px(s, 0.0) for s in test])),
+                     "calibrated_px": float(np.mean([residual_px(s, learned) for s in test]))})
+    return rows
+
+
+def calibrate(data: Path, frames: int, workers: int, path: Path) -> tuple[dict, list[dict]]:
+    """Render :data:`realism.calibration_scenes.CALIBRATION_SCENES` (``frames`` each), run the
+    network on them, learn the SFM's calibration and write it to ``path``. Returns the learned
+    calibration and the calibration sequences."""
+    import subprocess
+
+    from realism.calibration_scenes import CALIBRATION_SCENES, make_calibration_scene
+
+    from facesculpt.nodes.fitter import load_model
+
+    model = load_model("sfm")
+    names = fixed_names(model)
+    sequences = []
+    for entry in CALIBRATION_SCENES:
+        scene = make_calibration_scene(data, entry, frames)
+        sequences.append(sequence_of(scene, detect([t["image"] for t in render(scene, workers)]), names))
+    learned = nodes_calibration.learn_calibration(sequences)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=Path(__file__).resolve().parent).stdout.strip()
+    provenance = (f"benchmarks/bench_registration.py --calibrate (commit {commit or 'unknown'}): the face-mesh "
+                  f"network's points on {len(sequences)} synthetic sequences of {frames} frames "
+                  + "; ".join(f"identity seed {e[0]}, texture {e[1]} frame {e[2]}, background {e[3]}, yaw +-{e[4].yaw_deg:g} "
+                              f"pitch +-{e[4].pitch_deg:g}" for e in CALIBRATION_SCENES)
+                  + " (none of them the realism benchmark's scene)")
+    nodes_calibration.save_calibration(path, model.model_id, names, learned["offsets"], learned["weights"], provenance)
+    return learned, sequences
+
+
+def uncalibrated(model):
+    """``model`` without a landmark calibration (today's fit)."""
+    import dataclasses
+
+    return dataclasses.replace(model, landmark_offsets=np.zeros((0, 3), np.float32),
+                               landmark_weights=np.zeros(0, np.float32), calibration="")
+
+
+def calibration_lines(results: dict) -> list[str]:
+    """The calibration's figures as markdown lines."""
+    lines = []
+    if "leave_one_yaw_bin_out" in results:
+        lines += ["Leave one yaw bin out (calibration sequences; landmark RMS px at the true pose):", "",
+                  "| yaw bin | frames | model vertices | calibrated points |", "| --- | --- | --- | --- |"]
+        lines += [f"| {r['bin']} | {r['frames']} | {r['vertex_px']:.2f} | {r['calibrated_px']:.2f} |"
+                  for r in results["leave_one_yaw_bin_out"]]
+        lines.append("")
+    if "benchmark_residual" in results:
+        b = results["benchmark_residual"]
+        lines += [f"Benchmark set (untouched), landmark RMS px at the true pose: model vertices {b['vertex_px']:.2f}, "
+                  f"calibrated points {b['calibrated_px']:.2f}", ""]
+    return lines
+
+
+def photo_nme(data: Path, models: dict) -> dict:
+    """NME (:func:`bench_fit_image.nme`: the 68 fitted landmark points against people's marks over
+    the outer-eye-corner distance) of each model's landmark fit of the 43 hand-marked photos, as
+    ``bench_fit_image.py`` fits and matches them: name -> (mean NME, faces)."""
+    import cv2
+    from bench_fit_image import nme
+
+    from facesculpt.app.appearance_training import photo_fits
+    from facesculpt.geometry.ibug68 import dlib_annotations
+    from facesculpt.nodes.landmarks import LandmarkDetector
+
+    detector = LandmarkDetector(max_faces=50, min_face=0.05)
+    out = {}
+    for name, model in models.items():
+        fits, errors = {}, []
+        for split in ("training", "testing"):
+            for file, box, truth in dlib_annotations(data / "faces" / f"{split}_with_face_landmarks.xml"):
+                if file not in fits:
+                    fits[file] = photo_fits(cv2.imread(str(data / "faces" / file)), model, detector)
+                centre = box[:2] + box[2:] / 2
+                near = [(np.linalg.norm(f.projected.mean(0) - centre), i) for i, f in enumerate(fits[file])]
+                near = [c for c in near if c[0] < box[2] / 2]
+                if near:
+                    errors.append(nme(fits[file][min(near)[1]], truth))
+        out[name] = (float(np.mean(errors)), len(errors))
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     p.add_argument("--models", default="sfm,facemesh", help="models whose fit is scored ('' for none)")
     p.add_argument("--workers", type=int, default=0, help="rendering processes (0: one per core, at most 4)")
+    p.add_argument("--calibrate", type=Path, default=None,
+                   help="learn the SFM's landmark calibration from sequences of its own and write it here "
+                        "(the fitter reads it from facesculpt.nodes.fitter.calibration.calibration_file('sfm_shape_3448'))")
+    p.add_argument("--calibration-frames", type=int, default=80, help="frames of each calibration sequence (default 80)")
+    p.add_argument("--photos", action="store_true", help="also the NME of the 43 hand-marked photos' landmark fits")
+    p.add_argument("--calibration", type=Path, default=None,
+                   help="a calibration file to score against today's fit (default: the one --calibrate writes)")
     args = p.parse_args(argv)
     data = shared_data_dir()
     if data is None:
@@ -247,14 +385,43 @@ def main(argv=None) -> int:
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_registration_"))
     out.mkdir(parents=True, exist_ok=True)
     workers = args.workers or max(1, min(4, len(os.sched_getaffinity(0))))
+    import dataclasses
+
+    from facesculpt.nodes.fitter import load_model
+
+    results = {"fits": {}}
+    calibration = args.calibration
+    if args.calibrate is not None:
+        learned, sequences = calibrate(data, args.calibration_frames, workers, args.calibrate)
+        results["leave_one_yaw_bin_out"] = leave_one_yaw_bin_out(sequences)
+        results["calibration_sigma_px"] = learned["sigma"].round(2).tolist()
+        calibration = calibration or args.calibrate
     scene = make_scene(data, frames=args.frames)
     truths = render(scene, workers)
     frames = [t["image"] for t in truths]
     points = detect(frames)
-    results = {"diagnosis": diagnose(scene, points), "fits": {}}
-    for model in [m for m in args.models.split(",") if m]:
-        results["fits"][model] = fitted_rotation(scene, frames, truths, model)
-    lines = diagnosis_lines(results["diagnosis"]) + [""] + fit_lines(results["fits"])
+    results["diagnosis"] = diagnose(scene, points)
+    sfm = uncalibrated(load_model("sfm"))
+    if calibration is not None:
+        model = nodes_calibration.load_calibration(calibration, sfm)
+        results["provenance"] = model.calibration
+        names = fixed_names(sfm)
+        index = {n: i for i, n in enumerate(model.landmark_names)}
+        bench = sequence_of(scene, points, names)
+        results["benchmark_residual"] = {
+            "vertex_px": residual_px(bench, 0.0),
+            "calibrated_px": residual_px(bench, model.landmark_offsets[[index[n] for n in names]])}
+    for name in [m for m in args.models.split(",") if m]:
+        results["fits"][name] = fitted_rotation(scene, frames, truths, sfm if name == "sfm" else name)
+        if name == "sfm" and calibration is not None:
+            results["fits"]["sfm, calibrated"] = fitted_rotation(scene, frames, truths, model)
+            results["fits"]["sfm, calibrated offsets, weights 1"] = fitted_rotation(
+                scene, frames, truths, dataclasses.replace(model, landmark_weights=np.zeros(0, np.float32)))
+    lines = diagnosis_lines(results["diagnosis"]) + [""] + calibration_lines(results) + fit_lines(results["fits"])
+    if args.photos:
+        results["photo_nme"] = photo_nme(data, {"sfm": sfm} | ({"sfm, calibrated": model} if calibration else {}))
+        lines += ["", "| landmark fit of the hand-marked photos | faces | NME |", "| --- | --- | --- |"]
+        lines += [f"| {k} | {n} | {v:.4f} |" for k, (v, n) in results["photo_nme"].items()]
     (out / "registration.md").write_text("\n".join(lines) + "\n")
     (out / "registration.json").write_text(json.dumps(results, indent=1))
     print("\n".join(lines))

@@ -25,6 +25,7 @@ import numpy as np
 
 from facesculpt.geometry.head_angles import euler_from_rotation
 from facesculpt.geometry.similarity import similarity_procrustes
+from facesculpt.nodes.fitter.calibration import project_model, triangulate  # noqa: F401 (re-exported)
 
 
 def poses(scene) -> tuple[np.ndarray, np.ndarray]:
@@ -36,14 +37,6 @@ def poses(scene) -> tuple[np.ndarray, np.ndarray]:
         Rs.append((E - origin).T)
         cs.append(origin)
     return np.array(Rs), np.array(cs)
-
-
-def project_model(K: np.ndarray, R: np.ndarray, c: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """(F, P, 2) px of model-space points X (P, 3) mm (or (F, P, 3): per frame) under the poses."""
-    X = np.broadcast_to(np.asarray(X, np.float64), (len(R),) + np.shape(X)[-2:])
-    C = np.einsum("fij,fpj->fpi", R, X) + c[:, None, :]
-    uv = C[..., :2] / C[..., 2:3] * np.array([K[0, 0], K[1, 1]]) + K[:2, 2]
-    return uv - 0.5
 
 
 def pose_regression(errors: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray) -> dict:
@@ -66,33 +59,6 @@ def pose_regression(errors: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarr
             var = np.var(y[ok])
             r2[p, k] = 1.0 - np.mean((y[ok] - fitted[ok, p, k]) ** 2) / var if var > 0 else 0.0
     return {"coef": coef, "r2": r2, "fitted": fitted}
-
-
-def triangulate(K: np.ndarray, R: np.ndarray, c: np.ndarray, observed: np.ndarray,
-                prior: np.ndarray | None = None, prior_weight: float = 0.0) -> np.ndarray:
-    """(P, 3) model-space points (mm) whose projections under the poses best match ``observed``
-    (F, P, 2) px (NaN rows skipped): linear least squares, each equation scaled to pixels at the
-    point's depth; with ``prior`` (P, 3) mm and ``prior_weight`` (px per mm), each point is held
-    toward its prior."""
-    F, P, _ = observed.shape
-    f = np.array([K[0, 0], K[1, 1]])
-    out = np.full((P, 3), np.nan)
-    for p in range(P):
-        ok = np.isfinite(observed[:, p]).all(1)
-        if ok.sum() < 2:
-            continue
-        u = observed[ok, p] + 0.5 - K[:2, 2]                  # (n, 2) px from the principal point
-        Rk, ck = R[ok], c[ok]
-        z = ck[:, 2:3]                                         # depth scale of each equation
-        # u C_z - f C_xy = 0 with C = R X + c: rows (n, 2, 3) and right-hand sides (n, 2)
-        rows = u[:, :, None] * Rk[:, 2:3, :] - f[None, :, None] * Rk[:, :2, :]
-        rhs = -(u * ck[:, 2:3] - f * ck[:, :2])
-        A, b = (rows / z[:, :, None]).reshape(-1, 3), (rhs / z).reshape(-1)
-        if prior is not None and prior_weight > 0:
-            A = np.vstack([A, prior_weight * np.eye(3)])
-            b = np.r_[b, prior_weight * prior[p]]
-        out[p] = np.linalg.lstsq(A, b, rcond=None)[0]
-    return out
 
 
 def flattening(K: np.ndarray, R: np.ndarray, c: np.ndarray, observed: np.ndarray, X: np.ndarray,
