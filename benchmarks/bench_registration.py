@@ -49,6 +49,7 @@ from realism.scene import FOV_DEG, make_scene  # noqa: E402
 import facesculpt.nodes.fitter.calibration as nodes_calibration  # noqa: E402
 from facesculpt.geometry.head_angles import euler_from_rotation  # noqa: E402
 from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH, IBUG68_GROUPS  # noqa: E402
+from facesculpt.nodes.fitter.detector_rotation import RIGID_IDS  # noqa: E402
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
 GROUPS = ("right_eyebrow", "left_eyebrow", "nose_bridge", "nose_base", "right_eye", "left_eye",
@@ -296,11 +297,18 @@ def calibrate(data: Path, frames: int, workers: int, path: Path) -> tuple[dict, 
 
     model = load_model("sfm")
     names = fixed_names(model)
-    sequences = []
+    sequences, slopes = [], []
+    rigid = IBUG68_FROM_MESH[[int(n) - 1 for n in RIGID_IDS]]
     for entry in CALIBRATION_SCENES:
         scene = make_calibration_scene(data, entry, frames)
-        sequences.append(sequence_of(scene, detect([t["image"] for t in render(scene, workers)]), names))
+        points = detect([t["image"] for t in render(scene, workers)])
+        sequences.append(sequence_of(scene, points, names))
+        turn = reg.network_rotation(points, sequences[-1]["R"], 1.0, rigid)
+        slopes.append((turn["pitch_slope"], turn["yaw_slope"]))
     learned = nodes_calibration.learn_calibration(sequences)
+    # the network's own points turn short of the head: its rotation's gain, pitch and yaw (roll 1)
+    learned["rotation_slopes"] = np.mean(slopes, axis=0)
+    learned["rotation_gain"] = np.r_[1.0 / learned["rotation_slopes"], 1.0]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                             cwd=Path(__file__).resolve().parent).stdout.strip()
     provenance = (f"benchmarks/bench_registration.py --calibrate (commit {commit or 'unknown'}): the face-mesh "
@@ -308,7 +316,8 @@ def calibrate(data: Path, frames: int, workers: int, path: Path) -> tuple[dict, 
                   + "; ".join(f"identity seed {e[0]}, texture {e[1]} frame {e[2]}, background {e[3]}, yaw +-{e[4].yaw_deg:g} "
                               f"pitch +-{e[4].pitch_deg:g}" for e in CALIBRATION_SCENES)
                   + " (none of them the realism benchmark's scene)")
-    nodes_calibration.save_calibration(path, model.model_id, names, learned["offsets"], learned["weights"], provenance)
+    nodes_calibration.save_calibration(path, model.model_id, names, learned["offsets"], learned["weights"], provenance,
+                                       learned["rotation_gain"])
     return learned, sequences
 
 
@@ -317,7 +326,8 @@ def uncalibrated(model):
     import dataclasses
 
     return dataclasses.replace(model, landmark_offsets=np.zeros((0, 3), np.float32),
-                               landmark_weights=np.zeros(0, np.float32), calibration="")
+                               landmark_weights=np.zeros(0, np.float32), network_rotation_gain=np.zeros(0, np.float32),
+                               calibration="")
 
 
 def calibration_lines(results: dict) -> list[str]:
@@ -328,7 +338,9 @@ def calibration_lines(results: dict) -> list[str]:
                   "| yaw bin | frames | model vertices | calibrated points |", "| --- | --- | --- | --- |"]
         lines += [f"| {r['bin']} | {r['frames']} | {r['vertex_px']:.2f} | {r['calibrated_px']:.2f} |"
                   for r in results["leave_one_yaw_bin_out"]]
-        lines.append("")
+        pitch, yaw = results["network_rotation_slopes"]
+        lines += ["", f"The network's rigid 3D points on the calibration sequences turn {pitch:.3f} of the head's pitch "
+                  f"and {yaw:.3f} of its yaw (the calibration's rotation gain is their inverse)", ""]
     if "benchmark_residual" in results:
         b = results["benchmark_residual"]
         lines += [f"Benchmark set (untouched), landmark RMS px at the true pose: model vertices {b['vertex_px']:.2f}, "
@@ -337,9 +349,11 @@ def calibration_lines(results: dict) -> list[str]:
 
 
 def photo_nme(data: Path, models: dict) -> dict:
-    """NME (:func:`bench_fit_image.nme`: the 68 fitted landmark points against people's marks over
-    the outer-eye-corner distance) of each model's landmark fit of the 43 hand-marked photos, as
-    ``bench_fit_image.py`` fits and matches them: name -> (mean NME, faces)."""
+    """NME of each model's landmark fit of the 43 hand-marked photos, fitted and matched as
+    ``bench_fit_image.py`` does: the mean distance of the fitted landmarks from people's marks over
+    the outer-eye-corner distance, with the landmarks the fitted vertices they were matched to
+    (``nme_vertices``, :func:`bench_fit_image.nme`) and those moved by the model's calibration
+    (``nme_landmarks``, :func:`calibration.fitted_landmarks`): name -> figures."""
     import cv2
     from bench_fit_image import nme
 
@@ -359,8 +373,12 @@ def photo_nme(data: Path, models: dict) -> dict:
                 near = [(np.linalg.norm(f.projected.mean(0) - centre), i) for i, f in enumerate(fits[file])]
                 near = [c for c in near if c[0] < box[2] / 2]
                 if near:
-                    errors.append(nme(fits[file][min(near)[1]], truth))
-        out[name] = (float(np.mean(errors)), len(errors))
+                    fit = fits[file][min(near)[1]]
+                    points = nodes_calibration.fitted_landmarks(fit, model)
+                    err = [np.linalg.norm(points[str(k + 1)] - truth[k]) for k in range(68) if str(k + 1) in points]
+                    errors.append((nme(fit, truth), float(np.mean(err) / np.linalg.norm(truth[36] - truth[45]))))
+        out[name] = {"faces": len(errors), "nme_vertices": float(np.mean([e[0] for e in errors])),
+                     "nme_landmarks": float(np.mean([e[1] for e in errors]))}
     return out
 
 
@@ -395,6 +413,7 @@ def main(argv=None) -> int:
         learned, sequences = calibrate(data, args.calibration_frames, workers, args.calibrate)
         results["leave_one_yaw_bin_out"] = leave_one_yaw_bin_out(sequences)
         results["calibration_sigma_px"] = learned["sigma"].round(2).tolist()
+        results["network_rotation_slopes"] = learned["rotation_slopes"].round(3).tolist()
         calibration = calibration or args.calibrate
     scene = make_scene(data, frames=args.frames)
     truths = render(scene, workers)
@@ -415,13 +434,17 @@ def main(argv=None) -> int:
         results["fits"][name] = fitted_rotation(scene, frames, truths, sfm if name == "sfm" else name)
         if name == "sfm" and calibration is not None:
             results["fits"]["sfm, calibrated"] = fitted_rotation(scene, frames, truths, model)
-            results["fits"]["sfm, calibrated offsets, weights 1"] = fitted_rotation(
-                scene, frames, truths, dataclasses.replace(model, landmark_weights=np.zeros(0, np.float32)))
+            for label, change in (("weights 1", {"landmark_weights": np.zeros(0, np.float32)}),
+                                  ("no rotation gain", {"network_rotation_gain": np.zeros(0, np.float32)})):
+                results["fits"][f"sfm, calibrated, {label}"] = fitted_rotation(
+                    scene, frames, truths, dataclasses.replace(model, **change))
     lines = diagnosis_lines(results["diagnosis"]) + [""] + calibration_lines(results) + fit_lines(results["fits"])
     if args.photos:
         results["photo_nme"] = photo_nme(data, {"sfm": sfm} | ({"sfm, calibrated": model} if calibration else {}))
-        lines += ["", "| landmark fit of the hand-marked photos | faces | NME |", "| --- | --- | --- |"]
-        lines += [f"| {k} | {n} | {v:.4f} |" for k, (v, n) in results["photo_nme"].items()]
+        lines += ["", "| landmark fit of the hand-marked photos | faces | NME, fitted vertices | NME, calibrated points |",
+                  "| --- | --- | --- | --- |"]
+        lines += [f"| {k} | {v['faces']} | {v['nme_vertices']:.4f} | {v['nme_landmarks']:.4f} |"
+                  for k, v in results["photo_nme"].items()]
     (out / "registration.md").write_text("\n".join(lines) + "\n")
     (out / "registration.json").write_text(json.dumps(results, indent=1))
     print("\n".join(lines))

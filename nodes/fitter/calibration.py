@@ -84,10 +84,10 @@ def learn_calibration(sequences: list[dict]) -> dict:
 
 
 def calibrated(model: MorphableModel, names: list[str], offsets: np.ndarray, weights: np.ndarray,
-               provenance: str) -> MorphableModel:
+               provenance: str, rotation_gain=()) -> MorphableModel:
     """A copy of ``model`` with the calibration of the landmarks ``names`` (offsets (L, 3) mm,
-    weights (L,)); its other landmarks keep their vertex and weight 1. ValueError for a name the
-    model does not have."""
+    weights (L,)) and the network's rotation gain (3,) (or none: ``()``); its other landmarks keep
+    their vertex and weight 1. ValueError for a name the model does not have."""
     index = {n: i for i, n in enumerate(model.landmark_names)}
     missing = [n for n in names if n not in index]
     if missing:
@@ -96,18 +96,21 @@ def calibrated(model: MorphableModel, names: list[str], offsets: np.ndarray, wei
     offs, W = np.zeros((L, 3), np.float32), np.ones(L, np.float32)
     rows = [index[n] for n in names]
     offs[rows], W[rows] = np.asarray(offsets, np.float32), np.asarray(weights, np.float32)
-    return replace(model, landmark_offsets=offs, landmark_weights=W, calibration=str(provenance))
+    return replace(model, landmark_offsets=offs, landmark_weights=W, calibration=str(provenance),
+                   network_rotation_gain=np.asarray(rotation_gain, np.float32))
 
 
 def save_calibration(path: str | Path, model_id: str, names: list[str], offsets: np.ndarray, weights: np.ndarray,
-                     provenance: str) -> Path:
-    """Write a calibration of model ``model_id``'s landmarks ``names`` to ``path`` (.npz)."""
+                     provenance: str, rotation_gain=()) -> Path:
+    """Write a calibration of model ``model_id``'s landmarks ``names`` (and the network's rotation
+    gain, :func:`calibrated`) to ``path`` (.npz)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as fh:
         np.savez(fh, format=np.str_(CALIBRATION_FORMAT), model_id=np.str_(model_id),
                  names=np.asarray(list(names), np.str_), offsets=np.asarray(offsets, np.float32),
-                 weights=np.asarray(weights, np.float32), provenance=np.str_(provenance))
+                 weights=np.asarray(weights, np.float32), provenance=np.str_(provenance),
+                 rotation_gain=np.asarray(rotation_gain, np.float32))
     return path
 
 
@@ -121,7 +124,8 @@ def load_calibration(path: str | Path, model: MorphableModel) -> MorphableModel:
             if str(data["model_id"]) != model.model_id:
                 raise ModelFormatError(f"{path}: a calibration of model {str(data['model_id'])!r}, not {model.model_id!r}")
             names = [str(n) for n in data["names"].tolist()]
-            return calibrated(model, names, data["offsets"], data["weights"], str(data["provenance"]))
+            gain = data["rotation_gain"] if "rotation_gain" in data.files else ()
+            return calibrated(model, names, data["offsets"], data["weights"], str(data["provenance"]), gain)
     except ModelFormatError:
         raise
     except (OSError, KeyError, ValueError) as exc:
@@ -134,3 +138,20 @@ def calibration_file(model_id: str) -> Path:
     from facesculpt.paths import model_home
 
     return model_home() / "calibration" / f"{model_id}.npz"
+
+
+def fitted_landmarks(fit, model: MorphableModel) -> dict[str, np.ndarray]:
+    """Landmark id -> (2,) px: where a sparse fit (:class:`.result.FitResult` of ``model``) puts
+    each landmark it was fitted to: its correspondence on the fitted mesh, moved by the model's
+    calibration offset (turned and scaled with the head) where the model has one."""
+    from facesculpt.geometry.projection import project
+
+    verts, weights = fit.correspondences
+    points = (np.asarray(fit.vertices, np.float64)[verts] * np.asarray(weights)[..., None]).sum(axis=1)
+    if len(model.landmark_offsets):
+        offset = dict(zip(model.landmark_names, np.asarray(model.landmark_offsets, np.float64)))
+        moved = np.array([offset.get(i, np.zeros(3)) for i in fit.correspondence_ids])
+        scale = float(fit.scale) if fit.projection == "orthographic" else 1.0
+        points = points + scale * moved @ np.asarray(fit.R, np.float64).T
+    px = project(points, fit.K, fit.projection)
+    return dict(zip(fit.correspondence_ids, px))

@@ -37,6 +37,9 @@ landmark_offsets           (L, 3) f4       optional calibration: where the landm
                                            when absent (the vertex itself)
 landmark_weights           (L,) f4         optional calibration: each landmark's weight in the fit
                                            (1/sigma², mean 1); (0,) when absent (all 1)
+network_rotation_gain      (3,) f4         optional calibration: the landmark network's own 3D points turn
+                                           by 1/gain of the head about the camera's x (pitch), y (yaw) and
+                                           z axes; (0,) when absent (gain 1)
 calibration                () str          where the calibration came from (empty: none)
 source                     () str          free text: where the model came from
 =========================  ==============  ==========================================================
@@ -99,6 +102,7 @@ class MorphableModel:
     source: str = ""
     landmark_offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
     landmark_weights: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    network_rotation_gain: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     calibration: str = ""
 
     def __post_init__(self) -> None:
@@ -220,6 +224,14 @@ def validate(model: MorphableModel) -> None:
         if names and not outline.size:
             _fail(f"outline_landmarks_{side} is given but outline_{side} has no vertices")
         setattr(m, f"outline_landmarks_{side}", names)
+    _validate_calibration(m)
+    if not isinstance(m.units, str) or not m.units:
+        _fail("units must be a non-empty string such as 'mm'")
+    m.dense = bool(m.dense)
+
+
+def _validate_calibration(m: MorphableModel) -> None:
+    """The optional landmark calibration's fields (module docstring), normalised in place."""
     L = len(m.landmark_names)
     m.landmark_offsets = np.asarray(m.landmark_offsets, np.float32).reshape(-1, 3)
     m.landmark_weights = np.asarray(m.landmark_weights, np.float32).reshape(-1)
@@ -229,10 +241,10 @@ def validate(model: MorphableModel) -> None:
     if not (np.isfinite(m.landmark_offsets).all() and np.isfinite(m.landmark_weights).all()
             and (m.landmark_weights > 0).all()):
         _fail("landmark_offsets must be finite and landmark_weights finite and positive")
+    m.network_rotation_gain = np.asarray(m.network_rotation_gain, np.float32).reshape(-1)
+    if m.network_rotation_gain.shape[0] not in (0, 3) or not (m.network_rotation_gain > 0).all():
+        _fail(f"network_rotation_gain must be 3 positive gains or empty, got {m.network_rotation_gain}")
     m.calibration = str(m.calibration)
-    if not isinstance(m.units, str) or not m.units:
-        _fail("units must be a non-empty string such as 'mm'")
-    m.dense = bool(m.dense)
 
 
 # --------------------------------------------------------------------------------------------
@@ -273,6 +285,7 @@ def save_model(model: MorphableModel, path: str | Path) -> Path:
             dense=np.bool_(model.dense),
             landmark_offsets=model.landmark_offsets,
             landmark_weights=model.landmark_weights,
+            network_rotation_gain=model.network_rotation_gain,
             calibration=np.str_(model.calibration),
         )
     return path
@@ -322,6 +335,7 @@ def _load_npz(path: Path) -> MorphableModel:
             source=str(get("source", "")),
             landmark_offsets=get("landmark_offsets", np.zeros((0, 3), np.float32)),
             landmark_weights=get("landmark_weights", np.zeros(0, np.float32)),
+            network_rotation_gain=get("network_rotation_gain", np.zeros(0, np.float32)),
             calibration=str(get("calibration", "")),
         )
     try:
