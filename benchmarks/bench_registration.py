@@ -387,6 +387,31 @@ def photo_nme(data: Path, models: dict) -> dict:
     return out
 
 
+def oracle_fits(scene, frames: list, truths: list, points: np.ndarray, sfm, calibrated_model) -> dict:
+    """What is left without each error source (``--oracles``): the SFM fitted with the benchmark
+    set's own per-point offsets (learned from it: a bound, not a calibration), without the pose
+    smoothing, and to the true inner landmarks (:mod:`realism.landmark_oracle`, KEEP 0; the jaw
+    line stays the network's). Installs the oracle in this process: call it last."""
+    from realism import landmark_oracle
+
+    names = fixed_names(sfm)
+    own = nodes_calibration.learn_calibration([sequence_of(scene, points, names)])
+    own_model = nodes_calibration.calibrated(sfm, names, own["offsets"], np.ones(len(names)), "the benchmark set's own")
+    rows = {"sfm, the set's own offsets (bound)": fitted_rotation(scene, frames, truths, own_model),
+            "sfm, no pose smoothing": fitted_rotation(scene, frames, truths, sfm, config={"smoothing": False}),
+            "sfm, the set's own offsets, no pose smoothing": fitted_rotation(scene, frames, truths, own_model,
+                                                                             config={"smoothing": False})}
+    if calibrated_model is not None:
+        rows["sfm, calibrated, no pose smoothing"] = fitted_rotation(scene, frames, truths, calibrated_model,
+                                                                     config={"smoothing": False})
+    size = (frames[0].shape[1], frames[0].shape[0])
+    landmark_oracle.install(landmark_oracle.true_landmarks(scene), size, 0.0)
+    rows["sfm, true inner points"] = fitted_rotation(scene, frames, truths, sfm)
+    rows["sfm, true inner points, no pose smoothing"] = fitted_rotation(scene, frames, truths, sfm,
+                                                                        config={"smoothing": False})
+    return rows
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
@@ -397,6 +422,8 @@ def main(argv=None) -> int:
                    help="learn the SFM's landmark calibration from sequences of its own and write it here "
                         "(the fitter reads it from facesculpt.nodes.fitter.calibration.calibration_file('sfm_shape_3448'))")
     p.add_argument("--calibration-frames", type=int, default=80, help="frames of each calibration sequence (default 80)")
+    p.add_argument("--oracles", action="store_true",
+                   help="also the SFM fit without each error source (the set's own offsets, no smoothing, true points)")
     p.add_argument("--photos", action="store_true", help="also the NME of the 43 hand-marked photos' landmark fits")
     p.add_argument("--calibration", type=Path, default=None,
                    help="a calibration file to score against today's fit (default: the one --calibrate writes)")
@@ -443,6 +470,8 @@ def main(argv=None) -> int:
                                   ("no rotation gain", {"network_rotation_gain": np.zeros(0, np.float32)})):
                 results["fits"][f"sfm, calibrated, {label}"] = fitted_rotation(
                     scene, frames, truths, dataclasses.replace(model, **change))
+    if args.oracles:
+        results["fits"] |= oracle_fits(scene, frames, truths, points, sfm, model if calibration is not None else None)
     lines = diagnosis_lines(results["diagnosis"]) + [""] + calibration_lines(results) + fit_lines(results["fits"])
     if args.photos:
         results["photo_nme"] = photo_nme(data, {"sfm": sfm} | ({"sfm, calibrated": model} if calibration else {}))
