@@ -39,7 +39,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_appearance import OUTLINE_PX, silhouette_distance  # noqa: E402
+from bench_appearance import OUTLINE_PX, rotation_angle, silhouette_distance  # noqa: E402
 from realism import registration as reg  # noqa: E402
 from realism.landmark_oracle import INNER  # noqa: E402
 from realism.posed import render_all  # noqa: E402
@@ -145,12 +145,7 @@ def _offset_removed(R_fit: np.ndarray, R_true: np.ndarray) -> np.ndarray:
     from facesculpt.nodes.fitter.pose import nearest_rotation
 
     D = nearest_rotation(sum(Rt.T @ Rf for Rf, Rt in zip(R_fit, R_true)))
-    return np.array([angle(Rf, Rt @ D) for Rf, Rt in zip(R_fit, R_true)])
-
-
-def angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
-    """The angle (deg) of the rotation between two rotations (3, 3)."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1.0) / 2.0, -1.0, 1.0))))
+    return np.array([rotation_angle(Rf, Rt @ D) for Rf, Rt in zip(R_fit, R_true)])
 
 
 def fitted_rotation(scene, frames: list, truths: list, model, skip: int = 0, config: dict | None = None,
@@ -191,7 +186,7 @@ def fitted_rotation(scene, frames: list, truths: list, model, skip: int = 0, con
     true_pitch = np.array([euler_from_rotation(R)[1] for R in Rt])
     pitch_err = np.array([euler_from_rotation(R)[1] for R in Rf]) - true_pitch
     yaw_err = np.array([euler_from_rotation(R)[0] for R in Rf]) - np.array([euler_from_rotation(R)[0] for R in Rt])
-    out = {"frames": len(idx), "rotation_deg": float(np.mean([angle(a, b) for a, b in zip(Rf, Rt)])),
+    out = {"frames": len(idx), "rotation_deg": float(np.mean([rotation_angle(a, b) for a, b in zip(Rf, Rt)])),
            "rotation_offset_removed_deg": float(np.mean(_offset_removed(Rf, Rt))),
            "pitch_error_mean_deg": float(pitch_err.mean()), "pitch_error_sd_deg": float(pitch_err.std()),
            "r_pitch_error_pitch": float(np.corrcoef(pitch_err, true_pitch)[0, 1]),
@@ -412,6 +407,58 @@ def oracle_fits(scene, frames: list, truths: list, points: np.ndarray, sfm, cali
     return rows
 
 
+#: |yaw| bins (degrees) of the real videos' frames.
+REAL_YAW_BINS = ((0.0, 5.0), (5.0, 10.0), (10.0, 90.0))
+
+
+def real_video(data: Path, video: str, models: dict, count: int) -> dict:
+    """Each model fitted frame by frame (no identity accumulation, no smoothing) over the first
+    ``count`` frames of a shared video: per |yaw| bin (of today's fit) the landmark residual (RMS
+    px) and the mean identity shape; reported: the residual per bin, its correlation with |yaw|,
+    and the identity's spread between bins (RMS mm of the bin means about their mean, over all
+    vertices)."""
+    import dataclasses
+
+    from realism.sequences import read_video
+
+    from facesculpt.app.pipeline import Pipeline
+
+    frames = read_video(data / "video" / f"{video}.mp4", count)
+    out, yaw = {}, None
+    for name, model in models.items():
+        rows = []
+        with Pipeline(model, fov_deg=FOV_DEG) as pipe:
+            pipe.fitter_config = dataclasses.replace(pipe.fitter_config, accumulate_identity=False, smoothing=False)
+            for i, frame in enumerate(frames):
+                fit = pipe.fit_frame(frame, i / 25.0)
+                if fit is not None:
+                    rows.append((i, abs(euler_from_rotation(np.asarray(fit.R))[0]), fit.residual_px, np.asarray(fit.alpha)))
+        if yaw is None:   # the bins are today's fit's, the same frames for every model
+            yaw = {i: y for i, y, _, _ in rows}
+        by_bin, shapes = {}, []
+        for lo, hi in REAL_YAW_BINS:
+            sel = [r for r in rows if r[0] in yaw and lo <= yaw[r[0]] < hi]
+            if len(sel) >= 3:
+                by_bin[f"{lo:g}..{hi:g}"] = {"frames": len(sel), "residual_px": float(np.mean([r[2] for r in sel]))}
+                shapes.append(np.asarray(pipe.model.instance(np.mean([r[3] for r in sel], axis=0)), np.float64))
+        spread = float(np.sqrt(np.mean(np.sum((np.array(shapes) - np.mean(shapes, axis=0)) ** 2, axis=2)))) if shapes else np.nan
+        ys = [yaw.get(r[0], np.nan) for r in rows]
+        out[name] = {"by_yaw": by_bin, "identity_spread_mm": spread,
+                     "r_residual_abs_yaw": float(np.corrcoef(ys, [r[2] for r in rows])[0, 1])}
+    return out
+
+
+def real_lines(real: dict) -> list[str]:
+    """The real videos' figures as markdown lines."""
+    lines = ["", "| video | fit | residual px by today's |yaw| bin (frames) | r(residual, |yaw|) | identity spread between bins mm |",
+             "| --- | --- | --- | --- | --- |"]
+    for video, fits in real.items():
+        for name, f in fits.items():
+            bins = ", ".join(f"{b}: {v['residual_px']:.2f} ({v['frames']})" for b, v in f["by_yaw"].items())
+            lines.append(f"| {video} | {name} | {bins} | {f['r_residual_abs_yaw']:+.2f} | {f['identity_spread_mm']:.3f} |")
+    return lines
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
@@ -424,6 +471,8 @@ def main(argv=None) -> int:
     p.add_argument("--calibration-frames", type=int, default=80, help="frames of each calibration sequence (default 80)")
     p.add_argument("--oracles", action="store_true",
                    help="also the SFM fit without each error source (the set's own offsets, no smoothing, true points)")
+    p.add_argument("--real-videos", default="", help="shared videos (e.g. d0,d3,s18) fitted with and without the calibration")
+    p.add_argument("--real-frames", type=int, default=150, help="frames of each real video (default 150)")
     p.add_argument("--photos", action="store_true", help="also the NME of the 43 hand-marked photos' landmark fits")
     p.add_argument("--calibration", type=Path, default=None,
                    help="a calibration file to score against today's fit (default: the one --calibrate writes)")
@@ -470,9 +519,14 @@ def main(argv=None) -> int:
                                   ("no rotation gain", {"network_rotation_gain": np.zeros(0, np.float32)})):
                 results["fits"][f"sfm, calibrated, {label}"] = fitted_rotation(
                     scene, frames, truths, dataclasses.replace(model, **change))
+    if args.real_videos and calibration is not None:
+        results["real"] = {v: real_video(data, v, {"sfm": sfm, "sfm, calibrated": model}, args.real_frames)
+                           for v in args.real_videos.split(",") if v}
     if args.oracles:
         results["fits"] |= oracle_fits(scene, frames, truths, points, sfm, model if calibration is not None else None)
     lines = diagnosis_lines(results["diagnosis"]) + [""] + calibration_lines(results) + fit_lines(results["fits"])
+    if "real" in results:
+        lines += real_lines(results["real"])
     if args.photos:
         results["photo_nme"] = photo_nme(data, {"sfm": sfm} | ({"sfm, calibrated": model} if calibration else {}))
         lines += ["", "| landmark fit of the hand-marked photos | faces | NME, fitted vertices | NME, calibrated points |",
