@@ -407,16 +407,16 @@ def oracle_fits(scene, frames: list, truths: list, points: np.ndarray, sfm, cali
     return rows
 
 
-#: |yaw| bins (degrees) of the real videos' frames.
-REAL_YAW_BINS = ((0.0, 5.0), (5.0, 10.0), (10.0, 90.0))
+#: Yaw bins of a real video's frames: this many, equally filled, by today's fitted yaw.
+REAL_YAW_BINS = 3
 
 
 def real_video(data: Path, video: str, models: dict, count: int) -> dict:
     """Each model fitted frame by frame (no identity accumulation, no smoothing) over the first
-    ``count`` frames of a shared video: per |yaw| bin (of today's fit) the landmark residual (RMS
-    px) and the mean identity shape; reported: the residual per bin, its correlation with |yaw|,
-    and the identity's spread between bins (RMS mm of the bin means about their mean, over all
-    vertices)."""
+    ``count`` frames of a shared video: per yaw bin (:data:`REAL_YAW_BINS` equally filled bins of
+    today's fitted yaw, the same frames for every model) the landmark residual (RMS px) and the
+    mean identity shape; reported: the residual per bin, its correlation with |yaw|, and the
+    identity's spread between bins (RMS mm of the bin means about their mean, over all vertices)."""
     import dataclasses
 
     from realism.sequences import read_video
@@ -432,17 +432,19 @@ def real_video(data: Path, video: str, models: dict, count: int) -> dict:
             for i, frame in enumerate(frames):
                 fit = pipe.fit_frame(frame, i / 25.0)
                 if fit is not None:
-                    rows.append((i, abs(euler_from_rotation(np.asarray(fit.R))[0]), fit.residual_px, np.asarray(fit.alpha)))
+                    rows.append((i, euler_from_rotation(np.asarray(fit.R))[0], fit.residual_px, np.asarray(fit.alpha)))
         if yaw is None:   # the bins are today's fit's, the same frames for every model
             yaw = {i: y for i, y, _, _ in rows}
+        edges = np.quantile(list(yaw.values()), np.linspace(0, 1, REAL_YAW_BINS + 1))
+        edges[-1] += 1e-9
         by_bin, shapes = {}, []
-        for lo, hi in REAL_YAW_BINS:
+        for lo, hi in zip(edges[:-1], edges[1:]):
             sel = [r for r in rows if r[0] in yaw and lo <= yaw[r[0]] < hi]
             if len(sel) >= 3:
-                by_bin[f"{lo:g}..{hi:g}"] = {"frames": len(sel), "residual_px": float(np.mean([r[2] for r in sel]))}
+                by_bin[f"{lo:+.1f}..{hi:+.1f}"] = {"frames": len(sel), "residual_px": float(np.mean([r[2] for r in sel]))}
                 shapes.append(np.asarray(pipe.model.instance(np.mean([r[3] for r in sel], axis=0)), np.float64))
         spread = float(np.sqrt(np.mean(np.sum((np.array(shapes) - np.mean(shapes, axis=0)) ** 2, axis=2)))) if shapes else np.nan
-        ys = [yaw.get(r[0], np.nan) for r in rows]
+        ys = [abs(yaw.get(r[0], np.nan)) for r in rows]
         out[name] = {"by_yaw": by_bin, "identity_spread_mm": spread,
                      "r_residual_abs_yaw": float(np.corrcoef(ys, [r[2] for r in rows])[0, 1])}
     return out
@@ -450,7 +452,7 @@ def real_video(data: Path, video: str, models: dict, count: int) -> dict:
 
 def real_lines(real: dict) -> list[str]:
     """The real videos' figures as markdown lines."""
-    lines = ["", "| video | fit | residual px by today's |yaw| bin (frames) | r(residual, |yaw|) | identity spread between bins mm |",
+    lines = ["", "| video | fit | residual px by today's yaw bin, degrees (frames) | r(residual, |yaw|) | identity spread between bins mm |",
              "| --- | --- | --- | --- | --- |"]
     for video, fits in real.items():
         for name, f in fits.items():
