@@ -2,6 +2,7 @@
 fitted head's rotation with and without a calibration.
 
     python benchmarks/bench_registration.py [--frames 90] [--out DIR] [--models sfm,facemesh]
+        [--calibrate FILE] [--calibration FILE] [--oracles] [--photos] [--real-videos d0,d3,s18]
 
 The realism benchmark's synthetic scene (:mod:`realism.scene`: the Surrey Face Model with a random
 identity, textured from a real face, turning yaw ±25°, pitch ±10°) is rendered with its true pose
@@ -21,6 +22,12 @@ and vertices, and the project's landmark network is run on every frame. Reported
   for each model: mean angle, mean after the constant offset between the model's head frame and
   the truth's is removed, the correlation of the pitch error with the pitch, and (SFM) the inner
   and outline vertices' image error.
+
+``--calibrate FILE`` learns the SFM's landmark calibration (``nodes/fitter/calibration.py``) from
+sequences of its own (:mod:`realism.calibration_scenes`) and writes it; with it (or
+``--calibration FILE``) the benchmark set is fitted with and without it, ``--photos`` adds the 43
+hand-marked photos' NME, ``--real-videos`` the shared videos fitted frame by frame, ``--oracles``
+the fits without each error source (the set's own offsets, no smoothing, the true points).
 
 Writes ``registration.json`` and ``registration.md`` to ``--out`` and prints the tables. Needs the
 shared data (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
