@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from facesculpt.geometry import similarity
-from facesculpt.nodes.fitter.pose import nearest_rotation
+from facesculpt.nodes.fitter.pose import nearest_rotation, rodrigues, rotation_log
 
 #: The iBUG-68 landmark ids (1-based names) whose depth is used: the nose (bridge and base) and
 #: the eyes' corners, which expressions barely move (the brows, lids and mouth do, and the jaw's
@@ -39,10 +39,13 @@ class DetectorRotation:
 
     reference_frames (>= 1): frames averaged into the reference of the network's 3D points, and
     offsets learned before a prior is given; offset_frames (> 0): the fading window (frames) of
-    the offset's mean."""
+    the offset's mean; gain (3,) or None: the network's rotation from its reference, as a rotation
+    vector in camera axes (x: pitch, y: yaw, z: roll), is multiplied by it (a network whose points
+    turn by 1/gain of the head: the model's calibration, :mod:`.calibration`)."""
 
-    def __init__(self, reference_frames: int = 30, offset_frames: float = OFFSET_FRAMES):
+    def __init__(self, reference_frames: int = 30, offset_frames: float = OFFSET_FRAMES, gain=None):
         self.reference_frames = int(reference_frames)
+        self.gain = None if gain is None or not len(gain) else np.asarray(gain, np.float64).reshape(3)
         self.decay = 1.0 - 1.0 / float(offset_frames)
         self.reset()
 
@@ -74,7 +77,7 @@ class DetectorRotation:
             n = self.reference_count
             self.reference = (self.reference * n + local) / (n + 1)
             self.reference_count = n + 1
-        return R
+        return R if self.gain is None else rodrigues(self.gain * rotation_log(R))
 
     def prior(self, R_network: np.ndarray | None) -> np.ndarray | None:
         """The prior (3, 3) on the model's rotation for the network's rotation ``R_network``;

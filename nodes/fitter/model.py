@@ -32,6 +32,15 @@ outline_right/_left        (N,) i4         model vertices along the subject's ri
                                            candidates for the outline landmarks
 outline_landmarks_right/_left (K,) str     landmark names that lie on each outline (not tied to vertices)
 dense                      () bool         every vertex is observed directly (facemesh dense mode)
+landmark_offsets           (L, 3) f4       optional calibration: where the landmark network's point for
+                                           each named landmark lies, model mm from its vertex; (0, 3)
+                                           when absent (the vertex itself)
+landmark_weights           (L,) f4         optional calibration: each landmark's weight in the fit
+                                           (1/sigma², mean 1); (0,) when absent (all 1)
+network_rotation_gain      (3,) f4         optional calibration: the landmark network's own 3D points turn
+                                           by 1/gain of the head about the camera's x (pitch), y (yaw) and
+                                           z axes; (0,) when absent (gain 1)
+calibration                () str          where the calibration came from (empty: none)
 source                     () str          free text: where the model came from
 =========================  ==============  ==========================================================
 
@@ -91,6 +100,10 @@ class MorphableModel:
     dense: bool = False
     units: str = "mm"
     source: str = ""
+    landmark_offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    landmark_weights: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    network_rotation_gain: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    calibration: str = ""
 
     def __post_init__(self) -> None:
         V = int(np.asarray(self.mean).shape[0]) if np.ndim(self.mean) == 2 else 0
@@ -211,9 +224,27 @@ def validate(model: MorphableModel) -> None:
         if names and not outline.size:
             _fail(f"outline_landmarks_{side} is given but outline_{side} has no vertices")
         setattr(m, f"outline_landmarks_{side}", names)
+    _validate_calibration(m)
     if not isinstance(m.units, str) or not m.units:
         _fail("units must be a non-empty string such as 'mm'")
     m.dense = bool(m.dense)
+
+
+def _validate_calibration(m: MorphableModel) -> None:
+    """The optional landmark calibration's fields (module docstring), normalised in place."""
+    L = len(m.landmark_names)
+    m.landmark_offsets = np.asarray(m.landmark_offsets, np.float32).reshape(-1, 3)
+    m.landmark_weights = np.asarray(m.landmark_weights, np.float32).reshape(-1)
+    if m.landmark_offsets.shape[0] not in (0, L) or m.landmark_weights.shape[0] not in (0, L):
+        _fail(f"landmark_offsets must be ({L}, 3) and landmark_weights ({L},) or empty, "
+              f"got {m.landmark_offsets.shape} / {m.landmark_weights.shape}")
+    if not (np.isfinite(m.landmark_offsets).all() and np.isfinite(m.landmark_weights).all()
+            and (m.landmark_weights > 0).all()):
+        _fail("landmark_offsets must be finite and landmark_weights finite and positive")
+    m.network_rotation_gain = np.asarray(m.network_rotation_gain, np.float32).reshape(-1)
+    if m.network_rotation_gain.shape[0] not in (0, 3) or not (m.network_rotation_gain > 0).all():
+        _fail(f"network_rotation_gain must be 3 positive gains or empty, got {m.network_rotation_gain}")
+    m.calibration = str(m.calibration)
 
 
 # --------------------------------------------------------------------------------------------
@@ -252,6 +283,10 @@ def save_model(model: MorphableModel, path: str | Path) -> Path:
             outline_landmarks_right=s(model.outline_landmarks_right),
             outline_landmarks_left=s(model.outline_landmarks_left),
             dense=np.bool_(model.dense),
+            landmark_offsets=model.landmark_offsets,
+            landmark_weights=model.landmark_weights,
+            network_rotation_gain=model.network_rotation_gain,
+            calibration=np.str_(model.calibration),
         )
     return path
 
@@ -298,6 +333,10 @@ def _load_npz(path: Path) -> MorphableModel:
             dense=bool(get("dense", False)),
             units=str(get("units", "mm")),
             source=str(get("source", "")),
+            landmark_offsets=get("landmark_offsets", np.zeros((0, 3), np.float32)),
+            landmark_weights=get("landmark_weights", np.zeros(0, np.float32)),
+            network_rotation_gain=get("network_rotation_gain", np.zeros(0, np.float32)),
+            calibration=str(get("calibration", "")),
         )
     try:
         return MorphableModel(**kwargs)
@@ -307,7 +346,8 @@ def _load_npz(path: Path) -> MorphableModel:
 
 def load_model(name_or_path: str | Path = "facemesh") -> MorphableModel:
     """Load a model: ``"facemesh"`` (built-in, needs `facesculpt setup`), ``"sfm"`` (the Surrey Face
-    Model, imported on the fly from the shared data folder), or a path to a ``.npz`` model file.
+    Model, imported on the fly from the shared data folder, with the landmark calibration of
+    :func:`.calibration.calibration_file` when there is one), or a path to a ``.npz`` model file.
     Raises FileNotFoundError / :class:`ModelFormatError` with a message saying what is wrong."""
     # The two named models are built by modules that import this one: import them on demand.
     if isinstance(name_or_path, MorphableModel):
@@ -318,9 +358,13 @@ def load_model(name_or_path: str | Path = "facemesh") -> MorphableModel:
 
         return facemesh_model()
     if text == "sfm":
+        from facesculpt.nodes.fitter.calibration import calibration_file, load_calibration
         from facesculpt.nodes.fitter.eos_import import import_eos, sfm_files
 
-        return import_eos(**sfm_files(), model_id="sfm_shape_3448")
+        model = import_eos(**sfm_files(), model_id="sfm_shape_3448")
+        # the network points' calibration (`bench_registration.py --calibrate`), when one was built
+        calibration = calibration_file(model.model_id)
+        return load_calibration(calibration, model) if calibration.is_file() else model
     path = Path(text).expanduser()
     if not path.is_file():
         raise FileNotFoundError(

@@ -56,8 +56,13 @@ class SparseFitter(Fitter):
         self._geometry = None
         if len(m.outline_right) and len(m.outline_left):
             self._prepare_outline()
+        # the model's calibration of the network's points (model mm from each landmark's vertex, weights)
+        L = len(m.landmark_names)
+        self._landmark_offset = dict(zip(m.landmark_names, m.landmark_offsets if len(m.landmark_offsets) else np.zeros((L, 3))))
+        self._landmark_weight = dict(zip(m.landmark_names, m.landmark_weights if len(m.landmark_weights) else np.ones(L)))
+        self._fixed_offsets = np.zeros((0, 3))
         self.identity = fitting.IdentityAccumulator(S, config.identity_decay, config.identity_max_frames)
-        self.network_rotation = DetectorRotation(config.neutral_frames)
+        self.network_rotation = DetectorRotation(config.neutral_frames, gain=m.network_rotation_gain)
         self.reset()
 
     def _prepare_outline(self) -> None:
@@ -93,7 +98,9 @@ class SparseFitter(Fitter):
     # ------------------------------------------------------------------ one frame
     def _fit(self, pts, ids, w, finite, now) -> FitResult:
         fixed_idx, fixed_vert, out_idx, out_side = self._select_landmarks(ids, finite)
-        x_fixed, w_fixed = pts[fixed_idx, :2], w[fixed_idx]
+        x_fixed = pts[fixed_idx, :2]
+        w_fixed = w[fixed_idx] * np.array([self._landmark_weight[ids[i]] for i in fixed_idx])
+        self._fixed_offsets = np.array([self._landmark_offset[ids[i]] for i in fixed_idx], np.float64).reshape(-1, 3)
         x_out, w_out = pts[out_idx, :2], w[out_idx] * self.config.outline_weight
         # Correspondences: fixed ones are (v, v, v) with weights (1, 0, 0).
         fv = np.repeat(np.asarray(fixed_vert, int)[:, None], 3, axis=1)
@@ -165,8 +172,10 @@ class SparseFitter(Fitter):
         return np.asarray(fixed_idx, int), fixed_vert, np.asarray(out_idx, int), np.asarray(out_side, int)
 
     def _rows(self, verts: np.ndarray, weights: np.ndarray):
-        """The correspondence points' mean (L, 3) and their rows of the shape and expression bases."""
+        """The correspondence points' mean (L, 3) and their rows of the shape and expression bases
+        (the fixed landmarks, first, moved by the model's calibration offsets)."""
         base = fitting.correspondence_points(self._mean, verts, weights)
+        base[:len(self._fixed_offsets)] += self._fixed_offsets
         rows_s = fitting.correspondence_rows(self._shape_basis, verts, weights)
         rows_e = fitting.correspondence_rows(self._expr_basis, verts, weights)
         return base, rows_s, rows_e
