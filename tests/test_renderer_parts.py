@@ -21,7 +21,7 @@ from facesculpt.nodes.renderer.frame_size_defaults import (
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
 from facesculpt.nodes.renderer.mesh import vertex_rings
 from facesculpt.nodes.renderer.sinc_sampling import sample_sinc, upsample2x
-from facesculpt.nodes.renderer.subdivision import levels_for, median_edge_px
+from facesculpt.nodes.renderer.subdivision import MAX_FINE_EDGE_PX, levels_for, median_edge_px
 from facesculpt.nodes.renderer.video_out import VideoOutput
 from facesculpt.nodes.renderer.warp import sample
 
@@ -87,7 +87,7 @@ def test_the_live_renderers_auto_outline_band_is_the_offline_one_below_720p():
 
 def test_the_live_renderers_auto_mesh_follows_the_faces_size_from_720p():
     """The compositor's default below 720p; from there on as fine as the face's size needs."""
-    assert auto_subdivision("auto", 856, 480) == (None, None)
+    assert auto_subdivision("auto", 856, 480) == (None, MAX_FINE_EDGE_PX)
     assert auto_subdivision("auto", 1280, 720) == (None, AUTO_MAX_FINE_EDGE_PX)
     assert auto_subdivision(2, 1920, 1080) == auto_subdivision("2", 640, 480) == (2, None)   # YAML gives either
     for bad in ("4", "-1", "fine", 1.5):

@@ -58,6 +58,7 @@ from .motion_extension import carry_past_outline, extend_motion, head_box, head_
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
 from .source_map import UNCOVERED, SourceMapRenderer
+from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
     IDENTITY_PX,
@@ -93,16 +94,16 @@ class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
     Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2, telea_radius=3.0,
-    interpolation="sinc", subdivision=None, max_fine_edge_px=None): frame size in pixels; ``ctx`` a
+    interpolation="sinc", subdivision=None, max_fine_edge_px=MAX_FINE_EDGE_PX): frame size in pixels; ``ctx`` a
     moderngl context to draw with (default: a headless EGL context of its own); ``inpaint`` the fill
     of what the face uncovers: "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag"
     (:mod:`.drag_fill`); ``feather_px`` least width of the soft edge inside the deformed outline
     (pixels; it grows to ``FEATHER_FRACTION`` of the face's size; 0: a hard edge); ``dilate_px``
     growth of the region to inpaint (pixels); ``interpolation`` the kernel the frame is sampled with
     ("sinc": a long windowed sinc, :mod:`.sinc_sampling`; "cubic", "lanczos", "linear": OpenCV's);
-    ``subdivision`` Loop levels of the render mesh (None: as many as keep it within 16384 triangles,
-    at most 2; with ``max_fine_edge_px``, per frame as few as make its edges that short on screen in
-    pixels: :class:`.RenderMeshes`); ``atlas`` keep and use the
+    ``subdivision`` Loop levels of the render mesh (None: per frame as few as make its edges
+    ``max_fine_edge_px`` long on screen, at least one, within 16384 triangles and 2 levels; with
+    ``max_fine_edge_px`` None, as many as that budget allows: :class:`.RenderMeshes`); ``atlas`` keep and use the
     face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side, ``atlas_every``
     update it every N frames (the frames between only read it); ``atlas_blend`` False: learn the atlas,
     blend nothing from it (e.g. only to save it); ``atlas_thread``: its updates on a thread of its own,
@@ -126,7 +127,7 @@ class Compositor:
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
                  inpaint: str = "drag", feather_px: float = 3.0, dilate_px: int = 2,
                  telea_radius: float = 3.0, interpolation: str = "sinc", subdivision: int | None = None,
-                 max_fine_edge_px: float | None = None,
+                 max_fine_edge_px: float | None = MAX_FINE_EDGE_PX,
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
                  plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,
