@@ -57,6 +57,7 @@ from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
+from .sinc_sampling import Upsampled
 from .source_map import UNCOVERED, SourceMapRenderer
 from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import TextureAtlas, blend_atlas
@@ -304,15 +305,19 @@ class Compositor:
         t4 = time.perf_counter()
         x0, y0, x1, y1 = box
         crop = out[y0:y1, x0:x1]
-        if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
-            self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)))
-        t5 = time.perf_counter()
         write = changed | (covered & (fill != 0))
+        upsampled = self._upsampled(frame_bgr, box, write | fill.view(bool), offset)
+        t_up = time.perf_counter() - t4   # the sampling's (the texture stage's), though the fill uses it first
+        if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
+            self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)),
+                       upsampled)
+        t5 = time.perf_counter()
         block = bounding_slices(write)
         warped = None
         if block is not None:
             rows, cols = block
-            warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation)
+            warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
+                                upsampled)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
         t6 = time.perf_counter()
         if block is not None:
@@ -325,7 +330,8 @@ class Compositor:
         self.changed_region, self.inpainted_region = changed.view(np.uint8), fill
         self.timings = {
             "camera": (t1 - t0) * 1e3, "atlas": t_atlas, "draw": (t2 - t1) * 1e3, "readback": (t3 - t2) * 1e3,
-            "plate": t_plate, "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4) * 1e3, "texture": (t6 - t5) * 1e3,
+            "plate": t_plate, "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4 - t_up) * 1e3,
+            "texture": (t6 - t5 + t_up) * 1e3,
             "composite": (t7 - t6) * 1e3, "total": (time.perf_counter() - t_start) * 1e3}
         return out
 
@@ -352,15 +358,15 @@ class Compositor:
         return offsets, orig_mask, face, dragged
 
     def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
-              projected: np.ndarray, drag: tuple) -> None:
+              projected: np.ndarray, drag: tuple, upsampled: Upsampled | None = None) -> None:
         """Fill the ``fill`` pixels of ``crop`` (the frame's ``box``, in place) from the ``source``
         pixels (step 4), then lay the background plate over them where it knows the background.
         ``drag``: (the input frame, the dragged offsets or None, the face before and after) for the
-        drag fill (:func:`.drag_fill.drag_fill`; push-pull where it does not reach)."""
+        drag fill (:func:`.drag_fill.drag_fill`, through ``upsampled``; push-pull where it does not reach)."""
         frame, dragged, face = drag
         rest, known, method = fill, source, self.inpaint
         if dragged is not None:
-            done = drag_fill(crop, frame, fill, dragged, face, box[:2], self.interpolation)
+            done = drag_fill(crop, frame, fill, dragged, face, box[:2], self.interpolation, upsampled)
             rest, known, method = fill & ~done.view(np.uint8), source | done, "pushpull"
         fill_by_parts(crop, rest, known, method, radius=self.telea_radius, in_place=True)
         if self.plate is not None:
@@ -465,6 +471,20 @@ class Compositor:
         self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
         self.atlas_region[block] = blend_atlas(warped, offsets[block], self.maps.read_extra(box)[block],
                                                changed[block], self.atlas)
+
+    def _upsampled(self, frame: np.ndarray, box: tuple[int, int, int, int], need: np.ndarray,
+                   offset: np.ndarray) -> Upsampled | None:
+        """With the sinc: ``frame`` upsampled once (:class:`.sinc_sampling.Upsampled`) where the
+        ``need`` pixels (h, w) bool of ``box`` read it, for both the drag fill and the face: their
+        bounding box grown by the longest vertex ``offset`` (V, 2) px (every offset of the source map
+        is a weighted mean of those). None for other kernels or nothing needed."""
+        rect = bounding_slices(need) if self.interpolation == "sinc" else None
+        if rect is None:
+            return None
+        reach = int(np.ceil(np.abs(offset).max())) + 1
+        (rows, cols), (x0, y0) = rect, box[:2]
+        return Upsampled(frame, (x0 + cols.start - reach, y0 + rows.start - reach,
+                                 x0 + cols.stop + reach, y0 + rows.stop + reach))
 
     def _work_box(self, projected: np.ndarray, dst_px: np.ndarray, moved: np.ndarray,
                   head_motion: bool = False) -> tuple[int, int, int, int] | None:
