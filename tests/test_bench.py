@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 STAGES = ("landmark_detection", "model_fitting", "mesh_deformation", "merging", "inpainting",
           "texture_update_rendering", "sequential_total")
@@ -57,6 +59,35 @@ def test_bench_at_a_chosen_size(data_dir, models_dir, tmp_path):
     bad = subprocess.run([sys.executable, "-m", "facesculpt.cli", "bench", "--size", "1280by720", "--no-graph"],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "must be WIDTHxHEIGHT" in bad.stderr.strip().splitlines()[-1]
+
+
+def test_bench_gives_each_figure_over_a_reference_workload_of_the_same_run(data_dir, models_dir, tmp_path):
+    """The report has the reference workload, measured at the start and the end of the run, and each
+    stage's ms over it, in the JSON and beside the ms in the table (the ratio's value is the
+    machine's business)."""
+    from facesculpt.app.bench_reference import as_ratio, reference_workload
+
+    out = tmp_path / "bench.json"
+    result = subprocess.run(
+        [sys.executable, "-m", "facesculpt.cli", "bench", "--model", "facemesh", "--frames", "6", "--drags", "2",
+         "--no-graph", "--json", str(out)], cwd=REPO, capture_output=True, text=True, timeout=150)
+    assert result.returncode == 0, result.stderr[-2000:]
+    doc = json.loads(out.read_text())
+    ref = doc["reference"]
+    assert ref["start"]["total_ms"] > 0 and ref["end"]["total_ms"] > 0 and ref["start"]["gl_ms"] > 0
+    assert min(ref["start"]["total_ms"], ref["end"]["total_ms"]) <= ref["total_ms"] \
+        <= max(ref["start"]["total_ms"], ref["end"]["total_ms"])
+    m = doc["models"]["facemesh"]
+    for stage in STAGES:
+        assert m["stages_ratio"][stage] == as_ratio(m["stages_ms"][stage], ref["total_ms"]) > 0, stage
+    head = next(line for line in result.stdout.splitlines() if line.startswith("stage (ms)"))
+    assert "/ ref" in head
+    row = next(line for line in result.stdout.splitlines() if line.startswith("inpainting"))
+    assert f"{m['stages_ratio']['inpainting']:.3f}" in row.split()
+    assert "reference workload measured in the same run" in result.stdout
+    assert as_ratio(None, 5.0) is None and as_ratio(3.0, 0.0) is None
+    with pytest.raises(ValueError, match="repeats"):
+        reference_workload(0)
 
 
 def test_bench_scenario_acts_in_the_window_beside_a_busy_loop(data_dir, models_dir, tmp_path):

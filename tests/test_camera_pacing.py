@@ -32,8 +32,9 @@ def test_paced_camera_sends_the_newest_frame_on_each_acknowledgement(graph, tmp_
                     callback=lambda m: arrivals.append((time.monotonic(), m.seq, m.stamp, _index(m.image))))
     # 30 frames/s from the bag; this "renderer" takes 100 ms a frame and acknowledges none of the
     # frames that carry an index from 30 to 44 (the camera gives them up after pace_timeout_s).
+    # pace_reads=off: read at the bag's pace, as a webcam's frames come whether read or not
     cam = graph.spawn("run", "camera", f"source=bag:{bag}", "fps=30", "pace_by=render/done", "pace_in_flight=2",
-                      "pace_timeout_s=0.5", "wait_subscribers=1")
+                      "pace_timeout_s=0.5", "wait_subscribers=1", "pace_reads=off")
     deadline = time.monotonic() + 30
     while cam.poll() is None and time.monotonic() < deadline:
         acker.spin_once(0.01)
@@ -65,6 +66,37 @@ def test_paced_camera_sends_the_newest_frame_on_each_acknowledgement(graph, tmp_
     following = [t for t, _, _, i in arrivals if t > held[-1]]
     assert len(held) == 2 and following and following[0] - held[0] >= 0.45, \
         "frames nobody acknowledged did not hold the next ones until their timeout"
+
+
+def test_paced_file_camera_reads_a_frame_only_when_it_may_go_out(graph, tmp_path):
+    """A recorded source (here a bag) behind a renderer slower than its rate: no frame is read to be
+    dropped (every frame goes out, in order), never more than pace_in_flight wait, and each goes
+    out as it is read (its age at arrival is not the wait for an acknowledgement)."""
+    bag = tmp_path / "numbers.bag"
+    _write_bag(bag, [np.full((48, 64, 3), 4 * i, np.uint8) for i in range(24)])
+    arrivals: list[tuple[float, int, int, int]] = []   # (monotonic, seq, stamp, frame index)
+    acked: dict[int, float] = {}
+    acker = graph.node(Node(name="acker"))
+    done = acker.advertise("render/done", FrameDone, qos=EVERY_MESSAGE)
+    acker.subscribe("camera/image", Image, qos=EVERY_MESSAGE,
+                    callback=lambda m: arrivals.append((time.monotonic(), m.seq, m.stamp, _index(m.image))))
+    cam = graph.spawn("run", "camera", f"source=bag:{bag}", "fps=60", "pace_by=render/done", "pace_in_flight=2",
+                      "wait_subscribers=1")
+    deadline = time.monotonic() + 30
+    while cam.poll() is None and time.monotonic() < deadline:
+        acker.spin_once(0.01)
+        now = time.monotonic()
+        for t, seq, stamp, _ in list(arrivals):
+            if seq not in acked and now - t >= 0.08:   # an 80 ms "renderer": 25 frames/s with two in flight
+                done.publish(FrameDone(stamp=stamp, seq=seq, frame_id="camera", rendered=True))
+                acked[seq] = time.monotonic()
+    assert cam.poll() == 0, "the camera did not end at the end of its bag"
+    assert [i for _, _, _, i in arrivals] == list(range(24))   # none read and dropped
+    for t, seq, _, _ in arrivals:
+        waiting = [q for t2, q, _, _ in arrivals if t2 < t and acked.get(q, 1e18) > t]
+        assert len(waiting) <= 1, (seq, waiting)
+    ages = [(t * 1e9 - time.monotonic_ns() + time.time_ns() - stamp) / 1e6 for t, _, stamp, _ in arrivals]
+    assert np.median(ages) < 10, ages
 
 
 def test_camera_publishes_a_halved_copy_for_the_analysis_path(graph, tmp_path):

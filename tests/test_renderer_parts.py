@@ -18,10 +18,10 @@ from facesculpt.nodes.renderer.frame_size_defaults import (
     auto_outline_band,
     auto_subdivision,
 )
-from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, uncovered_mask
+from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, part_boxes, uncovered_mask
 from facesculpt.nodes.renderer.mesh import vertex_rings
-from facesculpt.nodes.renderer.sinc_sampling import sample_sinc, upsample2x
-from facesculpt.nodes.renderer.subdivision import levels_for, median_edge_px
+from facesculpt.nodes.renderer.sinc_sampling import Upsampled, sample_sinc, upsample2x
+from facesculpt.nodes.renderer.subdivision import MAX_FINE_EDGE_PX, levels_for, median_edge_px
 from facesculpt.nodes.renderer.video_out import VideoOutput
 from facesculpt.nodes.renderer.warp import sample
 
@@ -70,6 +70,25 @@ def test_sinc_sampling_of_a_block_is_that_of_the_whole_frame_and_replicates_edge
     assert np.abs(sample_sinc(frame, grid_x - 3.5, grid_y + 2.5).astype(int) - bicubic).mean() < 1.0
 
 
+def test_sinc_sampling_through_one_upsampling_gives_the_pixels_of_its_own(data_dir):
+    """An Upsampled part of the frame serves every sampling whose positions it holds (the drag fill
+    and the face), with the pixels each sampling gets alone; one it does not hold, or another
+    image's, upsamples its own part as before."""
+    frame = read_frames(data_dir, "d3", start=30)[0]
+    h, w = frame.shape[:2]
+    grid_x, grid_y = np.meshgrid(np.arange(w, dtype=np.float32) + 0.37, np.arange(h, dtype=np.float32) - 0.21)
+    shared = Upsampled(frame, (30, 90, 140, 230))
+    for block in ((slice(100, 220), slice(40, 130)), (slice(95, 110), slice(31, 60)),   # held
+                  (slice(300, 340), slice(200, 260)), (slice(0, 30), slice(0, 30))):    # not held
+        alone = sample_sinc(frame, grid_x[block], grid_y[block])
+        got = sample_sinc(frame, grid_x[block], grid_y[block], shared)
+        assert np.abs(got.astype(int) - alone).max() <= 1 and np.mean(got != alone) < 0.01
+    other = frame[::-1].copy()
+    block = (slice(100, 220), slice(40, 130))
+    assert np.array_equal(sample_sinc(other, grid_x[block], grid_y[block], shared),
+                          sample_sinc(other, grid_x[block], grid_y[block]))
+
+
 def test_the_live_renderers_auto_kernel_is_the_sinc_below_720p():
     assert auto_interpolation("auto", 856, 480) == "sinc"
     assert auto_interpolation("auto", 1280, 720) == auto_interpolation("auto", 1920, 1080) == "cubic"
@@ -87,7 +106,7 @@ def test_the_live_renderers_auto_outline_band_is_the_offline_one_below_720p():
 
 def test_the_live_renderers_auto_mesh_follows_the_faces_size_from_720p():
     """The compositor's default below 720p; from there on as fine as the face's size needs."""
-    assert auto_subdivision("auto", 856, 480) == (None, None)
+    assert auto_subdivision("auto", 856, 480) == (None, MAX_FINE_EDGE_PX)
     assert auto_subdivision("auto", 1280, 720) == (None, AUTO_MAX_FINE_EDGE_PX)
     assert auto_subdivision(2, 1920, 1080) == auto_subdivision("2", 640, 480) == (2, None)   # YAML gives either
     for bad in ("4", "-1", "fine", 1.5):
@@ -173,6 +192,15 @@ def test_fill_by_parts_fills_each_part_on_its_own_box(background_patch, method):
     same = frame.copy()
     assert fill_by_parts(same, hole, ~hole, method=method, margin=8, in_place=True) is same
     assert np.array_equal(same, out)
+
+
+def test_parts_whose_boxes_overlap_share_one_box():
+    """Specks beside a band go on the band's box, grown to hold them whole; a part far from both
+    keeps its own; every box is cut to the image."""
+    rects = [(20, 20, 10, 40), (33, 62, 3, 2), (5, 50, 2, 2), (130, 5, 5, 5), (110, 80, 6, 6)]
+    boxes = sorted(part_boxes(rects, 8, 150, 100))
+    assert boxes == [(0, 12, 44, 72), (102, 72, 124, 94), (122, 0, 143, 18)], boxes
+    assert part_boxes([], 8, 150, 100) == []
 
 
 def test_uncovered_mask_is_the_dilated_difference_without_slivers():

@@ -22,7 +22,10 @@ photo under a moving virtual camera; frames resized to 856x480, the paper's size
   window's timeline (2-s slices: frames, latency p50/p99/max, each node's CPU) shows when, and the
   table lists its slowest slices.
 
-The machine is what it is (2 cores, no GPU here): the load average is reported with the figures.
+The machine is what it is (2 cores, no GPU here): the load average is reported with the figures,
+and a fixed reference workload (:mod:`facesculpt.app.bench_reference`) is measured at the start and
+the end of the run; each figure is also given over it (the "/ ref" columns, JSON "stages_ratio",
+"frame_period_ratio", "latency_ratio"), a ratio that holds across machines as the ms do not.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from facesculpt.app.bench_reference import add_ratios, as_ratio, reference_workload
 
 SIZE = (856, 480)
 FRONTAL_YAW_DEG = 20.0
@@ -281,13 +286,15 @@ def _fmt(value, digits=2) -> str:
 
 def table(result: dict) -> str:
     models = list(result["models"])
-    head = f"{'stage (ms)':<42}{'paper':>9}" + "".join(f"{m:>12}" for m in models)
+    ref = (result.get("reference") or {}).get("total_ms")
+    head = f"{'stage (ms)':<42}{'paper':>9}" + "".join(f"{m:>12}{'/ ref':>8}" for m in models)
     lines = [head, "-" * len(head)]
     for key, label in ROWS:
         paper = PAPER_MS.get(key)
         row = f"{label:<42}{_fmt(paper):>9}"
         for m in models:
-            row += f"{_fmt(result['models'][m]['stages_ms'].get(key)):>12}"
+            ms = result['models'][m]['stages_ms'].get(key)
+            row += f"{_fmt(ms):>12}{_fmt(as_ratio(ms, ref), 3):>8}"
         lines.append(row)
     extra = [("sequential rate (fps)", None, lambda r: r.get("sequential_fps")),
              ("pipelined rate (fps)", PAPER_PIPELINED_FPS, lambda r: r.get("pipelined_fps")),
@@ -296,8 +303,16 @@ def table(result: dict) -> str:
              ("end-to-end latency p99 (ms)", None, lambda r: r.get("latency_ms", {}).get("p99")),
              ("longest stall (ms)", None, lambda r: r.get("longest_stall_ms")),
              ("camera frames dropped", None, lambda r: r.get("frames_dropped"))]
+    period = {"pipelined rate (fps)": lambda r: r.get("frame_period_ratio"),
+              "end-to-end latency p50 (ms)": lambda r: (r.get("latency_ratio") or {}).get("p50"),
+              "end-to-end latency p99 (ms)": lambda r: (r.get("latency_ratio") or {}).get("p99")}
     for label, paper, get in extra:
-        lines.append(f"{label:<42}{_fmt(paper):>9}" + "".join(f"{_fmt(get(result['models'][m])):>12}" for m in models))
+        ratio = period.get(label, lambda r: None)
+        lines.append(f"{label:<42}{_fmt(paper):>9}" + "".join(
+            f"{_fmt(get(result['models'][m])):>12}{_fmt(ratio(result['models'][m]), 3):>8}" for m in models))
+    if ref:
+        lines.append(f"/ ref: each figure over the reference workload measured in the same run, {ref:.2f} ms "
+                     f"(the rate as its frame period, 1000 / fps)")
     for m in models:
         nodes = result["models"][m].get("nodes")
         if not nodes:
@@ -367,7 +382,9 @@ def cmd_bench(args) -> int:
     }
     try:
         with competing_load(args.load):
+            start = reference_workload()
             _measure_models(args, models, frames, fps, preset, preset_file, source, size, wanted, result)
+            add_ratios(result, start, reference_workload())
     finally:
         shutil.rmtree(preset_file.parent, ignore_errors=True)
     result["machine"]["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]

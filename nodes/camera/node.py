@@ -3,10 +3,13 @@ on `camera/image`, stamped with their capture time, with intrinsics K.
 
 Live (``wait_for`` empty, the default) the camera reads at its pace and the graph keeps up as it
 can. It is paced by the renderer (``pace_by: render/done``, the default): a frame goes out only
-while fewer than ``pace_in_flight`` sent frames wait for their acknowledgement, and the newest
-frame read meanwhile goes out with the next acknowledgement (older ones are skipped, counter
-``skipped_busy``). A graph that cannot keep the camera's rate then spends no work on frames it
-would never render, and no stage queues frames behind a slower one. Without a publisher of
+while fewer than ``pace_in_flight`` sent frames wait for their acknowledgement. A file, bag or
+image (``pace_reads: auto``) is then not read meanwhile: the frame a tick could not send is read
+and sent with the next acknowledgement (counter ``held``), so no frame is decoded only to be
+dropped and the source plays at the pace the graph draws. A webcam delivers frames whether read
+or not: the newest one read meanwhile goes out with the next acknowledgement (older ones are
+skipped, counter ``skipped_busy``). A graph that cannot keep the camera's rate then spends no
+work on frames it would never render, and no stage queues frames behind a slower one. Without a publisher of
 ``pace_by`` (no renderer), or with ``pace_by`` empty, every frame goes out and latest-only
 subscribers skip the frames they had no time for.
 
@@ -88,6 +91,10 @@ class CameraNode(Node):
                                         "with \"\"", topic=True),
         "pace_in_flight": Param(2, "with pace_by: frames sent but not yet acknowledged (2: the analysis of one "
                                    "overlaps the rendering of the one before)", range=(1, 8)),
+        "pace_reads": Param("auto", "with pace_by: on: the next frame is read only when it may go out (none "
+                                    "read to be dropped; a file plays at the graph's pace); off: read at the "
+                                    "source's pace, the newest read goes out; auto: off for a webcam, on otherwise",
+                            choices=("auto", "on", "off")),
         "pace_timeout_s": Param(0.5, "with pace_by: a sent frame unacknowledged after this long no longer "
                                      "holds the next one back, s", range=(0.01, 60.0)),
         "resend_s": Param(2.0, "with wait_for: publish a frame again when its acknowledgement has not come "
@@ -123,6 +130,9 @@ class CameraNode(Node):
         self.settle_until = 0.0   # lockstep: monotonic time the first frame may go out
         self.paced = bool(p.pace_by) and not self.lockstep
         self.pending = None       # paced: the newest frame read while the in-flight frames were full
+        # paced: read only when a frame may go out (not for a webcam, whose frames come anyway)
+        self.reads_paced = self.paced and (p.pace_reads == "on" or (p.pace_reads == "auto" and not self.source.live))
+        self.held = False         # reads paced: a tick left its frame unread; the next acknowledgement reads it
         if self.lockstep or self.paced:
             self.done_sub = self.subscribe(p.wait_for or p.pace_by, FrameDone, self.on_done, qos=EVERY_MESSAGE)
         waits = p.wait_subscribers or self.lockstep
@@ -145,7 +155,17 @@ class CameraNode(Node):
             return
         if self.lockstep:
             self._advance()
-        elif self._publish_next() and self.params.max_frames and self.sent >= self.params.max_frames:
+        elif self.reads_paced and not self._pace_allows():
+            if not self.held:
+                self.count("held")
+            self.held = True
+        else:
+            self._publish_live()
+
+    def _publish_live(self) -> None:
+        """Live: read and publish the next frame; stop after ``max_frames``."""
+        self.held = False
+        if self._publish_next() and self.params.max_frames and self.sent >= self.params.max_frames:
             self.shutdown()
 
     def _ready_to_start(self) -> bool:
@@ -288,6 +308,8 @@ class CameraNode(Node):
                 frame, stamp = self.pending
                 self.pending = None
                 self._send(frame, stamp)
+            elif self.held and self._pace_allows():   # the frame a tick held back: read now, sent now
+                self._publish_live()
         elif self.wait_until == 0.0:
             self._advance()
 

@@ -79,10 +79,12 @@ def virtual_camera_view(image: np.ndarray, t: float, *, max_rotation_deg: float 
 
 
 class FrameSource:
-    """Base: iterate frames; ``native_fps`` is the source's own rate (0 when unknown)."""
+    """Base: iterate frames; ``native_fps`` is the source's own rate (0 when unknown); ``live``:
+    frames come at the source's pace whether read or not (a webcam), else each is made when read."""
 
     native_fps = 0.0
     description = ""
+    live = False
 
     def frames(self) -> Iterator[tuple[np.ndarray, int]]:
         raise NotImplementedError
@@ -98,6 +100,7 @@ class VideoSource(FrameSource):
         self.spec = spec
         self.loop = loop
         self.is_webcam = isinstance(spec, int)
+        self.live = self.is_webcam
         if not self.is_webcam and not Path(spec).is_file():
             raise SourceError(f"video file {spec} not found")
         self.cap = self._open()

@@ -57,7 +57,9 @@ from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
+from .sinc_sampling import Upsampled
 from .source_map import UNCOVERED, SourceMapRenderer
+from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
     IDENTITY_PX,
@@ -93,16 +95,16 @@ class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
     Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2, telea_radius=3.0,
-    interpolation="sinc", subdivision=None, max_fine_edge_px=None): frame size in pixels; ``ctx`` a
+    interpolation="sinc", subdivision=None, max_fine_edge_px=MAX_FINE_EDGE_PX): frame size in pixels; ``ctx`` a
     moderngl context to draw with (default: a headless EGL context of its own); ``inpaint`` the fill
     of what the face uncovers: "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag"
     (:mod:`.drag_fill`); ``feather_px`` least width of the soft edge inside the deformed outline
     (pixels; it grows to ``FEATHER_FRACTION`` of the face's size; 0: a hard edge); ``dilate_px``
     growth of the region to inpaint (pixels); ``interpolation`` the kernel the frame is sampled with
     ("sinc": a long windowed sinc, :mod:`.sinc_sampling`; "cubic", "lanczos", "linear": OpenCV's);
-    ``subdivision`` Loop levels of the render mesh (None: as many as keep it within 16384 triangles,
-    at most 2; with ``max_fine_edge_px``, per frame as few as make its edges that short on screen in
-    pixels: :class:`.RenderMeshes`); ``atlas`` keep and use the
+    ``subdivision`` Loop levels of the render mesh (None: per frame as few as make its edges
+    ``max_fine_edge_px`` long on screen, at least one, within 16384 triangles and 2 levels; with
+    ``max_fine_edge_px`` None, as many as that budget allows: :class:`.RenderMeshes`); ``atlas`` keep and use the
     face's texture memory (render's ``uv`` needed), ``atlas_size`` its texels a side, ``atlas_every``
     update it every N frames (the frames between only read it); ``atlas_blend`` False: learn the atlas,
     blend nothing from it (e.g. only to save it); ``atlas_thread``: its updates on a thread of its own,
@@ -126,7 +128,7 @@ class Compositor:
     def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
                  inpaint: str = "drag", feather_px: float = 3.0, dilate_px: int = 2,
                  telea_radius: float = 3.0, interpolation: str = "sinc", subdivision: int | None = None,
-                 max_fine_edge_px: float | None = None,
+                 max_fine_edge_px: float | None = MAX_FINE_EDGE_PX,
                  atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
                  atlas_thread: bool = False,
                  plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,
@@ -303,15 +305,20 @@ class Compositor:
         t4 = time.perf_counter()
         x0, y0, x1, y1 = box
         crop = out[y0:y1, x0:x1]
-        if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
-            self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)))
-        t5 = time.perf_counter()
         write = changed | (covered & (fill != 0))
+        shared = source is not None and dragged is not None   # two samplings of the frame: one upsampling
+        upsampled = self._upsampled(frame_bgr, box, write | fill.view(bool), offset) if shared else None
+        t_up = time.perf_counter() - t4   # the sampling's (the texture stage's), though the fill uses it first
+        if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
+            self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)),
+                       upsampled)
+        t5 = time.perf_counter()
         block = bounding_slices(write)
         warped = None
         if block is not None:
             rows, cols = block
-            warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation)
+            warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
+                                upsampled)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
         t6 = time.perf_counter()
         if block is not None:
@@ -324,7 +331,8 @@ class Compositor:
         self.changed_region, self.inpainted_region = changed.view(np.uint8), fill
         self.timings = {
             "camera": (t1 - t0) * 1e3, "atlas": t_atlas, "draw": (t2 - t1) * 1e3, "readback": (t3 - t2) * 1e3,
-            "plate": t_plate, "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4) * 1e3, "texture": (t6 - t5) * 1e3,
+            "plate": t_plate, "masks": (t4 - t3) * 1e3, "inpaint": (t5 - t4 - t_up) * 1e3,
+            "texture": (t6 - t5 + t_up) * 1e3,
             "composite": (t7 - t6) * 1e3, "total": (time.perf_counter() - t_start) * 1e3}
         return out
 
@@ -351,15 +359,15 @@ class Compositor:
         return offsets, orig_mask, face, dragged
 
     def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
-              projected: np.ndarray, drag: tuple) -> None:
+              projected: np.ndarray, drag: tuple, upsampled: Upsampled | None = None) -> None:
         """Fill the ``fill`` pixels of ``crop`` (the frame's ``box``, in place) from the ``source``
         pixels (step 4), then lay the background plate over them where it knows the background.
         ``drag``: (the input frame, the dragged offsets or None, the face before and after) for the
-        drag fill (:func:`.drag_fill.drag_fill`; push-pull where it does not reach)."""
+        drag fill (:func:`.drag_fill.drag_fill`, through ``upsampled``; push-pull where it does not reach)."""
         frame, dragged, face = drag
         rest, known, method = fill, source, self.inpaint
         if dragged is not None:
-            done = drag_fill(crop, frame, fill, dragged, face, box[:2], self.interpolation)
+            done = drag_fill(crop, frame, fill, dragged, face, box[:2], self.interpolation, upsampled)
             rest, known, method = fill & ~done.view(np.uint8), source | done, "pushpull"
         fill_by_parts(crop, rest, known, method, radius=self.telea_radius, in_place=True)
         if self.plate is not None:
@@ -464,6 +472,21 @@ class Compositor:
         self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
         self.atlas_region[block] = blend_atlas(warped, offsets[block], self.maps.read_extra(box)[block],
                                                changed[block], self.atlas)
+
+    def _upsampled(self, frame: np.ndarray, box: tuple[int, int, int, int], need: np.ndarray,
+                   offset: np.ndarray) -> Upsampled | None:
+        """With the sinc: ``frame`` upsampled once (:class:`.sinc_sampling.Upsampled`) where the
+        ``need`` pixels (h, w) bool of ``box`` read it, for both the drag fill and the face: their
+        bounding box grown by the vertices' ``offset`` (V, 2) px each way (every offset of the source
+        map is a weighted mean of those). None for other kernels or nothing needed."""
+        rect = bounding_slices(need) if self.interpolation == "sinc" else None
+        if rect is None:
+            return None
+        lo = np.ceil(np.maximum(-offset.min(axis=0), 0.0)).astype(int) + 1
+        hi = np.ceil(np.maximum(offset.max(axis=0), 0.0)).astype(int) + 1
+        (rows, cols), (x0, y0) = rect, box[:2]
+        return Upsampled(frame, (x0 + cols.start - lo[0], y0 + rows.start - lo[1],
+                                 x0 + cols.stop + hi[0], y0 + rows.stop + hi[1]))
 
     def _work_box(self, projected: np.ndarray, dst_px: np.ndarray, moved: np.ndarray,
                   head_motion: bool = False) -> tuple[int, int, int, int] | None:

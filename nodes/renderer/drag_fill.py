@@ -19,6 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .sinc_sampling import Upsampled
 from .source_map import UNCOVERED
 from .warp import sample
 
@@ -81,12 +82,14 @@ def lands_on(mask: np.ndarray, dragged: np.ndarray, ys: np.ndarray, xs: np.ndarr
 
 
 def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np.ndarray,
-              face: np.ndarray, origin: tuple[int, int], interpolation: str = "cubic") -> np.ndarray:
+              face: np.ndarray, origin: tuple[int, int], interpolation: str = "cubic",
+              upsampled: Upsampled | None = None) -> np.ndarray:
     """Fill the ``fill`` pixels (h, w, nonzero: to fill) of ``crop`` (the frame's box whose top-left
     pixel is ``origin`` (x, y); in place) with ``frame`` (H, W, 3) uint8 (the input) sampled at their
     ``dragged`` offsets, where those are set and do not land on ``face`` (h, w, nonzero: the face
     before and after the edit; positions outside the box count as background). Returns (h, w) bool,
-    the pixels filled; the others are left as they were, for another fill."""
+    the pixels filled; the others are left as they were, for another fill. ``interpolation``,
+    ``upsampled``: :func:`.warp.sample`'s."""
     done = (fill != 0) & (dragged[..., 0] < 0.5 * UNCOVERED)
     ys, xs = np.nonzero(done)
     if len(ys) == 0:
@@ -99,5 +102,5 @@ def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np
         # as one row: remap works row by row, and a column of single pixels costs thirty times as much
         map_x = (xs + origin[0] + dragged[ys, xs, 0]).astype(np.float32)[None, :]
         map_y = (ys + origin[1] + dragged[ys, xs, 1]).astype(np.float32)[None, :]
-        crop[ys, xs] = sample(frame, map_x, map_y, interpolation)[0]
+        crop[ys, xs] = sample(frame, map_x, map_y, interpolation, upsampled)[0]
     return done

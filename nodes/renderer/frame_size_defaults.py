@@ -3,8 +3,8 @@
 From :data:`LARGE_FRAME_PIXELS` pixels a frame on, the renderer is what limits the live graph's
 frame rate, so its "auto" settings trade a little quality for time there: the bicubic kernel
 instead of the sinc (:func:`auto_interpolation`), no outline band (:func:`auto_outline_band`), and
-a render mesh only as fine as the face's size on screen needs (:func:`auto_subdivision`).
-Below it every path (window, graph, ``process``, demo) composites alike.
+a render mesh only as fine as the face's size on screen needs (:func:`auto_subdivision`, at every
+size). Below it every path (window, graph, ``process``, demo) composites alike.
 """
 
 from __future__ import annotations
@@ -12,12 +12,14 @@ from __future__ import annotations
 import math
 
 from .compositor import OUTLINE_BAND
+from .subdivision import MAX_FINE_EDGE_PX
 
 #: Frames with at least this many pixels (1280x720 and up) get the cheaper "auto" settings.
 LARGE_FRAME_PIXELS = 1280 * 720
 #: The largest outline band a renderer takes (share of the face's size).
 MAX_OUTLINE_BAND = 0.5
-#: From LARGE_FRAME_PIXELS on, "auto" subdivides the render mesh until its edges are this short on screen, px.
+#: From LARGE_FRAME_PIXELS on, "auto" subdivides the render mesh until its edges are this short on
+#: screen, px (below it, until they are MAX_FINE_EDGE_PX short, as the compositor does by default).
 AUTO_MAX_FINE_EDGE_PX = 8.0
 
 
@@ -49,11 +51,12 @@ def auto_outline_band(band: str | float, width: int, height: int) -> float:
 def auto_subdivision(levels: str | int, width: int, height: int) -> tuple[int | None, float | None]:
     """The compositor's ``(subdivision, max_fine_edge_px)`` for frames of ``width`` x ``height``
     pixels: ``levels`` itself (0 to 3, a number or its text) with no edge limit, or for "auto"
-    the compositor's default below :data:`LARGE_FRAME_PIXELS` pixels and, from there on, per frame
-    as few levels as make the render mesh's edges :data:`AUTO_MAX_FINE_EDGE_PX` long on screen.
+    per frame as few levels as make the render mesh's edges on screen as long as the compositor's
+    default (:data:`.subdivision.MAX_FINE_EDGE_PX`) below :data:`LARGE_FRAME_PIXELS` pixels and
+    :data:`AUTO_MAX_FINE_EDGE_PX` from there on, within its triangle budget.
     ValueError, in one sentence, for anything else."""
     if isinstance(levels, str) and levels.strip() == "auto":
-        return None, (None if width * height < LARGE_FRAME_PIXELS else AUTO_MAX_FINE_EDGE_PX)
+        return None, (MAX_FINE_EDGE_PX if width * height < LARGE_FRAME_PIXELS else AUTO_MAX_FINE_EDGE_PX)
     text = str(levels).strip()
     if text not in ("0", "1", "2", "3"):
         raise ValueError(f"subdivision must be auto or 0 to 3 levels, got {levels!r}")

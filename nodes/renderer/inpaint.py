@@ -130,10 +130,12 @@ def _pushpull_into(out: np.ndarray, image: np.ndarray, fill: np.ndarray, known: 
 
 def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, method: str = "pushpull",
                   margin: int = 8, radius: float = 3.0, in_place: bool = False) -> np.ndarray:
-    """Fill each connected part of ``fill`` separately, on its bounding box plus ``margin``.
+    """Fill each connected part of ``fill`` separately, on its bounding box plus ``margin``
+    (parts whose boxes overlap together, on one box: :func:`part_boxes`).
 
     The uncovered region is usually a few thin bands far apart (one per cheek): their own
-    boxes hold a fraction of the pixels of one box around all of them. Same arguments and
+    boxes hold a fraction of the pixels of one box around all of them; the specks beside them
+    share a box, each fill call costing more than the pixels it fills. Same arguments and
     return as :func:`fill_pushpull` (method "pushpull" or "telea"); a part whose box holds no
     source pixel is filled from the whole image instead. ``in_place``: write into ``image``
     and return it (the parts never read each other's fill pixels: those are no source).
@@ -149,10 +151,7 @@ def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, metho
     contours, _ = cv2.findContours(fill_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     out = image if in_place else image.copy()
     h, w = fill.shape
-    for contour in contours:
-        x, y, bw, bh = cv2.boundingRect(contour)
-        x0, y0 = max(0, x - margin), max(0, y - margin)
-        x1, y1 = min(w, x + bw + margin), min(h, y + bh + margin)
+    for x0, y0, x1, y1 in part_boxes([cv2.boundingRect(c) for c in contours], margin, w, h):
         crop = (slice(y0, y1), slice(x0, x1))
         part_fill = fill_u8[crop] != 0
         known = source[crop] > part_fill  # source and not fill, in one operation
@@ -174,6 +173,26 @@ def fill_by_parts(image: np.ndarray, fill: np.ndarray, source: np.ndarray, metho
                               cv2.INPAINT_NS if method == "ns" else cv2.INPAINT_TELEA)
             np.copyto(out[crop], done, where=part_fill[..., None])
     return out
+
+
+def part_boxes(rects: list, margin: int, width: int, height: int) -> list[tuple[int, int, int, int]]:
+    """The boxes (x0, y0, x1, y1) px, cut to ``width`` x ``height``, of parts whose bounding
+    ``rects`` (x, y, w, h) are grown by ``margin``: boxes that overlap merged into their common
+    box until none overlaps another, so each part lies whole in one box and no box holds part of
+    another's."""
+    boxes = [[max(0, x - margin), max(0, y - margin), min(width, x + bw + margin), min(height, y + bh + margin)]
+             for x, y, bw, bh in rects]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(boxes)):
+            for j in range(len(boxes) - 1, i, -1):
+                a, b = boxes[i], boxes[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    boxes[i] = [min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])]
+                    del boxes[j]
+                    merged = True
+    return [tuple(b) for b in boxes]
 
 
 def fill_telea(image: np.ndarray, fill: np.ndarray, source: np.ndarray, radius: float = 3.0,

@@ -60,6 +60,7 @@ from .pose_edit import (
     FACE_CAMERA_SMOOTHING_S,
     PoseEdits,
 )
+from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import uv_layout
 
 
@@ -107,9 +108,9 @@ class RendererNode(Node):
                                       f"as process does for frames smaller than 1280x720, 0 from there on, where the "
                                       f"renderer limits the frame rate"),
         "subdivision": Param("auto", f"Loop subdivision levels of the render mesh, 0 to 3 (smooth edited outlines); "
-                                     f"auto: as many as keep it within 16384 triangles (2 for the face mesh) for "
-                                     f"frames smaller than 1280x720, from there on as few as make its edges "
-                                     f"{AUTO_MAX_FINE_EDGE_PX:g} px long on screen"),
+                                     f"auto: as few as make its edges {MAX_FINE_EDGE_PX:g} px long on screen "
+                                     f"(at least one, within 16384 triangles) for frames smaller than 1280x720, "
+                                     f"{AUTO_MAX_FINE_EDGE_PX:g} px from there on"),
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),

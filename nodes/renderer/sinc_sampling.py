@@ -57,10 +57,33 @@ def upsample2x(image: np.ndarray, taps: np.ndarray | None = None) -> np.ndarray:
     return cv2.cvtColor(up.view(np.uint8).reshape(2 * h, 2 * w, 4), cv2.COLOR_BGRA2BGR)
 
 
-def sample_sinc(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+class Upsampled:
+    """Part of an image upsampled by two once (:func:`upsample2x`), for more than one
+    :func:`sample_sinc` at positions within it (e.g. a face and the background it uncovered).
+
+    Upsampled(image, rect): ``image`` (H, W, 3) uint8; ``rect`` (x0, y0, x1, y1) frame pixels the
+    positions lie in; the part taken is that grown by MARGIN_PX, cut to the image."""
+
+    def __init__(self, image: np.ndarray, rect: tuple[int, int, int, int]):
+        H, W = image.shape[:2]
+        x0, y0, x1, y1 = (int(v) for v in rect)
+        self.image = image
+        self.x_lo, self.y_lo = min(max(x0 - MARGIN_PX, 0), W - 1), min(max(y0 - MARGIN_PX, 0), H - 1)
+        self.x_hi, self.y_hi = min(max(x1 + MARGIN_PX, self.x_lo + 1), W), min(max(y1 + MARGIN_PX, self.y_lo + 1), H)
+        self.up = upsample2x(np.ascontiguousarray(image[self.y_lo:self.y_hi, self.x_lo:self.x_hi]))
+
+    def holds(self, image: np.ndarray, x_lo: int, y_lo: int, x_hi: int, y_hi: int) -> bool:
+        """Whether this is ``image``'s and holds its part [x_lo, x_hi) x [y_lo, y_hi) (px)."""
+        return (image is self.image and self.x_lo <= x_lo and self.y_lo <= y_lo
+                and x_hi <= self.x_hi and y_hi <= self.y_hi)
+
+
+def sample_sinc(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, upsampled: Upsampled | None = None
+                ) -> np.ndarray:
     """(h', w', 3) uint8: ``image`` (H, W, 3) uint8 sampled at the positions (``map_x``,
     ``map_y``: (h', w') float32 pixels; outside the image the edge pixels are replicated), through
-    the upsampled part of the image they read only."""
+    the upsampled part of the image they read only: ``upsampled``'s when it holds that part
+    (:class:`Upsampled`), else one made here."""
     H, W = image.shape[:2]
     (x_min, x_max, _, _), (y_min, y_max, _, _) = cv2.minMaxLoc(map_x), cv2.minMaxLoc(map_y)
     x_lo, x_hi = int(np.floor(x_min)) - MARGIN_PX, int(np.ceil(x_max)) + MARGIN_PX + 1
@@ -68,12 +91,15 @@ def sample_sinc(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.n
     clamped = x_lo < 0 or y_lo < 0 or x_hi > W or y_hi > H
     x_lo, y_lo = min(max(x_lo, 0), W - 1), min(max(y_lo, 0), H - 1)
     x_hi, y_hi = min(max(x_hi, x_lo + 1), W), min(max(y_hi, y_lo + 1), H)
-    up = upsample2x(np.ascontiguousarray(image[y_lo:y_hi, x_lo:x_hi]))
-    ux, uy = map_x - np.float32(x_lo), map_y - np.float32(y_lo)
+    if upsampled is not None and upsampled.holds(image, x_lo, y_lo, x_hi, y_hi):
+        up, ox, oy = upsampled.up, upsampled.x_lo, upsampled.y_lo
+    else:
+        up, ox, oy = upsample2x(np.ascontiguousarray(image[y_lo:y_hi, x_lo:x_hi])), x_lo, y_lo
+    ux, uy = map_x - np.float32(ox), map_y - np.float32(oy)
     if clamped:   # positions past the image's edge take its edge pixels, not the upsampled
         # grid's last row and column (half a pixel past the edge)
-        np.clip(ux, 0.0, x_hi - x_lo - 1, out=ux)
-        np.clip(uy, 0.0, y_hi - y_lo - 1, out=uy)
+        np.clip(ux, x_lo - ox, x_hi - ox - 1, out=ux)
+        np.clip(uy, y_lo - oy, y_hi - oy - 1, out=uy)
     ux *= 2.0
     uy *= 2.0
     return cv2.remap(up, ux, uy, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)

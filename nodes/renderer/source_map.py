@@ -9,8 +9,9 @@ rasteriser's sub-pixel snapping, so pixels that do not move can be recognised ex
 
 The target is RG32F, cleared to :data:`UNCOVERED` (no triangle there). A second pass draws the
 moving part of the mesh undeformed (its pixels ``dst + d``) into an R8 target: where the moving
-face was (the rest of the face does not move). Both are read back for the work box only. The colours are sampled afterwards on the CPU, once
-(:mod:`.warp`), so no frame texture, mipmap or second resampling is involved.
+face was (the rest of the face does not move). Both are read back for the work box only (the
+targets are as large as the largest box so far, and cleared whole). The colours are sampled
+afterwards on the CPU, once (:mod:`.warp`), so no frame texture, mipmap or second resampling is involved.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import moderngl
 import numpy as np
 
 UNCOVERED = 1.0e9  # the clear value of the offset target: no triangle drew this pixel
+TARGET_STEP = 64   # the targets grow in steps of this many pixels
 
 _MAP_VS = """
 #version 330
@@ -82,8 +84,8 @@ void main() {
 class SourceMapRenderer:
     """Draws the offset map and the original region of a mesh into targets of one frame size.
 
-    SourceMapRenderer(ctx, width, height, extras=False): ``ctx`` a moderngl context; targets
-    ``width`` x ``height`` pixels (the work box of a frame fits in them); ``extras``: also
+    SourceMapRenderer(ctx, width, height, extras=False): ``ctx`` a moderngl context; ``width`` x
+    ``height`` the frame's pixels (the targets grow with the boxes drawn, up to that); ``extras``: also
     interpolate four floats per vertex (:meth:`draw`'s ``extra``) into a second target
     (:meth:`read_extra`). :meth:`set_mesh` once per mesh size, :meth:`draw` per frame,
     :meth:`release` at the end.
@@ -92,13 +94,10 @@ class SourceMapRenderer:
     def __init__(self, ctx: moderngl.Context, width: int, height: int, extras: bool = False):
         self.ctx = ctx
         self.extras = bool(extras)
-        self._map_color = ctx.renderbuffer((width, height), 2, dtype="f4")
-        self._map_depth = ctx.depth_renderbuffer((width, height))
-        self._extra_color = ctx.renderbuffer((width, height), 4, dtype="f4") if self.extras else None
-        attachments = [self._map_color] + ([self._extra_color] if self.extras else [])
-        self.fbo_map = ctx.framebuffer(attachments, self._map_depth)
-        self._orig_color = ctx.renderbuffer((width, height), 1)
-        self.fbo_orig = ctx.framebuffer([self._orig_color])
+        self.width, self.height = int(width), int(height)
+        self.target_size = (0, 0)   # the targets' size (px): the largest box drawn so far, rounded up
+        self._map_color = self._map_depth = self._extra_color = self.fbo_map = None
+        self._orig_color = self.fbo_orig = None
         if self.extras:
             self.map_prog = ctx.program(vertex_shader=_MAP_EXTRA_VS, fragment_shader=_MAP_EXTRA_FS)
         else:
@@ -106,6 +105,34 @@ class SourceMapRenderer:
         self.mask_prog = ctx.program(vertex_shader=_MASK_VS, fragment_shader=_MASK_FS)
         self._vbo = self._ibo = self._vao_map = self._vao_mask = self._vbo_extra = None
         self._n_vertices = self._vertex_room = self._max_triangles = 0
+
+    def _fit_targets(self, bw: int, bh: int) -> None:
+        """Targets at least ``bw`` x ``bh`` px (a box's), grown in steps of TARGET_STEP px up to the
+        frame's size. Targets as small as the box are cleared whole, which llvmpipe does without
+        drawing (a clear of part of a target is a drawn rectangle), and cost no memory for the
+        rest of the frame."""
+        tw, th = self.target_size
+        if bw <= tw and bh <= th:
+            return
+        tw = min(max(tw, -(-bw // TARGET_STEP) * TARGET_STEP), max(self.width, bw))
+        th = min(max(th, -(-bh // TARGET_STEP) * TARGET_STEP), max(self.height, bh))
+        self._release_targets()
+        ctx = self.ctx
+        self._map_color = ctx.renderbuffer((tw, th), 2, dtype="f4")
+        self._map_depth = ctx.depth_renderbuffer((tw, th))
+        self._extra_color = ctx.renderbuffer((tw, th), 4, dtype="f4") if self.extras else None
+        attachments = [self._map_color] + ([self._extra_color] if self.extras else [])
+        self.fbo_map = ctx.framebuffer(attachments, self._map_depth)
+        self._orig_color = ctx.renderbuffer((tw, th), 1)
+        self.fbo_orig = ctx.framebuffer([self._orig_color])
+        self.target_size = (tw, th)
+
+    def _release_targets(self) -> None:
+        for name in ("fbo_map", "fbo_orig", "_map_color", "_extra_color", "_map_depth", "_orig_color"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.release()
+                setattr(self, name, None)
 
     def set_mesh(self, n_vertices: int, max_triangles: int) -> None:
         """Make room for meshes of ``n_vertices`` vertices and up to ``max_triangles`` triangles
@@ -146,6 +173,7 @@ class SourceMapRenderer:
         self._ibo.write(tri.tobytes())
         x0, y0, x1, y1 = box
         bw, bh = x1 - x0, y1 - y0
+        self._fit_targets(bw, bh)
         dmin, dmax = float(depth.min()), float(depth.max())
         drange = max(dmax - dmin, 1e-9)
         data = np.empty((self._n_vertices, 5), np.float32)
@@ -166,12 +194,12 @@ class SourceMapRenderer:
         self.fbo_map.use()
         ctx.viewport = viewport
         ctx.enable(moderngl.DEPTH_TEST)
-        self.fbo_map.clear(UNCOVERED, UNCOVERED, 0.0, 0.0, depth=1.0, viewport=viewport)  # every attachment
+        self.fbo_map.clear(UNCOVERED, UNCOVERED, 0.0, 0.0, depth=1.0)  # every attachment, whole
         self._vao_map.render(moderngl.TRIANGLES, vertices=3 * len(tri))
         ctx.disable(moderngl.DEPTH_TEST)
         self.fbo_orig.use()
         ctx.viewport = viewport
-        self.fbo_orig.clear(0.0, viewport=viewport)
+        self.fbo_orig.clear(0.0)
         if n_original > 0:
             self._vao_mask.render(moderngl.TRIANGLES, vertices=3 * int(n_original))
 
@@ -197,9 +225,8 @@ class SourceMapRenderer:
 
     def release(self) -> None:
         """Free the GL objects."""
-        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo", "_vbo_extra", "fbo_map", "fbo_orig", "_map_color",
-                     "_extra_color",
-                     "_map_depth", "_orig_color", "map_prog", "mask_prog"):
+        self._release_targets()
+        for name in ("_vao_map", "_vao_mask", "_vbo", "_ibo", "_vbo_extra", "map_prog", "mask_prog"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.release()

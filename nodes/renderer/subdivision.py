@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The longest edge (px on screen) of the render mesh a renderer subdivides to by default: an
+#: edited outline's corners are rounded off at that length, and llvmpipe sets up every triangle on
+#: the CPU (a finer mesh costs the renderer per triangle for little more rounding).
+MAX_FINE_EDGE_PX = 4.0
 LEVEL_HYSTERESIS = 0.15  # the last frame's levels are kept while its fine edges are within this share of the limit
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .sinc_sampling import sample_sinc
+from .sinc_sampling import Upsampled, sample_sinc
 from .source_map import UNCOVERED
 
 IDENTITY_PX = 1.0e-3       # offsets shorter than this (pixels) leave the pixel as it is
@@ -32,12 +32,14 @@ OPENCV_KERNELS = {"cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4, "line
 INTERPOLATIONS = ("sinc", *OPENCV_KERNELS)   # the kernels :func:`sample` knows
 
 
-def sample(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interpolation: str = "cubic") -> np.ndarray:
+def sample(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interpolation: str = "cubic",
+           upsampled: Upsampled | None = None) -> np.ndarray:
     """(h, w, 3) uint8: ``image`` (H, W, 3) uint8 sampled at (``map_x``, ``map_y``), (h, w)
     float32 pixels (outside the image: its edge pixels, replicated), with the kernel named
-    ``interpolation`` (one of INTERPOLATIONS)."""
+    ``interpolation`` (one of INTERPOLATIONS; the sinc through ``upsampled`` where it holds
+    the part read: :func:`.sinc_sampling.sample_sinc`)."""
     if interpolation == "sinc":
-        return sample_sinc(image, map_x, map_y)
+        return sample_sinc(image, map_x, map_y, upsampled)
     return cv2.remap(image, map_x, map_y, OPENCV_KERNELS[interpolation], borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -61,13 +63,13 @@ def bounding_slices(mask: np.ndarray) -> tuple[slice, slice] | None:
 
 
 def warp_frame(frame: np.ndarray, offsets: np.ndarray, origin: tuple[int, int],
-               interpolation: str = "cubic") -> np.ndarray:
+               interpolation: str = "cubic", upsampled: Upsampled | None = None) -> np.ndarray:
     """The input frame sampled at ``p + d(p)`` for each pixel p of a block.
 
     frame: (H, W, 3) uint8, the whole input frame (read around the block as the kernel needs,
     edge pixels replicated); offsets: (h, w, 2) float32 of the block, UNCOVERED pixels sample
     themselves; origin: the frame pixel (x, y) of the block's top-left pixel; interpolation:
-    a key of INTERPOLATIONS. Returns (h, w, 3) uint8.
+    a key of INTERPOLATIONS (``upsampled``: :func:`sample`'s). Returns (h, w, 3) uint8.
     """
     h, w = offsets.shape[:2]
     x0, y0 = origin
@@ -76,7 +78,7 @@ def warp_frame(frame: np.ndarray, offsets: np.ndarray, origin: tuple[int, int],
     map_y = np.where(covered, offsets[..., 1], 0.0).astype(np.float32)
     map_x += np.arange(x0, x0 + w, dtype=np.float32)[None, :]
     map_y += np.arange(y0, y0 + h, dtype=np.float32)[:, None]
-    return sample(frame, map_x, map_y, interpolation)
+    return sample(frame, map_x, map_y, interpolation, upsampled)
 
 
 def feather_alpha(region: np.ndarray, width_px: float) -> np.ndarray:
