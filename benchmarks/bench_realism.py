@@ -111,6 +111,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
     p.add_argument("--pythonpath", default="", help="run process with this folder first on PYTHONPATH (a copy of "
                    "another revision of facesculpt, to compare compositors); default: the installed one")
+    p.add_argument("--variants", default="", metavar="LABEL=DIR[,LABEL=DIR...]",
+                   help="also run process with each DIR first on PYTHONPATH (as --pythonpath), scored in the "
+                        "same run as rows 'MODEL [LABEL]', e.g. old=../wt-old,grip0=/tmp/grip0")
     p.add_argument("--landmark-oracle", type=float, default=None, metavar="KEEP",
                    help="move the detector's inner landmarks (iBUG 18-68) toward the true head's in every synthetic "
                         "frame, keeping KEEP of their error (0: the true points, 1: the detector's): what the "
@@ -120,6 +123,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     a.edits = [e for e in a.edits.split(",") if e]
     a.real_videos = [v for v in a.real_videos.split(",") if v]
     a.atlas_edits = [e for e in a.atlas_edits.split(",") if e]
+    a.variants = [tuple(v.split("=", 1)) for v in a.variants.split(",") if v]
+    if any(len(v) != 2 or not v[0] or not v[1] for v in a.variants):
+        p.error("--variants takes LABEL=DIR pairs, comma-separated")
     a.truth_edit = list(dict.fromkeys(t for t in a.truth_edit.split(",") if t))
     wrong = [t for t in a.truth_edit if t not in TRUTH_EDITS] or ([] if a.truth_edit else [""])
     if wrong:
@@ -169,15 +175,31 @@ def landing_samples(seq: Sequences, edit: str, shifts: dict, reference: dict | N
     return samples
 
 
+def lip_shift(seq: Sequences, edit: str, frames: list, scored: list[int]) -> float:
+    """The median (px, over ``scored``) of how far the face around the lower lip's centre (iBUG
+    58) moved in ``frames`` along the first handle's true image displacement (:func:`shift_along`;
+    nan when never measured)."""
+    lip, h = seq.lip, seq.handles[edit][0]
+    got = []
+    for i in scored:
+        d = seq.p1[edit][i][h] - seq.p0[i][h]
+        if lip is not None and frames[i] is not None and np.linalg.norm(d) > 0 and seq.visible[edit][i][lip]:
+            m = shift_along(seq.inputs[i], frames[i], seq.p0[i][lip], d, seq.face[i], reach=12.0)
+            if m is not None:
+                got.append(abs(m))
+    return float(np.median(got)) if got else float("nan")
+
+
 def score_sequence(seq: Sequences, edit: str, frames: list, scored: list[int], truth_shifts: dict) -> dict:
-    """PSNR, SSIM, sharpness, seam and handle landing of ``frames`` (a method's output) against
-    the truth of ``edit`` over the frame indices ``scored``."""
+    """PSNR, SSIM, sharpness, seam, handle landing and the lower lip's shift of ``frames`` (a
+    method's output) against the truth of ``edit`` over the frame indices ``scored``."""
     pool = Pooled()
     for i in scored:
         score_frame(pool, frames[i], seq.truth[edit][i], seq.inputs[i])
     out = summarise(pool)
     shifts = handle_shifts(seq, edit, frames, scored)
     out["landing"] = landing_by_yaw(landing_samples(seq, edit, shifts, truth_shifts))
+    out["lips_px"] = lip_shift(seq, edit, frames, scored)
     return out
 
 
@@ -268,27 +290,27 @@ def synthetic(args, data: Path, out: Path) -> dict:
                 true = oracle_frames(scene, seq.inputs, seq.displacements[e], list(range(args.frames)))
                 for label, frames in ((ORACLE_RENDERER, true), (ORACLE_DEFORMER, solved)):
                     results[t][e][label] = score_sequence(seq, e, frames, scored, truth_shifts[t])
-        for m in args.models:
-            folder = out / "frames" / f"synthetic_{e}_{m}"
+        for m, label, pythonpath in [(m, *v) for m in args.models for v in [("", args.pythonpath), *args.variants]]:
+            row = m if not label else f"{m} [{label}]"
+            folder = out / "frames" / f"synthetic_{e}_{m}{label and '_' + label}"
             try:
                 frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames,
-                                           pythonpath=args.pythonpath, data=data, extra_args=args.process_args,
-                                           **oracle)
+                                           pythonpath=pythonpath, data=data, extra_args=args.process_args, **oracle)
             except RuntimeError as exc:
                 print(exc, file=sys.stderr)
                 for t in seqs:
-                    results[t][e][m] = {"error": str(exc)}
+                    results[t][e][row] = {"error": str(exc)}
                 continue
-            timings[f"process_{e}_{m}_s"] = took
+            timings[f"process_{e}_{m}{label and '_' + label}_s"] = took
             if len(frames) < args.frames:
                 for t in seqs:
-                    results[t][e][m] = {"error": f"process wrote {len(frames)} of {args.frames} frames"}
+                    results[t][e][row] = {"error": f"process wrote {len(frames)} of {args.frames} frames"}
                 continue
             for t, seq in seqs.items():
-                results[t][e][m] = score_sequence(seq, e, frames, scored, truth_shifts[t])
-                save_crops(seq, e, f"result ({m})", frames, liq[t], rows,
-                           out / crops_name(e, m, t, args.truth_edit))
-            if e in args.atlas_edits:
+                results[t][e][row] = score_sequence(seq, e, frames, scored, truth_shifts[t])
+                save_crops(seq, e, f"result ({row})", frames, liq[t], rows,
+                           out / crops_name(e, m + (label and "_" + label), t, args.truth_edit))
+            if e in args.atlas_edits and not label:
                 for t, got in run_with_atlas(args, data, seqs, video, presets[e], e, m, frames, scored, truth_shifts,
                                              rows, out, timings, oracle).items():
                     results[t][e][f"{m} + atlas"] = got
@@ -296,7 +318,8 @@ def synthetic(args, data: Path, out: Path) -> dict:
                 shutil.rmtree(folder)
         for t, seq in seqs.items():
             results[t][e]["ground truth (measurement check)"] = {
-                "landing": landing_by_yaw(landing_samples(seq, e, truth_shifts[t], None))}
+                "landing": landing_by_yaw(landing_samples(seq, e, truth_shifts[t], None)),
+                "lips_px": lip_shift(seq, e, seq.truth[e], scored)}
     return {"results": results[args.truth_edit[0]], "results_by_truth": results,
             "presets": {k: str(v) for k, v in presets.items()}, "timings": timings,
             "yaw_range": [float(first.yaw[scored].min()), float(first.yaw[scored].max())]}
