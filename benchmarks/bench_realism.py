@@ -43,9 +43,17 @@ frontal and most turned-right scored frames; columns: input | result | ground tr
 liquify, enlarged 2x without smoothing) and the presets to ``--out`` (default: a new temporary
 folder), and prints the tables.
 
+The ground truth's edit (``--truth-edit``): ``falloff`` (default), ``arap`` (gripping handles,
+``realism/arap_truth.py``) or ``paper`` (the paper's ARAP, each handle a single vertex, solved by
+libigl: ``realism/paper_arap.py``); several, comma-separated, score each process run against each
+(tables per truth, crops ``crops_EDIT_MODEL_TRUTH.png``). ``--variants LABEL=DIR,...`` runs process
+once more from each DIR (as ``--pythonpath``), as rows ``MODEL [LABEL]`` of the same run. Every row
+also gives how far the lower lip (iBUG 58) moved along the edit's image displacement (median px).
+
 Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
 [--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--no-oracle] [--pythonpath DIR]
-[--process-args "--fill drag"] [--landmark-oracle KEEP]``
+[--process-args "--fill drag"] [--landmark-oracle KEEP] [--truth-edit falloff,arap,paper]
+[--variants old=DIR,...]``
 (``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
 revision, to compare compositors on the same ground truth). Needs the shared data
 (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
@@ -105,7 +113,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--truth-edit", default="falloff", metavar="TRUTH[,TRUTH...]",
                    help="the ground truth's edit: falloff, the raised-cosine falloff around each handle (default); "
                         "arap, the as-rigid-as-possible deformation the preset stands for (the benchmark's own "
-                        "solver, handles gripping the skin as a preset's do); paper, the paper's ARAP (libigl, "
+                        "solver, handles gripping a fifth of the ROI, as the deformer's grip 0.2 does); paper, the paper's ARAP (libigl, "
                         "each handle a single vertex). Several, comma-separated: each process run is scored "
                         "against each")
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
