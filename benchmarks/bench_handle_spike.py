@@ -12,11 +12,16 @@ change of a face normal (degrees) among the triangles around the handle, against
 at rest. The lips' displacement in the chin edit (the largest, mm, over the mouth's border). The
 mesh density: the median edge (mm) at the handle on the mesh the deformer solves.
 
-Writes ``results.md``/``results.json`` and shaded close-ups ``spike_EDIT_MODEL.png`` (rest | grip 0
-| grip 0.2 | the truths on the Surrey model; frontal and turned 60 degrees) to ``--out``.
+Writes ``results.md``/``results.json``, shaded close-ups ``spike_EDIT_MODEL.png`` (rest | grip 0
+| grip 0.2 | the truths on the Surrey model; frontal and turned 60 degrees) and, with
+``--textured`` (default on), ``textured_EDIT.png``: bench_realism's synthetic head (textured, yaw
+-25 / 0 / +25), the Surrey model's grips and the paper's truth drawn by the benchmark's reference
+rasteriser with the camera zoomed ``ZOOM`` times (a face about 3x as large as the benchmark's,
+as a close webcam shows it) to ``--out``.
 
-Run: ``python benchmarks/bench_handle_spike.py [--out DIR] [--edits nose,chin,cheeks,jaw]``.
-Needs the shared data (../shared/data or FACESCULPT_DATA).
+Run: ``python benchmarks/bench_handle_spike.py [--out DIR] [--edits nose,chin,cheeks,jaw]
+[--no-textured]``. Needs the shared data (../shared/data or FACESCULPT_DATA; s18.mp4 for
+``--textured``).
 """
 
 from __future__ import annotations
@@ -44,6 +49,8 @@ from facesculpt.paths import shared_data_dir  # noqa: E402
 GRIPS = (0.0, 0.2)
 VIEWS = ((0.0, "front"), (60.0, "turned 60"))
 PANEL = 260  # close-up side, px
+ZOOM = 3.0    # the textured close-ups' focal length over the benchmark's
+TEXTURED_FRAMES = (45, 0, 15)  # yaw -25, 0, +25 in bench_realism's turning head
 
 
 def render_mesh(triangles: np.ndarray, n_vertices: int):
@@ -121,10 +128,54 @@ def labelled(img: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
+def textured(spec, scene, out: Path) -> None:
+    """``textured_EDIT.png``: the synthetic head at TEXTURED_FRAMES, zoomed on the edit's handles:
+    input | grip 0 | grip 0.2 | the paper's truth (rows: frames)."""
+    from realism.edits import handle_vertex
+    from realism.raster import project, render_textured
+
+    from facesculpt.nodes.deformer import EditStack
+
+    n = scene.model_vertices
+    rest = scene.rest[:n]
+    doc = preset(spec, rest, scene.landmarks, scene.model_triangles)
+    cases = {"input": np.zeros_like(scene.rest)}
+    for g in GRIPS:
+        stack = EditStack(rest.astype(np.float32), scene.model_triangles, list(scene.landmarks),
+                          list(scene.landmarks.values()), grip=g)
+        stack.apply_preset(doc)
+        d = displacement(spec, scene.rest, scene.landmarks)   # the mouth's closing vertices: the falloff
+        d[:n] = stack.settle()
+        cases[f"grip {g:g}"] = d
+    cases["truth paper"] = displacement(spec, scene.rest, scene.landmarks, "paper", scene.model_triangles, n)
+    handles = [handle_vertex(h, scene.landmarks) for h in spec.handles]
+    H, W = scene.background.shape[:2]
+    rows = []
+    for i in TEXTURED_FRAMES:
+        K = scene.K.copy()
+        K[:2, :2] *= ZOOM
+        centre = project(K, scene.to_camera(scene.rest, i)[handles])[0].mean(axis=0)
+        K[0, 2] += W / 2 - centre[0]
+        K[1, 2] += H / 2 - centre[1]
+        grey = np.full_like(scene.background, 128)
+        row = []
+        for label, d in cases.items():
+            img = render_textured(K, scene.to_camera(scene.rest + d, i), scene.triangles, scene.texcoords, scene.alpha,
+                                  scene.texture, grey)
+            img = np.clip(np.rint(img), 0, 255).astype(np.uint8)[H // 2 - 150: H // 2 + 150, W // 2 - 150: W // 2 + 150]
+            cv2.putText(img, f"{label}, yaw {scene.pose(i)[0]:+.0f}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                        (0, 0, 160), 1, cv2.LINE_AA)
+            row.append(img)
+        rows.append(np.hstack(row))
+    cv2.imwrite(str(out / f"textured_{spec.name}.png"), np.vstack(rows))
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     p.add_argument("--edits", default="nose,chin,cheeks,jaw", help="bench_realism edits (default nose,chin,cheeks,jaw)")
+    p.add_argument("--textured", action=argparse.BooleanOptionalAction, default=True,
+                   help="also draw the textured synthetic head zoomed on each edit (default on)")
     a = p.parse_args(argv)
     a.edits = [e for e in a.edits.split(",") if e]
     bad = [e for e in a.edits if e not in EDITS]
@@ -195,6 +246,12 @@ def main(argv=None) -> int:
     sfm = models["sfm"]
     sfm_landmarks = {str(k): int(v) for k, v in zip(sfm.landmark_names, sfm.landmark_vertices)}
     rows = [r for e in args.edits for r in measure_edit(EDITS[e], models, sfm_landmarks, out)]
+    if args.textured:
+        from realism.scene import make_scene
+
+        scene = make_scene(data, max(TEXTURED_FRAMES) + 1)
+        for e in args.edits:
+            textured(EDITS[e], scene, out)
     (out / "results.json").write_text(json.dumps(rows, indent=1))
     text = markdown(rows)
     (out / "results.md").write_text(text)
