@@ -1,7 +1,8 @@
 """The ground-truth edit as the paper's deformation: Sorkine & Alexa's as-rigid-as-possible
 surface modelling solved by libigl (``igl.arap_precomputation`` / ``igl.arap_solve``, its
-default energy for a triangle mesh: spokes and rims), each handle a single vertex moved by its offset (no grip), the surface within a
-geodesic ROI around the handles following, every vertex outside it fixed
+default energy for a triangle mesh: spokes and rims), each handle a single vertex moved by its
+offset (no grip), the surface within a geodesic ROI around the handles following, every vertex
+outside it fixed
 (``bench_realism.py --truth-edit paper``). Neither the project's deformer nor the benchmark's
 own solver (:mod:`.arap_truth`) is used.
 
@@ -9,8 +10,8 @@ The ROI: the vertices whose exact surface distance (``igl.exact_geodesic``) from
 within ``radius`` mm.
 
 libigl's spokes-only energy (the cotangent weights are not clamped) does not hold on this mesh:
-with the chin's ROI reaching the mouth, the free lip border swings 30 mm for a 9.5 mm pull; the
-spokes-and-rims energy is stable there.
+with the chin's 45 mm ROI, the mesh's free outline beside the chin swings 30 mm for a 9.5 mm
+pull; the spokes-and-rims energy is stable there.
 
 Arrays: rest (V, 3) float mm, triangles (T, 3) int, displacements (V, 3) float mm.
 """
