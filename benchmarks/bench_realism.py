@@ -43,9 +43,17 @@ frontal and most turned-right scored frames; columns: input | result | ground tr
 liquify, enlarged 2x without smoothing) and the presets to ``--out`` (default: a new temporary
 folder), and prints the tables.
 
+The ground truth's edit (``--truth-edit``): ``falloff`` (default), ``arap`` (gripping handles,
+``realism/arap_truth.py``) or ``paper`` (the paper's ARAP, each handle a single vertex, solved by
+libigl: ``realism/paper_arap.py``); several, comma-separated, score each process run against each
+(tables per truth, crops ``crops_EDIT_MODEL_TRUTH.png``). ``--variants LABEL=DIR,...`` runs process
+once more from each DIR (as ``--pythonpath``), as rows ``MODEL [LABEL]`` of the same run. Every row
+also gives how far the lower lip (iBUG 58) moved along the edit's image displacement (median px).
+
 Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
 [--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--no-oracle] [--pythonpath DIR]
-[--process-args "--fill drag"] [--landmark-oracle KEEP]``
+[--process-args "--fill drag"] [--landmark-oracle KEEP] [--truth-edit falloff,arap,paper]
+[--variants old=DIR,...]``
 (``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
 revision, to compare compositors on the same ground truth). Needs the shared data
 (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
@@ -102,13 +110,18 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--oracle", action=argparse.BooleanOptionalAction, default=True,
                    help="also score the project's compositor on the true head (the true edit, and the preset as the "
                         "deformer solves it): what rendering and the deformer cost without a fit (default on)")
-    p.add_argument("--truth-edit", choices=TRUTH_EDITS, default="falloff",
-                   help="the ground truth's edit: the raised-cosine falloff around each handle (default), or "
-                        "the as-rigid-as-possible deformation the preset stands for (the benchmark's own solver, "
-                        "handles gripping the skin as a preset's do)")
+    p.add_argument("--truth-edit", default="falloff", metavar="TRUTH[,TRUTH...]",
+                   help="the ground truth's edit: falloff, the raised-cosine falloff around each handle (default); "
+                        "arap, the as-rigid-as-possible deformation the preset stands for (the benchmark's own "
+                        "solver, handles gripping a fifth of the ROI, as the deformer's grip 0.2 does); paper, the paper's ARAP (libigl, "
+                        "each handle a single vertex). Several, comma-separated: each process run is scored "
+                        "against each")
     p.add_argument("--keep-frames", action="store_true", help="keep process' output frames under OUT/frames")
     p.add_argument("--pythonpath", default="", help="run process with this folder first on PYTHONPATH (a copy of "
                    "another revision of facesculpt, to compare compositors); default: the installed one")
+    p.add_argument("--variants", default="", metavar="LABEL=DIR[,LABEL=DIR...]",
+                   help="also run process with each DIR first on PYTHONPATH (as --pythonpath), scored in the "
+                        "same run as rows 'MODEL [LABEL]', e.g. old=../wt-old,grip0=/tmp/grip0")
     p.add_argument("--landmark-oracle", type=float, default=None, metavar="KEEP",
                    help="move the detector's inner landmarks (iBUG 18-68) toward the true head's in every synthetic "
                         "frame, keeping KEEP of their error (0: the true points, 1: the detector's): what the "
@@ -118,6 +131,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     a.edits = [e for e in a.edits.split(",") if e]
     a.real_videos = [v for v in a.real_videos.split(",") if v]
     a.atlas_edits = [e for e in a.atlas_edits.split(",") if e]
+    a.variants = [tuple(v.split("=", 1)) for v in a.variants.split(",") if v]
+    if any(len(v) != 2 or not v[0] or not v[1] for v in a.variants):
+        p.error("--variants takes LABEL=DIR pairs, comma-separated")
+    a.truth_edit = list(dict.fromkeys(t for t in a.truth_edit.split(",") if t))
+    wrong = [t for t in a.truth_edit if t not in TRUTH_EDITS] or ([] if a.truth_edit else [""])
+    if wrong:
+        p.error(f"unknown truth edit {wrong[0]!r} (choose from {', '.join(TRUTH_EDITS)})")
     bad = [e for e in a.edits if e not in EDITS]
     if bad:
         p.error(f"unknown edit {bad[0]!r} (choose from {', '.join(EDITS)})")
@@ -163,15 +183,31 @@ def landing_samples(seq: Sequences, edit: str, shifts: dict, reference: dict | N
     return samples
 
 
+def lip_shift(seq: Sequences, edit: str, frames: list, scored: list[int]) -> float:
+    """The median (px, over ``scored``) of how far the face around the lower lip's centre (iBUG
+    58) moved in ``frames`` along the first handle's true image displacement (:func:`shift_along`;
+    nan when never measured)."""
+    lip, h = seq.lip, seq.handles[edit][0]
+    got = []
+    for i in scored:
+        d = seq.p1[edit][i][h] - seq.p0[i][h]
+        if lip is not None and frames[i] is not None and np.linalg.norm(d) > 0 and seq.visible[edit][i][lip]:
+            m = shift_along(seq.inputs[i], frames[i], seq.p0[i][lip], d, seq.face[i], reach=12.0)
+            if m is not None:
+                got.append(abs(m))
+    return float(np.median(got)) if got else float("nan")
+
+
 def score_sequence(seq: Sequences, edit: str, frames: list, scored: list[int], truth_shifts: dict) -> dict:
-    """PSNR, SSIM, sharpness, seam and handle landing of ``frames`` (a method's output) against
-    the truth of ``edit`` over the frame indices ``scored``."""
+    """PSNR, SSIM, sharpness, seam, handle landing and the lower lip's shift of ``frames`` (a
+    method's output) against the truth of ``edit`` over the frame indices ``scored``."""
     pool = Pooled()
     for i in scored:
         score_frame(pool, frames[i], seq.truth[edit][i], seq.inputs[i])
     out = summarise(pool)
     shifts = handle_shifts(seq, edit, frames, scored)
     out["landing"] = landing_by_yaw(landing_samples(seq, edit, shifts, truth_shifts))
+    out["lips_px"] = lip_shift(seq, edit, frames, scored)
     return out
 
 
@@ -197,10 +233,11 @@ def save_atlas_crops(seq: Sequences, edit: str, without: list, with_atlas: list,
     cv2.imwrite(str(path), side_by_side(panels, boxes))
 
 
-def run_with_atlas(args, data, seq, video, preset, e, m, frames, scored, truth_shifts, rows, out, timings,
+def run_with_atlas(args, data, seqs, video, preset, e, m, frames, scored, truth_shifts, rows, out, timings,
                    oracle: dict) -> dict:
-    """Edit ``e`` with model ``m`` once more with ``process --atlas on``: its scores (and the crops
-    against ``frames``, the run without the atlas); ``oracle``: run_process's landmark oracle, if any."""
+    """Edit ``e`` with model ``m`` once more with ``process --atlas on``: its scores per truth (and
+    the crops against ``frames``, the run without the atlas, and the first truth); ``oracle``:
+    run_process's landmark oracle, if any."""
     folder = out / "frames" / f"synthetic_{e}_{m}_atlas"
     try:
         got, took = run_process(video, folder, preset, m, neutral_frames=args.neutral_frames,
@@ -208,73 +245,92 @@ def run_with_atlas(args, data, seq, video, preset, e, m, frames, scored, truth_s
                                 **oracle)
     except RuntimeError as exc:
         print(exc, file=sys.stderr)
-        return {"error": str(exc)}
+        return {t: {"error": str(exc)} for t in seqs}
     timings[f"process_{e}_{m}_atlas_s"] = took
     if len(got) < args.frames:
-        return {"error": f"process wrote {len(got)} of {args.frames} frames"}
-    save_atlas_crops(seq, e, frames, got, rows, out / f"crops_atlas_{e}_{m}.png")
+        return {t: {"error": f"process wrote {len(got)} of {args.frames} frames"} for t in seqs}
+    first = next(iter(seqs))
+    save_atlas_crops(seqs[first], e, frames, got, rows, out / f"crops_atlas_{e}_{m}.png")
     if not args.keep_frames:
         shutil.rmtree(folder)
-    return score_sequence(seq, e, got, scored, truth_shifts)
+    return {t: score_sequence(seq, e, got, scored, truth_shifts[t]) for t, seq in seqs.items()}
+
+
+def crops_name(edit: str, model: str, truth: str, truths: list[str]) -> str:
+    """``crops_EDIT_MODEL.png``, with ``_TRUTH`` when several truths are scored."""
+    return f"crops_{edit}_{model}" + (f"_{truth}" if len(truths) > 1 else "") + ".png"
 
 
 def synthetic(args, data: Path, out: Path) -> dict:
-    """Parts 1–3: render, run process per model and edit, score, crop."""
+    """Parts 1–3: render (the input once per truth, the same frames), run process per model and
+    edit, score against every truth of ``args.truth_edit``, crop."""
     t0 = time.perf_counter()
     scene = make_scene(data, args.frames)
     specs = [EDITS[e] for e in args.edits]
-    seq = render_sequences(scene, specs, args.workers or None, args.truth_edit)
+    seqs = {t: render_sequences(scene, specs, args.workers or None, t) for t in args.truth_edit}
+    first = seqs[args.truth_edit[0]]
     render_s = time.perf_counter() - t0
-    video = write_lossless(seq.inputs, out / "synthetic.mkv")
+    video = write_lossless(first.inputs, out / "synthetic.mkv")
     (out / "presets").mkdir(exist_ok=True)
     model_rest = scene.rest[: scene.model_vertices]
     presets = {sp.name: write_preset(sp, model_rest, scene.landmarks, scene.model_triangles, out / "presets")
                for sp in specs}
     scored = list(range(args.neutral_frames, args.frames))
-    rows = crop_frames(seq, scored)
-    results, timings = {}, {"render_s": render_s}
+    rows = crop_frames(first, scored)
+    results, timings = {t: {} for t in seqs}, {"render_s": render_s}
     oracle = {}
     if args.landmark_oracle is not None:
-        H, W = seq.inputs[0].shape[:2]
+        H, W = first.inputs[0].shape[:2]
         found = write_true_landmarks(out / "true_landmarks.npz", true_landmarks(scene), (W, H))
         oracle = {"module": LANDMARK_ORACLE, "environment": process_environment(found, args.landmark_oracle)}
     for sp in specs:
         e = sp.name
-        liq = {i: liquified(seq, e, i) for i in scored}
-        truth_shifts = handle_shifts(seq, e, seq.truth[e], scored)
-        results[e] = {"do nothing": score_sequence(seq, e, seq.inputs, scored, truth_shifts),
-                      "2D liquify": score_sequence(seq, e, [liq.get(i) for i in range(args.frames)], scored,
-                                                   truth_shifts)}
+        liq, truth_shifts = {}, {}
+        for t, seq in seqs.items():
+            liq[t] = {i: liquified(seq, e, i) for i in scored}
+            truth_shifts[t] = handle_shifts(seq, e, seq.truth[e], scored)
+            results[t][e] = {"do nothing": score_sequence(seq, e, seq.inputs, scored, truth_shifts[t]),
+                             "2D liquify": score_sequence(seq, e, [liq[t].get(i) for i in range(args.frames)],
+                                                          scored, truth_shifts[t])}
         if args.oracle:
-            for label, d in ((ORACLE_RENDERER, seq.displacements[e]),
-                             (ORACLE_DEFORMER, deformer_displacement(sp, scene))):
-                results[e][label] = score_sequence(seq, e, oracle_frames(scene, seq.inputs, d, list(range(args.frames))),
-                                                   scored, truth_shifts)
-        for m in args.models:
-            folder = out / "frames" / f"synthetic_{e}_{m}"
+            solved = oracle_frames(scene, first.inputs, deformer_displacement(sp, scene), list(range(args.frames)))
+            for t, seq in seqs.items():
+                true = oracle_frames(scene, seq.inputs, seq.displacements[e], list(range(args.frames)))
+                for label, frames in ((ORACLE_RENDERER, true), (ORACLE_DEFORMER, solved)):
+                    results[t][e][label] = score_sequence(seq, e, frames, scored, truth_shifts[t])
+        for m, label, pythonpath in [(m, *v) for m in args.models for v in [("", args.pythonpath), *args.variants]]:
+            row = m if not label else f"{m} [{label}]"
+            folder = out / "frames" / f"synthetic_{e}_{m}{label and '_' + label}"
             try:
                 frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames,
-                                           pythonpath=args.pythonpath, data=data, extra_args=args.process_args,
-                                           **oracle)
+                                           pythonpath=pythonpath, data=data, extra_args=args.process_args, **oracle)
             except RuntimeError as exc:
                 print(exc, file=sys.stderr)
-                results[e][m] = {"error": str(exc)}
+                for t in seqs:
+                    results[t][e][row] = {"error": str(exc)}
                 continue
-            timings[f"process_{e}_{m}_s"] = took
+            timings[f"process_{e}_{m}{label and '_' + label}_s"] = took
             if len(frames) < args.frames:
-                results[e][m] = {"error": f"process wrote {len(frames)} of {args.frames} frames"}
+                for t in seqs:
+                    results[t][e][row] = {"error": f"process wrote {len(frames)} of {args.frames} frames"}
                 continue
-            results[e][m] = score_sequence(seq, e, frames, scored, truth_shifts)
-            save_crops(seq, e, f"result ({m})", frames, liq, rows, out / f"crops_{e}_{m}.png")
-            if e in args.atlas_edits:
-                results[e][f"{m} + atlas"] = run_with_atlas(args, data, seq, video, presets[e], e, m, frames, scored,
-                                                            truth_shifts, rows, out, timings, oracle)
+            for t, seq in seqs.items():
+                results[t][e][row] = score_sequence(seq, e, frames, scored, truth_shifts[t])
+                save_crops(seq, e, f"result ({row})", frames, liq[t], rows,
+                           out / crops_name(e, m + (label and "_" + label), t, args.truth_edit))
+            if e in args.atlas_edits and not label:
+                for t, got in run_with_atlas(args, data, seqs, video, presets[e], e, m, frames, scored, truth_shifts,
+                                             rows, out, timings, oracle).items():
+                    results[t][e][f"{m} + atlas"] = got
             if not args.keep_frames:
                 shutil.rmtree(folder)
-        results[e]["ground truth (measurement check)"] = {
-            "landing": landing_by_yaw(landing_samples(seq, e, truth_shifts, None))}
-    return {"results": results, "presets": {k: str(v) for k, v in presets.items()}, "timings": timings,
-            "yaw_range": [float(seq.yaw[scored].min()), float(seq.yaw[scored].max())]}
+        for t, seq in seqs.items():
+            results[t][e]["ground truth (measurement check)"] = {
+                "landing": landing_by_yaw(landing_samples(seq, e, truth_shifts[t], None)),
+                "lips_px": lip_shift(seq, e, seq.truth[e], scored)}
+    return {"results": results[args.truth_edit[0]], "results_by_truth": results,
+            "presets": {k: str(v) for k, v in presets.items()}, "timings": timings,
+            "yaw_range": [float(first.yaw[scored].min()), float(first.yaw[scored].max())]}
 
 
 def real_videos(args, data: Path, out: Path, presets: dict) -> list[dict]:
@@ -323,17 +379,22 @@ def git_revision(pythonpath: str = "") -> str:
 
 
 def markdown(report: dict) -> str:
-    return "\n\n".join([
+    truths = report.get("truth_edit", ["falloff"])
+    truths = [truths] if isinstance(truths, str) else truths
+    by_truth = report.get("results_by_truth", {truths[0]: report["results"]})
+    parts = [
         f"# bench_realism ({report['revision']}, {report['frames']} frames, scored "
         f"{report['frames'] - report['neutral_frames']}, yaw {report['yaw_range'][0]:+.0f}..{report['yaw_range'][1]:+.0f}, "
-        f"truth edit {report.get('truth_edit', 'falloff')}"
+        f"truth edit {', '.join(truths)}"
         + ("" if report.get("landmark_oracle_keep") is None else
-           f", inner landmarks: {report['landmark_oracle_keep']:g} of the detector's error kept") + ")",
-        "## Synthetic set against ground truth (edit region)", synthetic_table(report["results"]),
-        "## Handle landing by yaw: median error % of the true image displacement (reach)",
-        landing_table(report["results"]),
-        "## Real videos (no ground truth): re-rendered region against the input", real_table(report["real"]),
-    ]) + "\n"
+           f", inner landmarks: {report['landmark_oracle_keep']:g} of the detector's error kept") + ")"]
+    for t in truths:
+        said = "" if len(truths) == 1 else f" (truth edit {t})"
+        parts += [f"## Synthetic set against ground truth (edit region){said}", synthetic_table(by_truth[t]),
+                  f"## Handle landing by yaw: median error % of the true image displacement (reach){said}",
+                  landing_table(by_truth[t])]
+    parts += ["## Real videos (no ground truth): re-rendered region against the input", real_table(report["real"])]
+    return "\n\n".join(parts) + "\n"
 
 
 def _clean(x):

@@ -163,8 +163,8 @@ def test_the_compositor_on_the_true_head_is_closer_to_the_truth_than_doing_nothi
 
 def test_the_arap_truth_is_what_a_preset_stands_for(synth):
     """--truth-edit arap: the benchmark's own ARAP solver (gripping handles) moves each handle by
-    exactly its offset and lands where the project's deformer settles the same preset, which the
-    raised-cosine falloff does not."""
+    exactly its offset and lands where the project's deformer settles the same preset with the same
+    grip (0.2, an option), which the raised-cosine falloff does not."""
     from realism.edits import displacement, handle_vertex
     from realism.oracle import deformer_displacement
 
@@ -174,12 +174,56 @@ def test_the_arap_truth_is_what_a_preset_stands_for(synth):
         spec = EDITS[edit]
         arap = displacement(spec, scene.rest, scene.landmarks, "arap", scene.model_triangles, n)
         falloff = displacement(spec, scene.rest, scene.landmarks)
-        ours = deformer_displacement(spec, scene)
+        ours = deformer_displacement(spec, scene, grip=0.2)
         for name, offset in spec.handles.items():
             assert np.allclose(arap[handle_vertex(name, scene.landmarks)], offset)
         assert np.abs(arap[:n] - ours[:n]).max() < 0.5, edit
         assert np.abs(falloff[:n] - ours[:n]).max() > 1.0, edit
         assert np.array_equal(arap[n:], falloff[n:])   # the vertices closing the mouth keep the falloff
+
+
+def test_the_paper_truth_is_the_single_vertex_arap_solved_by_libigl(synth):
+    """--truth-edit paper: libigl's ARAP with each handle a single vertex moves each handle by
+    exactly its offset, nothing beyond the ROI, and lands where the project's deformer settles the
+    same preset with grip 0 (another solver: cotangent clamping, the ROI along the edges), far
+    from the gripped truth, whose skin around the handle moves with it."""
+    from realism.edits import displacement, handle_vertex
+    from realism.paper_arap import geodesic_distances
+
+    from facesculpt.nodes.deformer import EditStack
+
+    scene, _ = synth
+    n = scene.model_vertices
+    rest = scene.rest[:n]
+    for edit in ("nose", "jaw"):
+        spec = EDITS[edit]
+        paper = displacement(spec, scene.rest, scene.landmarks, "paper", scene.model_triangles, n)
+        gripped = displacement(spec, scene.rest, scene.landmarks, "arap", scene.model_triangles, n)
+        stack = EditStack(rest.astype(np.float32), scene.model_triangles, list(scene.landmarks),
+                          list(scene.landmarks.values()), grip=0.0)
+        stack.apply_preset(preset(spec, rest, scene.landmarks, scene.model_triangles))
+        ours = stack.settle()
+        handles = [handle_vertex(name, scene.landmarks) for name in spec.handles]
+        for h, offset in zip(handles, spec.handles.values()):
+            assert np.allclose(paper[h], offset)
+        far = geodesic_distances(rest, scene.model_triangles, handles) > spec.radius
+        assert far.sum() > n // 2 and np.all(paper[:n][far] == 0)
+        gap = np.linalg.norm(paper[:n] - ours, axis=1)
+        assert gap.max() < 2.0 and gap.mean() < 0.1, (edit, gap.max(), gap.mean())
+        assert np.linalg.norm(paper[:n] - gripped[:n], axis=1).max() > 2.5, edit
+        assert np.array_equal(paper[n:], gripped[n:])   # the vertices closing the mouth keep the falloff
+
+
+def test_the_command_line_takes_several_truths_and_variants(capsys):
+    import bench_realism
+
+    a = bench_realism.parse_args(["--truth-edit", "paper,arap,paper", "--variants", "old=/tmp/a,grip0=/tmp/b"])
+    assert a.truth_edit == ["paper", "arap"] and a.variants == [("old", "/tmp/a"), ("grip0", "/tmp/b")]
+    for bad, said in ((["--truth-edit", "paper,cusp"], "unknown truth edit 'cusp'"),
+                      (["--variants", "old"], "--variants takes LABEL=DIR pairs")):
+        with pytest.raises(SystemExit):
+            bench_realism.parse_args(bad)
+        assert said in capsys.readouterr().err
 
 
 def test_the_command_line_refuses_an_unknown_edit(capsys):

@@ -1,6 +1,7 @@
-"""A handle grips a patch of skin (``EditStack(grip=...)``): the surface around a pulled point
-follows it instead of leaving a spike, pressing on an edited surface moves nothing, and pins
-and explicit ROIs still bound what moves."""
+"""A handle may grip a patch of skin (``EditStack(grip=...)``, an option; by default a handle is
+the single vertex of the paper's ARAP): with a grip the surface around a pulled point follows it
+instead of leaving a spike, pressing on an edited surface moves nothing either way, and pins and
+explicit ROIs still bound what moves."""
 
 from __future__ import annotations
 
@@ -46,8 +47,17 @@ def test_the_skin_around_a_pulled_point_follows_it_instead_of_a_spike(model):
     assert np.all(d_grip[outside] == 0)
 
 
-def test_pressing_on_an_edited_surface_moves_nothing(model):
+def test_by_default_a_handle_is_the_single_vertex_of_the_papers_arap(model):
     s = stack_for(model)
+    v, d = pull_nose(s)
+    static, constrained, _, _ = s.constraints()
+    assert s.grip == 0.0 and list(constrained) == [v]  # the handle alone is moved: nothing grips
+    assert np.allclose(d[v], (0.0, -3.0, 8.0))
+
+
+@pytest.mark.parametrize("grip", [0.0, 0.2])
+def test_pressing_on_an_edited_surface_moves_nothing(model, grip):
+    s = stack_for(model, grip=grip)
     v, before = pull_nose(s)
     r = distances_from(s.rest, [v], "geodesic", triangles=s.triangles)
     # press on the pulled surface, 10 mm from the tip, with an ROI inside the first one: its grip
@@ -60,7 +70,7 @@ def test_pressing_on_an_edited_surface_moves_nothing(model):
 
 
 def test_pins_and_explicit_rois_bound_the_grip(model):
-    s = stack_for(model)
+    s = stack_for(model, grip=0.2)
     v = s.landmark_vertex("nose_tip")
     r = distances_from(s.rest, [v], "geodesic", triangles=s.triangles)
     pin = int(np.flatnonzero((r > 2.0) & (r < 5.0))[0])

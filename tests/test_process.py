@@ -221,7 +221,7 @@ def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, mo
                 drawn = (stack.solve_mesh.loop @ disp)[v]
                 assert np.linalg.norm(drawn - handle["offset"]) < 1.0, (model.model_id, handle, drawn)
         moved = np.linalg.norm(disp, axis=1) > 0.5
-        # a local edit: cheeks (ROI 70 mm, each handle gripping 14 mm of skin) moves the face's
+        # a local edit: cheeks (ROI 70 mm, each handle a single vertex) moves the face's
         # outline, most of the face-mesh placeholder (0.81 of it), yet leaves the rest in place
         assert 10 < moved.sum() < 0.9 * len(disp), (model.model_id, moved.sum())
 

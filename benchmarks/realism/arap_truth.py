@@ -8,8 +8,8 @@ Sorkine & Alexa's ARAP: cotangent weights (negative ones clamped to zero), one c
 stop moving. The ROI: the vertices within ``radius`` mm of a handle along the mesh's edges
 (Dijkstra on the edge lengths); every vertex outside it is fixed. A handle grips the skin within
 ``grip`` times the radius of it (the same distance), which moves rigidly with it, as a deformer
-preset's handle does (a single pulled vertex of a dense mesh would make a cusp); each gripped
-vertex follows its nearest handle.
+handle does with ``deformer.grip`` 0.2 (an option; by default a handle is a single vertex, as in
+the paper's ARAP: :mod:`.paper_arap`); each gripped vertex follows its nearest handle.
 
 Arrays: rest (V, 3) float mm, triangles (T, 3) int, displacements (V, 3) float mm.
 """

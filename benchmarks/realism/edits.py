@@ -1,6 +1,7 @@
 """The ground-truth edits: model-space displacements with a smooth radial falloff around named
 handle vertices of the Surrey Face Model (or, ``kind="arap"``, the as-rigid-as-possible
-deformation the preset stands for: :mod:`.arap_truth`), and the same edits as deformer presets
+deformation the preset stands for, gripping handles: :mod:`.arap_truth`; ``kind="paper"``, the
+paper's ARAP, each handle a single vertex, solved by libigl: :mod:`.paper_arap`), and the same edits as deformer presets
 that both built-in models (``sfm``, ``facemesh``) can load.
 
 A handle at vertex h with offset o (mm) moves vertex v by ``o * w(|rest_v - rest_h| / R)``,
@@ -65,16 +66,17 @@ def falloff(r: np.ndarray) -> np.ndarray:
     return np.where(r < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(r, 1.0))), 0.0)
 
 
-#: What a ground-truth edit is: the raised-cosine falloff above, or the ARAP deformation a deformer
-#: preset stands for (:mod:`.arap_truth`, the benchmark's own solver).
-TRUTH_EDITS = ("falloff", "arap")
+#: What a ground-truth edit is: the raised-cosine falloff above, the ARAP deformation a deformer
+#: preset stands for with gripping handles (:mod:`.arap_truth`, the benchmark's own solver), or the
+#: paper's ARAP, each handle a single vertex (:mod:`.paper_arap`, libigl).
+TRUTH_EDITS = ("falloff", "arap", "paper")
 
 
 def displacement(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], kind: str = "falloff",
                  triangles: np.ndarray | None = None, model_vertices: int | None = None) -> np.ndarray:
     """The edit's displacement (V, 3) mm of the rest vertices ``rest`` (V, 3) model space: ``kind``
-    "falloff", or "arap" on the first ``model_vertices`` of ``rest`` and their ``triangles`` (T, 3)
-    (the others, e.g. those that close the mouth, keep the falloff)."""
+    "falloff", or "arap" / "paper" on the first ``model_vertices`` of ``rest`` and their
+    ``triangles`` (T, 3) (the others, e.g. those that close the mouth, keep the falloff)."""
     if kind not in TRUTH_EDITS:
         raise ValueError(f"kind must be one of {TRUTH_EDITS}, got {kind!r}")
     rest = np.asarray(rest, np.float64)
@@ -83,12 +85,14 @@ def displacement(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], ki
         h = handle_vertex(name, landmarks)
         w = falloff(np.linalg.norm(rest - rest[h], axis=1) / spec.radius)
         out += w[:, None] * np.asarray(offset, np.float64)
-    if kind == "arap":
+    if kind != "falloff":
         from .arap_truth import arap_displacement
+        from .paper_arap import paper_displacement
 
         n = len(rest) if model_vertices is None else int(model_vertices)
         handles = {handle_vertex(name, landmarks): np.asarray(o, np.float64) for name, o in spec.handles.items()}
-        out[:n] = arap_displacement(rest[:n], triangles, handles, spec.radius)
+        solve = arap_displacement if kind == "arap" else paper_displacement
+        out[:n] = solve(rest[:n], triangles, handles, spec.radius)
     return out
 
 

@@ -17,9 +17,10 @@ from .raster import project_pixels
 from .scene import Scene
 
 
-def deformer_displacement(spec: EditSpec, scene: Scene) -> np.ndarray:
+def deformer_displacement(spec: EditSpec, scene: Scene, **options) -> np.ndarray:
     """(V, 3) mm: the edit as the project's deformer solves its preset on the true head's rest mesh
-    (the model's vertices; the vertices that close the mouth keep the benchmark's own falloff)."""
+    (the model's vertices; the vertices that close the mouth keep the benchmark's own falloff);
+    ``options`` go to the deformer's ``EditStack`` (e.g. ``grip=0.2``; default: its defaults)."""
     from facesculpt.nodes.deformer import EditStack
 
     from .edits import displacement
@@ -27,7 +28,7 @@ def deformer_displacement(spec: EditSpec, scene: Scene) -> np.ndarray:
     n = scene.model_vertices
     rest = scene.rest[:n]
     stack = EditStack(rest.astype(np.float32), scene.model_triangles, list(scene.landmarks),
-                      list(scene.landmarks.values()))
+                      list(scene.landmarks.values()), **options)
     stack.apply_preset(preset(spec, rest, scene.landmarks, scene.model_triangles))
     out = displacement(spec, scene.rest, scene.landmarks)
     out[:n] = stack.settle()

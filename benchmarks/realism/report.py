@@ -20,20 +20,22 @@ def _f(x, fmt="{:.2f}") -> str:
 
 
 def synthetic_table(results: dict) -> str:
-    """results[edit][method] = {"psnr", "ssim", "sharpness", "seam", "landing": {...}}."""
-    lines = ["| edit | method | PSNR dB | SSIM | sharpness | seam | landing error % | reach |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    """results[edit][method] = {"psnr", "ssim", "sharpness", "seam", "landing": {...}, "lips_px"}."""
+    lines = ["| edit | method | PSNR dB | SSIM | sharpness | seam | landing error % | reach | lower lip moved px |",
+             "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for edit, methods in results.items():
         for method, r in methods.items():
             if "error" in r:
-                lines.append(f"| {edit} | {method} | failed: {r['error'][:200]} | | | | | |")
+                lines.append(f"| {edit} | {method} | failed: {r['error'][:200]} | | | | | | |")
                 continue
             if "psnr" not in r:
+                if "lips_px" in r:
+                    lines.append(f"| {edit} | {method} | – | – | – | – | – | – | {_f(r['lips_px'], '{:.1f}')} |")
                 continue
             land = r.get("landing", {}).get("all", {})
             lines.append(f"| {edit} | {method} | {_f(r['psnr'])} | {_f(r['ssim'], '{:.3f}')} | "
                          f"{_f(r['sharpness'])} | {_f(r['seam'])} | {_f(land.get('error_pct'), '{:.0f}')} | "
-                         f"{_f(land.get('reach'))} |")
+                         f"{_f(land.get('reach'))} | {_f(r.get('lips_px'), '{:.1f}')} |")
     return "\n".join(lines)
 
 

@@ -27,7 +27,8 @@ class Sequences:
     p0[i] (V, 2) px of the unedited vertices, p1[edit][i] of the edited ones; visible[edit][i]
     (V,) bool: vertices seen both before and after the edit; handles[edit]: the SFM vertices
     of the edit's handles; face[i] (H, W) bool: where the head covers the background;
-    displacements[edit] (V, 3) mm, the edit's true displacement of the rest vertices."""
+    displacements[edit] (V, 3) mm, the edit's true displacement of the rest vertices; lip: the
+    lower lip's centre vertex (iBUG 58), None when the scene's landmarks lack it."""
 
     inputs: list
     truth: dict
@@ -38,6 +39,7 @@ class Sequences:
     handles: dict
     face: list
     displacements: dict
+    lip: int | None = None
 
 
 _SCENE: Scene | None = None
@@ -97,6 +99,7 @@ def render_sequences(scene: Scene, specs: list[EditSpec], workers: int | None = 
         handles={sp.name: [handle_vertex(h, scene.landmarks) for h in sp.handles] for sp in specs},
         face=[changed(f["input"], scene.background) for f in frames],
         displacements=displacements,
+        lip=scene.landmarks.get("58"),
     )
 
 

@@ -38,10 +38,10 @@ __all__ = [
 ]
 
 # A handle grips the skin within this share of its edit's ROI radius (same metric), which moves
-# with it rigidly: ARAP pulling a single vertex of a dense mesh makes a cusp (the vertex moves,
-# its neighbours lag far behind), so a pulled nose or chin became a spike on a surface that
-# barely moved. 0 is the single-vertex handle.
-GRIP = 0.2
+# with it rigidly. 0, the default, is the paper's single-vertex handle: ARAP pulling one vertex of
+# a dense mesh makes a cusp (the vertex moves, its neighbours lag), yet that is the deformation the
+# paper describes, and a grip makes another, larger nose or chin (docs/results/paper-arap.md).
+GRIP = 0.0
 GRIP_RANGE = (0.0, 0.5)
 # An edit has settled when no vertex moves by more than this share of the mesh's bounding-box
 # diagonal in an iteration (the deformer node's default ``tolerance``, which its idle rounds reach).

@@ -56,7 +56,7 @@ class DeformerNode(Node):
         "roi_metric": Param("geodesic", "distance the ROI radius is measured in",
                             choices=("geodesic", "euclidean")),
         "grip": Param(GRIP, "share of a handle's ROI radius around it that moves rigidly with it (0: the "
-                            "handle vertex alone, which pulls a spike)", range=GRIP_RANGE),
+                            "handle vertex alone, as in the paper)", range=GRIP_RANGE),
         "min_solve_vertices": Param(MIN_SOLVE_VERTICES, "a model mesh with fewer vertices is solved on its refinement "
                                                         "with at least as many, its holes closed (0: always on the "
                                                         "model's own mesh)", range=MIN_SOLVE_VERTICES_RANGE),
