@@ -37,6 +37,7 @@ from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVERY_MESSAGE
 
 from .intrinsics import intrinsics_from_fov
+from .rgbd_sources import RGBDFrame, depth_fields, resized_intrinsics
 from .sources import RESIZE_MODES, SourceError, open_source, resize_frame
 
 # Lockstep: how often the camera looks at its pacing and its acknowledgement deadlines, s (the
@@ -194,12 +195,20 @@ class CameraNode(Node):
         self._send(frame, stamp)
         return True
 
-    def _send(self, frame: np.ndarray, stamp: int) -> None:
-        frame = resize_frame(frame, self.params.width, self.params.height, self.params.resize)
+    def _send(self, frame: np.ndarray | RGBDFrame, stamp: int) -> None:
+        p = self.params
+        rgbd, extra = (frame, {}) if isinstance(frame, RGBDFrame) else (None, {})
+        if rgbd is not None:   # an RGB-D source: its depth goes along with its own K (docs/guide/depth-cameras.md)
+            frame = rgbd.color
+            h0, w0 = frame.shape[:2]
+            K0 = rgbd.K if rgbd.K is not None and self.K_fixed is None else self.intrinsics(w0, h0)
+            extra = depth_fields(rgbd, K0)
+        frame = resize_frame(frame, p.width, p.height, p.resize)
         h, w = frame.shape[:2]
+        K = self.intrinsics(w, h) if rgbd is None or self.K_fixed is not None else \
+            resized_intrinsics(K0, (w0, h0), p.width, p.height, p.resize)
         self.sent += 1
-        msg = Image(stamp=stamp, seq=self.sent, frame_id="camera", image=np.ascontiguousarray(frame),
-                    K=self.intrinsics(w, h))
+        msg = Image(stamp=stamp, seq=self.sent, frame_id="camera", image=np.ascontiguousarray(frame), K=K, **extra)
         self.pub.publish(msg)
         if self.analysis_pub is not None:
             self._publish_analysis(msg)
