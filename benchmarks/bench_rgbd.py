@@ -12,8 +12,9 @@
 4. Against the truth the scene rendered: head rotation error (degrees, the angle of R_fit R_true^T),
    vertex error (RMS over the model's vertices, camera space, mm; all, and those visible), and the
    time of each fit call (wall and this process's CPU time: the CPU time is what a shared machine
-   disturbs least), the two alternated in order frame by frame; the cost ratio is their median
-   times' ratio. The head's identity and the noise come from ``--seed`` (default 11); the depth
+   disturbs least), the two alternated in order frame by frame, the sequence fitted ``--repeats``
+   times with fresh fitters and each call's least time kept; the cost ratio is the ratio of the
+   two median times. The head's identity and the noise come from ``--seed`` (default 11); the depth
    fit's constants were chosen on seed 7 (the realism benchmark's head), so the default run is a
    truth they were not tuned to.
 
@@ -82,7 +83,7 @@ def render_set(scene, frames: int, workers: int, seed: int) -> list[dict]:
     return [_render(job) for job in jobs]
 
 
-def run(frames: int, workers: int, out: Path | None, seed: int = 11) -> dict:
+def run(frames: int, workers: int, out: Path | None, seed: int = 11, repeats: int = 3) -> dict:
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
 
     scene = make_scene(shared_data_dir(), frames, seed=seed)
@@ -96,30 +97,37 @@ def run(frames: int, workers: int, out: Path | None, seed: int = 11) -> dict:
                             R=np.stack([r["R"] for r in rendered]), model_vertices=scene.model_vertices)
     model = load_model("sfm")
     size = (scene.background.shape[1], scene.background.shape[0])
-    fitters = {name: make_fitter(model, FitterConfig(), size, K) for name in ("colour", "depth")}
     detector = LandmarkDetector()
-    V = scene.model_vertices
-    rows = {name: [] for name in fitters}
-    for i, r in enumerate(rendered):
+    tracked = []
+    for r in rendered:
         faces = detector.track(r["colour"])
-        if not faces:
-            continue
-        points = np.stack([faces[0].points]).astype(np.float64)
-        scores = np.array([1.0])
-        depth = DepthImage(r["depth"], K)
-        order = ("colour", "depth") if i % 2 == 0 else ("depth", "colour")
-        for name in order:
-            t0, c0 = time.perf_counter(), time.process_time()
-            fit = fit_landmarks(fitters[name], points, scores, i / FPS, depth=depth if name == "depth" else None).fit
-            ms, cpu_ms = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
-            if fit is None:
+        tracked.append(np.stack([faces[0].points]).astype(np.float64) if faces else None)
+    V = scene.model_vertices
+    rows = {name: {} for name in ("colour", "depth")}
+    for rep in range(repeats):   # the sequence again with fresh fitters: each call's least time counts
+        fitters = {name: make_fitter(model, FitterConfig(), size, K) for name in rows}
+        for i, (r, points) in enumerate(zip(rendered, tracked)):
+            if points is None:
                 continue
-            err = np.linalg.norm(np.asarray(fit.vertices, np.float64)[:V] - r["vertices"][:V], axis=1)
-            vis = r["visible"][:V]
-            rows[name].append({"frame": i, "ms": ms, "cpu_ms": cpu_ms, "rotation_deg": rotation_error_deg(fit.R, r["R"]),
-                               "rms_mm": float(np.sqrt((err ** 2).mean())),
-                               "rms_visible_mm": float(np.sqrt((err[vis] ** 2).mean()))})
-    return summarise(rows, rendered)
+            depth = DepthImage(r["depth"], K)
+            for name in (("colour", "depth") if (i + rep) % 2 == 0 else ("depth", "colour")):
+                t0, c0 = time.perf_counter(), time.process_time()
+                fit = fit_landmarks(fitters[name], points, np.ones(1), i / FPS,
+                                    depth=depth if name == "depth" else None).fit
+                ms, cpu_ms = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
+                if fit is None:
+                    continue
+                if i in rows[name]:
+                    row = rows[name][i]
+                    row["ms"], row["cpu_ms"] = min(row["ms"], ms), min(row["cpu_ms"], cpu_ms)
+                    continue
+                err = np.linalg.norm(np.asarray(fit.vertices, np.float64)[:V] - r["vertices"][:V], axis=1)
+                vis = r["visible"][:V]
+                rows[name][i] = {"frame": i, "ms": ms, "cpu_ms": cpu_ms,
+                                 "rotation_deg": rotation_error_deg(fit.R, r["R"]),
+                                 "rms_mm": float(np.sqrt((err ** 2).mean())),
+                                 "rms_visible_mm": float(np.sqrt((err[vis] ** 2).mean()))}
+    return summarise({name: list(rs.values()) for name, rs in rows.items()}, rendered)
 
 
 def summarise(rows: dict, rendered: list[dict]) -> dict:
@@ -140,11 +148,13 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=30, help="frames of the synthetic set (default 30)")
     p.add_argument("--seed", type=int, default=11,
                    help="the head's identity and the noise (default 11; depth_fitting's constants were chosen on 7)")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="fit the sequence this many times, each call's least time counts (default 3)")
     p.add_argument("--workers", type=int, default=2, help="processes rendering the set (default 2)")
     p.add_argument("--json", type=Path, help="write the figures here")
     p.add_argument("--out", type=Path, help="also write the RGB-D set here (a folder the camera node reads)")
     args = p.parse_args(argv)
-    result = run(args.frames, args.workers, args.out, args.seed)
+    result = run(args.frames, args.workers, args.out, args.seed, args.repeats)
     print(f"{result['frames']} frames 640x480, face pixels without depth: {100 * result['face_holes_share']:.1f} %")
     print(f"{'fit':8} {'rot mean deg':>12} {'rot max':>8} {'RMS mm':>8} {'RMS vis':>8} {'ms/fit':>8} {'CPU ms':>8}")
     for name in ("colour", "depth"):

@@ -132,3 +132,33 @@ def test_points_at_follow_the_depth_cameras_transform():
     P, valid = DepthImage(depth, K_depth, T).points_at(C)
     assert valid.tolist() == [True, True, False]   # the last one lands in the hole
     assert np.allclose(P[:2, 2], 805.0)   # the wall, seen from the colour camera 5 mm behind
+
+
+def test_the_fitter_node_fits_on_the_depth_of_the_landmarks_frame(sfm, monkeypatch, tmp_path):
+    """The node with depth=on keeps camera/image's depth by stamp and fits each landmarks message
+    on its frame's depth; with depth=off (the default) the same messages give the colour-only fit."""
+    from facesculpt.msgs import FaceLandmarks, Image
+    from facesculpt.nodes.fitter.node import FitterNode
+
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    frames = _frames(sfm, 7, 4)
+    errors = {}
+    for setting in ("off", "on"):
+        node = FitterNode(params={"model": "sfm", "depth": setting, "rotation_prior_px": 0.0})
+        node.setup()
+        states = []
+        publish = node.state_pub.publish
+        node.state_pub.publish = lambda msg, _p=publish: (states.append(msg), _p(msg))[1]
+        try:
+            for i, (f, _, depth) in enumerate(frames):
+                stamp = 1_000_000_000 + i * 150_000_000
+                node.on_image(Image(stamp=stamp, image=np.zeros((480, 640, 3), np.uint8), K=K, depth=depth, depth_K=K))
+                node.on_landmarks(FaceLandmarks(
+                    stamp=stamp, points=np.c_[f.noisy, np.zeros(68)].astype(np.float32)[None],
+                    scores=np.ones(1, np.float32), rois=np.zeros((1, 5), np.float32), image_size=[640, 480], K=K))
+        finally:
+            node.close()
+        assert len(states) == len(frames) and node.counters.get("depth_without_frame", 0) == 0
+        errors[setting] = np.mean([np.sqrt(((st.vertices - X) ** 2).sum(axis=1).mean())
+                                   for st, (_, X, _) in zip(states, frames)])
+    assert errors["on"] < 3.0 < errors["off"], errors

@@ -50,7 +50,7 @@ SIGMA_DEPTH_MM, SIGMA_LANDMARK_PX = 2.5, 20.0
 HUBER = 1.5
 #: Vertices taking part: normal facing the camera at least this much (cosine), at most this many
 #: (evenly spread over the candidates, for a bounded cost).
-FACING_COS, MAX_POINTS = 0.25, 800
+FACING_COS, MAX_POINTS = 0.25, 600
 #: The weight of the coefficients' standard normal prior (1: as the model's statistics say; a
 #: frame's depth says more of the shape than its noise scale above admits).
 COEFFICIENT_PRIOR = 0.3
@@ -160,7 +160,7 @@ def _landmark_rows(C: np.ndarray, a: np.ndarray, RB: np.ndarray, K: np.ndarray):
     Jc[:, :, :3] = ax
     Jc[:, :, 3:6] = np.eye(3)
     Jc[:, :, 6:] = RB
-    J = np.einsum("lij,ljp->lip", du, Jc).reshape(-1, 6 + RB.shape[2])
+    J = np.matmul(du, Jc).reshape(-1, 6 + RB.shape[2])
     return J, project(C, K)
 
 
