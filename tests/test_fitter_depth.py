@@ -162,3 +162,25 @@ def test_the_fitter_node_fits_on_the_depth_of_the_landmarks_frame(sfm, monkeypat
         errors[setting] = np.mean([np.sqrt(((st.vertices - X) ** 2).sum(axis=1).mean())
                                    for st, (_, X, _) in zip(states, frames)])
     assert errors["on"] < 3.0 < errors["off"], errors
+
+
+def test_the_dense_face_mesh_model_takes_its_distance_from_the_depth(models_dir):
+    """facemesh (no shape basis): only the pose is refined, and the head's distance, which the
+    468 points alone leave uncertain, comes from the depth."""
+    from facesculpt.geometry.head_angles import rotation_from_euler
+
+    mesh = load_model("facemesh")
+    rng = np.random.default_rng(8)
+    fitters = {name: make_fitter(mesh, FitterConfig(), SIZE, K) for name in ("colour", "depth")}
+    errors = {name: [] for name in fitters}
+    for i in range(4):
+        R = rotation_from_euler(-10.0 + 8 * i, 4.0, 0.0)
+        X = np.asarray(mesh.mean, np.float64) * 1.12 @ R.T + [5.0, 10.0, 520.0]   # a larger head than the mean
+        pts = np.c_[X[:, :2] / X[:, 2:3] * 554.0 + [319.5, 239.5] + rng.normal(0, 1.0, (len(X), 2)),
+                    (X[:, 2] - X[:, 2].mean()) * 554.0 / X[:, 2].mean()]   # the network's relative depth, px
+        depth = _depth_image(X, np.asarray(mesh.triangles), K, SIZE, rng)
+        for name, fitter in fitters.items():
+            fit = fitter.fit(pts, stamp=0.1 * i,
+                             depth=DepthImage(depth, K) if name == "depth" else None)
+            errors[name].append(abs(float(np.median(fit.vertices[:, 2]) - np.median(X[:, 2]))))
+    assert np.mean(errors["depth"]) < 5.0 < np.mean(errors["colour"]), errors

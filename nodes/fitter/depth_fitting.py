@@ -118,7 +118,7 @@ def _candidates(mean, basis, triangles, R, t, c, outward: float, normals=None) -
     (M, 3) model space: ``normals`` (V, 3) when given (the posed ``mean`` then decides what faces
     the camera), else those of the current shape."""
     if normals is None:
-        X = mean + (basis.reshape(-1, len(c)) @ c).reshape(-1, 3)
+        X = mean + (basis.reshape(3 * len(mean), len(c)) @ c).reshape(-1, 3)
         n = outward * vertex_normals(X, triangles)
     else:
         X, n = mean, normals
@@ -188,14 +188,14 @@ def fit_depth(mean: np.ndarray, basis: np.ndarray, triangles: np.ndarray, R: np.
     P, S = len(c), num_shape
     lm_v, lm_w = np.asarray(landmark_vertices, np.int64), np.asarray(landmark_weights, np.float64)
     lm_basis = np.einsum("lk,lkdp->ldp", lm_w, basis[lm_v].astype(np.float64))
-    lm_flat, lm_mean = lm_basis.reshape(-1, P), np.einsum("lk,lkd->ld", lm_w, mean[lm_v])
+    lm_flat, lm_mean = lm_basis.reshape(3 * len(lm_v), P), np.einsum("lk,lkd->ld", lm_w, mean[lm_v])
     used, rms, H_data = 0, 0.0, None
     for step in range(ITERATIONS if iterations is None else iterations):
         if step in RESELECT:  # the vertices matched, their normals (model space) and basis rows
             cand, n_c = _candidates(mean, basis, triangles, R, t, c, outward, normals)
             mean_c, basis_c = mean[cand], basis[cand]
             normal_basis = np.einsum("md,mdp->mp", n_c, basis_c)   # n^T R^T R B: the shape columns
-            basis_c = basis_c.reshape(-1, P)   # one matrix-vector product, not M small ones
+            basis_c = basis_c.reshape(3 * len(cand), P)   # one matrix-vector product, not M small ones
         C = (mean_c + (basis_c @ c.astype(basis_c.dtype)).reshape(-1, 3)) @ R.T + t
         if step == 0:
             shift = _along_the_ray(C, depth)
@@ -304,7 +304,7 @@ class DepthRefiner:
             self.shape_H = SHAPE_DECAY * self.shape_H + SHAPE_SHARE * fit.information[0]
             self.shape_h = SHAPE_DECAY * self.shape_h + SHAPE_SHARE * fit.information[1]
         coef = np.r_[fit.alpha, fit.beta]
-        X = self.mean + (self.basis.reshape(-1, len(coef)) @ coef.astype(self.basis.dtype)).reshape(-1, 3)
+        X = self.mean + (self.basis.reshape(3 * len(self.mean), len(coef)) @ coef.astype(self.basis.dtype)).reshape(-1, 3)
         C = X @ fit.R.T + fit.t
         proj = project(C, K)
         Cl = np.einsum("lk,lkd->ld", lm_w[keep], C[lm_v[keep]])
