@@ -1,5 +1,7 @@
 """The camera node: frames from a webcam, a video file, a still image or a bag
-on `camera/image`, stamped with their capture time, with intrinsics K.
+on `camera/image`, stamped with their capture time, with intrinsics K. An RGB-D source
+(:mod:`.rgbd_sources`: a RealSense, a folder of colour + depth PNGs, an RGB-D bag) adds each
+frame's depth image with its own K (docs/guide/depth-cameras.md).
 
 Live (``wait_for`` empty, the default) the camera reads at its pace and the graph keeps up as it
 can. It is paced by the renderer (``pace_by: render/done``, the default): a frame goes out only
@@ -54,7 +56,8 @@ class CameraNode(Node):
 
     NAME = "camera"
     PARAMS = {
-        "source": Param("0", "webcam index, video file, image file, bag:FILE, or embedded"),
+        "source": Param("0", "webcam index, video file, image file, bag:FILE, embedded, or an RGB-D camera: "
+                             "realsense[:SERIAL] or a folder of colour + 16-bit depth PNGs"),
         "width": Param(0, "resize to this width, px (0: keep; aspect kept if height is 0)", range=(0, 16384)),
         "height": Param(0, "resize to this height, px (0: keep; aspect kept if width is 0)", range=(0, 16384)),
         "resize": Param("fit", "with width and height both set: fit (largest size inside, aspect kept), "

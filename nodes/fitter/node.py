@@ -1,6 +1,8 @@
 """The fitter node: ``face/landmarks`` -> ``face/state`` and ``face/expression``, and ``face/model`` (latched).
 With ``refine=appearance`` it also takes ``camera/image``: each fit is refined on its frame's
 pixels (:mod:`.appearance_refiner`, issue 20); a fit whose frame did not arrive is not refined.
+With ``depth=on`` it keeps ``camera/image``'s depth images by stamp and refines each fit on its
+frame's (:mod:`.depth_fitting`, issue 49); without one, the fit is the landmarks' alone.
 
 A thin shell over stage 2, :func:`facesculpt.nodes.fitter.fit_landmarks` (docs/architecture.md,
 "Stages"), which the in-process pipeline calls too. The model is the ``model`` param:
