@@ -23,6 +23,13 @@ class Image(Message):
     halvings: 0 for a frame as captured; n > 0 for a copy of it halved n times (each pixel the
     mean of a 2 x 2 block, ``facesculpt.geometry.halving``: the camera's ``camera/analysis``),
     whose frame was ``frame_size`` [W, H] px.
+
+    An RGB-D camera's frame also carries its depth image (all three optional, absent on a colour
+    camera's frame and in messages recorded before them): depth (DH, DW) uint16 millimetres along
+    the depth camera's optical axis, 0 where the camera measured nothing; depth_K (3, 3) float64
+    the depth image's own pinhole intrinsics, pixels; depth_to_color (4, 4) float64 the rigid
+    transform (mm) from the depth camera's frame to the colour camera's (absent: identity, the
+    depth already aligned to the colour camera). See docs/guide/depth-cameras.md.
     """
 
     TYPE = "Image"
@@ -30,6 +37,25 @@ class Image(Message):
     K: np.ndarray = array("f8", 3, 3)
     halvings: int = 0
     frame_size: list = field(default_factory=lambda: [0, 0])
+    depth: np.ndarray = array("u2", "DH", "DW", optional=True)
+    depth_K: np.ndarray = array("f8", 3, 3, optional=True)
+    depth_to_color: np.ndarray = array("f8", 4, 4, optional=True)
+
+    def check(self) -> None:
+        if self.depth is None:
+            if self.depth_K is not None or self.depth_to_color is not None:
+                raise DecodeError("Image: depth_K / depth_to_color without a depth image")
+            return
+        if self.depth_K is None:
+            raise DecodeError("Image: a depth image needs its intrinsics depth_K")
+        if not np.all(np.isfinite(self.depth_K)) or self.depth_K[0, 0] <= 0 or self.depth_K[1, 1] <= 0:
+            raise DecodeError("Image.depth_K: the focal lengths must be finite and positive")
+        T = self.depth_to_color
+        if T is not None:
+            rigid = (np.all(np.isfinite(T)) and np.allclose(T[3], [0, 0, 0, 1])
+                     and np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6))
+            if not rigid:
+                raise DecodeError("Image.depth_to_color must be a rigid transform (rotation, translation mm)")
 
 
 @register

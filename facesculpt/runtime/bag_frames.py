@@ -8,7 +8,8 @@ message's data is these frames in the ``facesculpt-frames`` message encoding::
 
 ``codec`` is 0 for a raw frame; an Image's ``image`` array may be stored compressed
 (1 = PNG, lossless; 2 = JPEG), in which case the frame holds the encoded image and is decoded
-back to the raw array bytes on reading. The channel's schema (encoding ``facesculpt-msgpack``,
+back to the raw array bytes on reading. With either, an RGB-D frame's ``depth`` array (uint16 mm)
+is stored as a 16-bit PNG (3, lossless). The channel's schema (encoding ``facesculpt-msgpack``,
 named ``facesculpt.msgs.TYPE``) is the message type's field spec as JSON
 (:func:`message_schema`), so a reader knows the type without importing the project.
 """
@@ -28,7 +29,7 @@ from facesculpt.msgs.codec import REGISTRY, WIRE_VERSION
 FRAMES_ENCODING = "facesculpt-frames"
 SCHEMA_ENCODING = "facesculpt-msgpack"
 SCHEMA_PREFIX = "facesculpt.msgs."
-CODEC_RAW, CODEC_PNG, CODEC_JPEG = 0, 1, 2
+CODEC_RAW, CODEC_PNG, CODEC_JPEG, CODEC_PNG16 = 0, 1, 2, 3
 CODECS = {"none": CODEC_RAW, "png": CODEC_PNG, "jpeg": CODEC_JPEG}
 _COUNT = struct.Struct("<H")
 _FRAME = struct.Struct("<BI")
@@ -52,7 +53,8 @@ class Record:
 
 
 def pack_frames(frames: list, header: dict, codec: int = CODEC_RAW, jpeg_quality: int = 95) -> bytes:
-    """The ``facesculpt-frames`` bytes of ``frames``; ``codec`` applies to an Image's image array only."""
+    """The ``facesculpt-frames`` bytes of ``frames``; ``codec`` applies to an Image's image array
+    only (any codec but raw stores its depth array as a lossless 16-bit PNG)."""
     parts = [_COUNT.pack(len(frames))]
     for i, frame in enumerate(frames):
         kind, data = CODEC_RAW, frame
@@ -60,6 +62,8 @@ def pack_frames(frames: list, header: dict, codec: int = CODEC_RAW, jpeg_quality
             name, _dtype, shape = header["a"][i - 1]
             if name == "image":
                 kind, data = codec, encode_image(bytes(frame), shape, codec, jpeg_quality)
+            elif name == "depth" and len(shape) == 2 and min(shape) > 0:
+                kind, data = CODEC_PNG16, encode_depth(bytes(frame), shape)
         parts.append(_FRAME.pack(kind, len(data)))
         parts.append(data)
     return b"".join(parts)
@@ -77,7 +81,8 @@ def unpack_frames(payload: bytes) -> list[bytes] | None:
             pos += flen
             if len(data) != flen:
                 return None
-            frames.append(data if codec == CODEC_RAW else decode_image(data))
+            frames.append(data if codec == CODEC_RAW else decode_depth(data) if codec == CODEC_PNG16
+                          else decode_image(data))
         return frames if pos == len(payload) else None
     except struct.error:
         return None
@@ -105,6 +110,26 @@ def decode_image(data: bytes) -> bytes:
     if img is None:
         raise BagError("a compressed image in the bag does not decode")
     return img.tobytes()
+
+
+def encode_depth(data: bytes, shape) -> bytes:
+    """16-bit PNG bytes of an (H, W) uint16 depth image given as raw bytes."""
+    import cv2
+
+    ok, enc = cv2.imencode(".png", np.frombuffer(data, np.uint16).reshape(shape), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise BagError("depth compression failed")
+    return enc.tobytes()
+
+
+def decode_depth(data: bytes) -> bytes:
+    """The raw (H, W) uint16 bytes of a 16-bit PNG depth image."""
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+        raise BagError("a compressed depth image in the bag does not decode")
+    return img.astype("<u2").tobytes()
 
 
 def message_schema(type_name: str) -> bytes:

@@ -1,5 +1,7 @@
 """The camera node: frames from a webcam, a video file, a still image or a bag
-on `camera/image`, stamped with their capture time, with intrinsics K.
+on `camera/image`, stamped with their capture time, with intrinsics K. An RGB-D source
+(:mod:`.rgbd_sources`: a RealSense, a folder of colour + depth PNGs, an RGB-D bag) adds each
+frame's depth image with its own K (docs/guide/depth-cameras.md).
 
 Live (``wait_for`` empty, the default) the camera reads at its pace and the graph keeps up as it
 can. It is paced by the renderer (``pace_by: render/done``, the default): a frame goes out only
@@ -40,6 +42,7 @@ from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVERY_MESSAGE
 
 from .intrinsics import intrinsics_from_fov
+from .rgbd_sources import RGBDFrame, depth_fields, resized_intrinsics
 from .sources import RESIZE_MODES, SourceError, open_source, resize_frame
 
 # Lockstep: how often the camera looks at its pacing and its acknowledgement deadlines, s (the
@@ -57,7 +60,8 @@ class CameraNode(Node):
     NAME = "camera"
     TOPICS = ("camera/image", "camera/analysis")
     PARAMS = {
-        "source": Param("0", "webcam index, video file, image file, bag:FILE, or embedded"),
+        "source": Param("0", "webcam index, video file, image file, bag:FILE, embedded, or an RGB-D camera: "
+                             "realsense[:SERIAL] or a folder of colour + 16-bit depth PNGs"),
         "width": Param(0, "resize to this width, px (0: keep; aspect kept if height is 0)", range=(0, 16384)),
         "height": Param(0, "resize to this height, px (0: keep; aspect kept if width is 0)", range=(0, 16384)),
         "resize": Param("fit", "with width and height both set: fit (largest size inside, aspect kept), "
@@ -215,12 +219,20 @@ class CameraNode(Node):
         self._send(frame, stamp)
         return True
 
-    def _send(self, frame: np.ndarray, stamp: int) -> None:
-        frame = resize_frame(frame, self.params.width, self.params.height, self.params.resize)
+    def _send(self, frame: np.ndarray | RGBDFrame, stamp: int) -> None:
+        p = self.params
+        rgbd, extra = (frame, {}) if isinstance(frame, RGBDFrame) else (None, {})
+        if rgbd is not None:   # an RGB-D source: its depth goes along with its own K (docs/guide/depth-cameras.md)
+            frame = rgbd.color
+            h0, w0 = frame.shape[:2]
+            K0 = rgbd.K if rgbd.K is not None and self.K_fixed is None else self.intrinsics(w0, h0)
+            extra = depth_fields(rgbd, K0)
+        frame = resize_frame(frame, p.width, p.height, p.resize)
         h, w = frame.shape[:2]
+        K = self.intrinsics(w, h) if rgbd is None or self.K_fixed is not None else \
+            resized_intrinsics(K0, (w0, h0), p.width, p.height, p.resize)
         self.sent += 1
-        msg = Image(stamp=stamp, seq=self.sent, frame_id="camera", image=np.ascontiguousarray(frame),
-                    K=self.intrinsics(w, h))
+        msg = Image(stamp=stamp, seq=self.sent, frame_id="camera", image=np.ascontiguousarray(frame), K=K, **extra)
         self.pub.publish(msg)
         if self.analysis_pub is not None:
             self._publish_analysis(msg)

@@ -187,7 +187,15 @@ class BagImageSource(FrameSource):
                 if rec.topic != self.topic:
                     continue
                 _, msg = decode([rec.topic.encode()] + rec.frames, Image)
-                yield np.array(msg.image), (time.time_ns() if self.restamp else msg.stamp)
+                stamp = time.time_ns() if self.restamp else msg.stamp
+                if msg.depth is not None:  # an RGB-D recording: the depth and both cameras go along
+                    from .rgbd_sources import RGBDFrame
+
+                    yield RGBDFrame(np.array(msg.image), np.array(msg.depth), np.array(msg.depth_K),
+                                    None if msg.depth_to_color is None else np.array(msg.depth_to_color),
+                                    np.array(msg.K)), stamp
+                    continue
+                yield np.array(msg.image), stamp
             if not self.loop:
                 return
 
@@ -209,9 +217,16 @@ def embedded_source(fps: float = 30.0) -> ImageSource:
 
 
 def open_source(spec: str, *, loop: bool = False, motion: bool = False, fps: float = 30.0) -> FrameSource:
-    """``"0"`` (webcam index), a video file, an image file, ``bag:FILE``, or ``embedded``
-    (a face photo shipped with the install, seen by a moving virtual camera)."""
+    """``"0"`` (webcam index), a video file, an image file, ``bag:FILE``, ``embedded``
+    (a face photo shipped with the install, seen by a moving virtual camera), or an RGB-D source
+    (:mod:`.rgbd_sources`): a folder of colour + depth PNGs, or ``realsense[:SERIAL]``."""
     spec = str(spec).strip()
+    if spec == "realsense" or spec.startswith("realsense:") or Path(spec).is_dir():
+        from .rgbd_sources import RealSenseSource, RGBDFolderSource
+
+        if Path(spec).is_dir():
+            return RGBDFolderSource(spec, loop=loop)   # its rate from its camera.json
+        return RealSenseSource(spec.partition(":")[2], fps=fps if fps > 0 else 30.0)
     if spec == "embedded":
         return embedded_source(fps if fps > 0 else 30.0)
     if spec.startswith("bag:"):

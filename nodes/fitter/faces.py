@@ -105,11 +105,12 @@ class FaceFitters:
         return self.fitters[key]
 
     def fit(self, points, scores, track_ids, stamp_s: float, min_score: float = 0.5,
-            corrections: dict | None = None, image: np.ndarray | None = None) -> list[FaceFit]:
+            corrections: dict | None = None, image: np.ndarray | None = None, depth=None) -> list[FaceFit]:
         """Fit the selected faces of one frame. points (F, N, 2|3) px, scores (F,), track_ids (F,)
         (None: 0, 1, ...); stamp_s: frame time (s); corrections: face key -> {fit id: (x, y) px}, or
         a function of that face's points this frame ((N, 2|3) px) returning them; image: the frame
-        (H, W, 3) uint8, for fitters that refine by appearance.
+        (H, W, 3) uint8, for fitters that refine by appearance; depth: the frame's aligned depth image
+        (:class:`.depth_fitting.DepthImage`), the fits refined on it.
         Returns one :class:`FaceFit` per selected face (fitted or not, with the reason), in the
         frame's order; [] when none is selected."""
         self._frame += 1
@@ -127,7 +128,8 @@ class FaceFitters:
             targets = (corrections or {}).get(key)
             if callable(targets):
                 targets = targets(points[i])
-            outcome = fit_landmarks(self.fitter(key), points[i:i + 1], face_scores, stamp_s, min_score, targets, image)
+            outcome = fit_landmarks(self.fitter(key), points[i:i + 1], face_scores, stamp_s, min_score, targets, image,
+                                    depth)
             out.append(FaceFit(key, ids[i], outcome, i))
         return out
 

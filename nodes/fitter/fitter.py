@@ -44,6 +44,7 @@ class Fitter:
         self._rigid_smoothing_deferred = False   # fit(): the subclass leaves the pose unsmoothed
         self.refiner = AppearanceRefiner(
             camera.K if camera.perspective else None, camera.projection, config.refine_after)
+        self.depth_refiner = None  # made by the first frame with a depth image (.depth_fitting)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -51,6 +52,8 @@ class Fitter:
         subclasses': identity, neutral)."""
         self._pose = None  # (R, t, s) of the previous frame
         self.refiner.reset()
+        if self.depth_refiner is not None:
+            self.depth_refiner.reset()
         self._last_time = None
         self._frame = 0
         self.smoother.reset()
@@ -84,7 +87,7 @@ class Fitter:
 
     # ------------------------------------------------------------------ API
     def fit(self, points2d: np.ndarray, ids=None, weights: np.ndarray | None = None, stamp: float | None = None,
-            corrections: dict | None = None, image: np.ndarray | None = None) -> FitResult:
+            corrections: dict | None = None, image: np.ndarray | None = None, depth=None) -> FitResult:
         """Fit one frame. points2d (N, 2) px (or (N, 3) with relative depth, used in dense mode);
         ids: the model landmark each point belongs to (iBUG numbers 1..68 for the SFM, vertex
         numbers 0..467 for facemesh; None for those two defaults); weights (N,) optional confidence;
@@ -94,7 +97,9 @@ class Fitter:
         px a person placed by hand (seed 002's interactive correction): that landmark is moved
         there and weighs ``config.correction_weight`` times a detected one, so a shape model moves
         the other points with it. image: the frame (H, W, 3) uint8 BGR or (H, W) grey; with
-        ``config.refine="appearance"`` the fit is then refined on its pixels (:mod:`.appearance`)."""
+        ``config.refine="appearance"`` the fit is then refined on its pixels (:mod:`.appearance`).
+        depth: the frame's aligned depth image (:class:`.depth_fitting.DepthImage`); with a
+        perspective camera the fit is refined on it (:mod:`.depth_fitting`), without one nothing changes."""
         pts, ids, w, finite = self._parse(points2d, ids, weights)
         if corrections:
             pts, ids, w, finite = self._corrected(pts, ids, w, finite, corrections)
@@ -115,12 +120,22 @@ class Fitter:
             raise FitError(f"the fit is numerically degenerate: {exc}") from None
         self._last_time = now
         self._frame += 1
+        if depth is not None and self.camera.perspective:
+            result = self._depth_refined(result, pts, ids, depth)
         if refining and image is not None:
             # the landmark fit goes along: the expression's landmark residual is its, not the refined pose's
             result = dataclasses.replace(self.refiner.refine(self.model, result, image), landmark_fit=result)
         if self._rigid_smoothing_deferred:
             result = self._smoothed_rigid(result, now)
         return result
+
+    def _depth_refined(self, result: FitResult, pts: np.ndarray, ids: list[str], depth) -> FitResult:
+        """``result`` refined on the aligned ``depth`` image (:mod:`.depth_fitting`)."""
+        from .depth_fitting import DepthRefiner
+
+        if self.depth_refiner is None or self.depth_refiner.model is not self.model:
+            self.depth_refiner = DepthRefiner(self.model, len(result.alpha))
+        return self.depth_refiner.refine(result, pts, result.correspondence_ids or ids, ids, depth, self.K)
 
     def fit_image(self, image: np.ndarray, init: FitResult, appearance_model) -> FitResult:
         """``init`` (this fitter's landmark fit of the photo ``image``, (H, W, 3) uint8 BGR) aligned

@@ -1,6 +1,8 @@
 """The fitter node: ``face/landmarks`` -> ``face/state`` and ``face/expression``, and ``face/model`` (latched).
 With ``refine=appearance`` it also takes ``camera/image``: each fit is refined on its frame's
 pixels (:mod:`.appearance_refiner`, issue 20); a fit whose frame did not arrive is not refined.
+With ``depth=on`` it keeps ``camera/image``'s depth images by stamp and refines each fit on its
+frame's (:mod:`.depth_fitting`, issue 49); without one, the fit is the landmarks' alone.
 
 A thin shell over stage 2, :func:`facesculpt.nodes.fitter.fit_landmarks` (docs/architecture.md,
 "Stages"), which the in-process pipeline calls too. The model is the ``model`` param:
@@ -29,6 +31,7 @@ from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
 
 from .config import FitterConfig
 from .corrections import LandmarkCorrections, fit_id, ibug68_points
+from .depth_fitting import DepthImage
 from .expression import NAMES, face_expression, head_pose
 from .faces import FaceFitters, parse_faces
 from .fit_camera import FitCamera
@@ -76,6 +79,9 @@ class FitterNode(Node):
         "refine": Param("off", "appearance: refine each fit on its frame's pixels (camera/image): the person's "
                                "learned appearance and corners tracked from the last frame (docs/guide/"
                                "face-models.md); off: landmarks only", choices=("off", "appearance")),
+        "depth": Param("off", "on: refine each fit on its frame's aligned depth image (camera/image of an RGB-D "
+                              "camera, docs/guide/depth-cameras.md; perspective only); off: no depth",
+                       choices=("off", "on")),
     }
     #: Frames kept for the landmarks that have not arrived yet (refine=appearance).
     FRAMES_KEPT = 8
@@ -88,7 +94,8 @@ class FitterNode(Node):
         self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
         self.frames: OrderedDict[int, np.ndarray] = OrderedDict()   # stamp -> camera frame (refine)
         self.waiting: FaceLandmarks | None = None   # landmarks whose frame has not come (refine)
-        if self.params.refine == "appearance":
+        self.depths: OrderedDict[int, DepthImage] = OrderedDict()   # stamp -> depth image (depth=on)
+        if self.params.refine == "appearance" or self.params.depth == "on":
             # every frame: the one the landmarks come from must not have been replaced by a newer one
             self.subscribe("camera/image", Image, self.on_image, qos=EVERY_MESSAGE)
         self.corrections: dict[int, LandmarkCorrections] = {}  # face key -> its landmark corrections
@@ -215,7 +222,14 @@ class FitterNode(Node):
 
     # -- frames --------------------------------------------------------------------------------
     def on_image(self, msg: Image) -> None:
-        """Keep the frame (refine=appearance) until its landmarks come, the newest FRAMES_KEPT."""
+        """Keep the frame (refine=appearance) and its depth image (depth=on) until its landmarks
+        come, the newest FRAMES_KEPT."""
+        if self.params.depth == "on" and msg.depth is not None and not int(msg.halvings):
+            self.depths[int(msg.stamp)] = DepthImage(msg.depth, msg.depth_K, msg.depth_to_color)
+            while len(self.depths) > self.FRAMES_KEPT:
+                self.depths.popitem(last=False)
+        if self.params.refine != "appearance":
+            return
         image = msg.image
         if int(msg.halvings) or not (isinstance(image, np.ndarray) and image.ndim == 3 and image.dtype == np.uint8):
             self.count("refine_bad_frame")
@@ -238,6 +252,15 @@ class FitterNode(Node):
             self.count("refine_without_frame")
             return None
         return image
+
+    def depth_for(self, msg: FaceLandmarks) -> DepthImage | None:
+        """The depth image of ``msg``'s frame (depth=on) when it came, else None (counted)."""
+        if self.params.depth != "on":
+            return None
+        depth = self.depths.get(int(msg.stamp))
+        if depth is None:
+            self.count("depth_without_frame")
+        return depth
 
     def fitter_config(self) -> FitterConfig:
         """The fitter's options from this node's params (the others at their defaults)."""
@@ -323,7 +346,7 @@ class FitterNode(Node):
         image = self.frame_for(msg, size)
         with self.stage("fit"):
             faces = self.faces.fit(msg.points, msg.scores, msg.track_ids, msg.stamp * 1e-9, self.params.min_score,
-                                   targets, image=image)
+                                   targets, image=image, depth=self.depth_for(msg))
         if not faces:
             self.count("no_face" if np.shape(msg.points)[0] == 0 else "face_not_selected")
         fitted = [f for f in faces if f.outcome.fit is not None]

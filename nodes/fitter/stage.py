@@ -33,12 +33,13 @@ class LandmarksFit:
 
 
 def fit_landmarks(fitter: Fitter, points, scores, stamp_s: float, min_score: float = 0.5,
-                  corrections: dict | None = None, image: np.ndarray | None = None) -> LandmarksFit:
+                  corrections: dict | None = None, image: np.ndarray | None = None, depth=None) -> LandmarksFit:
     """Fit one frame's landmarks. points (F, N, 2 or 3) px: N = 468 face-mesh points per face
     (a sparse model also takes N = 68 iBUG points); scores (F,) face presence in [0, 1] (when
     their number is not F, the first face is taken); stamp_s: the frame time (s); corrections:
     fit id -> (x, y) px placed by hand (:mod:`.corrections`); image: the frame (H, W, 3) uint8, for
-    a fitter that refines by appearance."""
+    a fitter that refines by appearance; depth: the frame's aligned depth image
+    (:class:`.depth_fitting.DepthImage`), the fit then refined on it."""
     points = np.asarray(points)
     if points.ndim != 3 or points.shape[0] == 0:
         return LandmarksFit(None, "no_face")
@@ -56,6 +57,7 @@ def fit_landmarks(fitter: Fitter, points, scores, stamp_s: float, min_score: flo
             return LandmarksFit(None, "bad_landmark_count")
         ids = IBUG68_IDS
     try:
-        return LandmarksFit(fitter.fit(pts, ids, stamp=stamp_s, corrections=corrections, image=image))
+        return LandmarksFit(fitter.fit(pts, ids, stamp=stamp_s, corrections=corrections, image=image,
+                                       depth=depth))
     except FitError as exc:
         return LandmarksFit(None, "fit_refused", str(exc))
