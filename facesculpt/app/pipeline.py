@@ -306,22 +306,12 @@ class Pipeline:
         frame's own view and the compositor's stored views of the face)."""
         if not self.pose_limit:
             return self._pose_edits.apply(deformed, fit, fit.pose_edit)
-        from facesculpt.nodes.renderer.pose_limit import PoseLimiter
+        from facesculpt.nodes.renderer.pose_limit import PoseLimiter, turn_within_limits
 
         if self.pose_limiter is None:
             self.pose_limiter = PoseLimiter()
-        offset, pivot = fit.pose_edit
-        values = np.asarray(offset.as_list(), np.float64)
-
-        def turned(share: float) -> np.ndarray:
-            return self._pose_edits.apply(deformed, fit, (PoseOffset.from_list(values * share), pivot))
-
-        views = getattr(self.compositor, "views", None) or {}
-        stored = views.get(key).keyframes if key in views else []
-        known = np.max([k.quality for k in stored], axis=0) if stored else None
-        share = self.pose_limiter.share(key, getattr(fit, "pose_stamp", 0.0), fit.vertices, self.model.triangles,
-                                        turned, fit.projection == "perspective", known)
-        return turned(share)
+        return turn_within_limits(self.pose_limiter, key, getattr(fit, "pose_stamp", 0.0), fit, deformed,
+                                  fit.pose_edit, self.model.triangles, getattr(self.compositor, "views", None))[0]
 
     def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict,
                 keep_mask: np.ndarray | None = None) -> FrameResult:

@@ -376,6 +376,14 @@ def _pose_options(args) -> dict:
             "keyframes": getattr(args, "keyframes", "auto"), "pose_limit": getattr(args, "pose_limit", "on") == "on"}
 
 
+def _warn_reduced_turns(limiter) -> None:
+    """One warning line when the pose limit reduced a turn (``limiter``: the pipeline's PoseLimiter or None)."""
+    if limiter is not None and limiter.reduced:
+        print(f"facesculpt: warning: the turn was reduced on {limiter.reduced} frame(s) (to {100 * limiter.lowest:.0f} % "
+              f"at least): the video shows too little of the surface it would reveal (--pose-limit off draws it all; "
+              f"docs/guide/new-views.md)", file=sys.stderr)
+
+
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:
     """One video through the pipeline with the options of ``args`` (the command line's); returns
     (exit status, the one line that says what was written). ``detector``: a
@@ -435,13 +443,9 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
         raise
     finally:
         source.close()
-        texture = pipeline.texture() if save_texture else None
-        limiter = pipeline.pose_limiter
+        texture, limiter = (pipeline.texture() if save_texture else None), pipeline.pose_limiter
         pipeline.close()
-    if limiter is not None and limiter.reduced:
-        print(f"facesculpt: warning: the turn was reduced on {limiter.reduced} frame(s) (to {100 * limiter.lowest:.0f} % "
-              f"at least): the video shows too little of the surface it would reveal (--pose-limit off draws it all; "
-              f"docs/guide/new-views.md)", file=sys.stderr)
+    _warn_reduced_turns(limiter)
     if output.frames == 0:
         if hasattr(output, "discard"):
             output.discard()

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facesculpt.geometry.pose_offset import PoseOffset, apply_pose_offset
 from facesculpt.geometry.vertex_normals import face_normals, vertex_normals
 
 #: The largest share of the turned face's visible area the turn may need beyond what is known.
@@ -122,3 +123,23 @@ class PoseLimiter:
             self.reduced += 1
             self.lowest = min(self.lowest, float(value))
         return float(value)
+
+
+def turn_within_limits(limiter: PoseLimiter, face, stamp_s: float, state, deformed: np.ndarray, edit: tuple,
+                       triangles: np.ndarray, views: dict | None) -> tuple[np.ndarray, float]:
+    """(The (V, 3) ``deformed`` mesh of ``state``'s face (anything with the fitted ``vertices``, R, t,
+    scale and projection: a FaceState, a FitResult) turned by the share of its pose ``edit``
+    ((PoseOffset, pivot (3,) model mm): :meth:`.pose_edit.PoseEdits.edit`) the ``limiter`` allows,
+    that share). ``views``: face -> :class:`.keyframe_views.KeyframeViews` (the compositor's stored
+    views; None or empty: only the frame's own view is known)."""
+    offset, pivot = edit
+    values = np.asarray(offset.as_list(), np.float64)
+
+    def turned(share: float) -> np.ndarray:
+        return apply_pose_offset(deformed, state.R, state.t, state.scale, pivot, PoseOffset.from_list(values * share))
+
+    stored = views[face].keyframes if views and face in views else []
+    known = np.max([k.quality for k in stored], axis=0) if stored else None
+    share = limiter.share(face, stamp_s, np.asarray(state.vertices, np.float64), triangles, turned,
+                          state.projection == "perspective", known)
+    return turned(share), share
