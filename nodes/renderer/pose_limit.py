@@ -25,7 +25,7 @@ from facesculpt.geometry.pose_offset import PoseOffset, apply_pose_offset
 from facesculpt.geometry.vertex_normals import face_normals, vertex_normals
 
 #: The largest share of the turned face's visible area the turn may need beyond what is known.
-UNKNOWN_BUDGET = 0.025
+UNKNOWN_BUDGET = 0.04
 #: Frontality from which a view of a surface counts as knowing it (cosine; 0.35: within 70 degrees).
 WELL_SEEN = 0.35
 #: The shares of the asked turn that are tried (the bound is interpolated between them).
