@@ -86,15 +86,17 @@ def body_weight(shape: tuple[int, int], origin: tuple[int, int], face_box: tuple
                 chin_x: float) -> np.ndarray:
     """(h, w) float32 in [0, 1]: how much of the body's motion each pixel of a crop of ``shape``
     (h, w), whose top-left pixel is the frame pixel ``origin`` (x, y), takes: smoothstep from 0 at
-    ``BLEND_START`` of the face's height above its lowest point to 1 there, times 1 in the body
+    ``BLEND_START`` of the face's height above its lowest point (negative: below) to 1
+    ``BLEND_LENGTH`` of it further down, times 1 in the body
     core around ``chin_x`` (frame px; ``NECK_HALF_WIDTH`` of the face's width, widening by
     ``SHOULDER_SLOPE`` per pixel below the chin), falling by smoothstep to 0 over ``SIDE_FADE`` of
     the face's width beside it, and by smoothstep from 1 at the face's lowest point to 0
     ``BODY_REACH`` face heights below it. ``face_box``: (left, top, right, bottom) frame px of the face."""
-    left, top, right, bottom = face_box
+    left, top, right, bottom = (float(v) for v in face_box)
+    chin_x = float(chin_x)
     fw, fh = max(right - left, 1.0), max(bottom - top, 1.0)
-    ys = np.arange(shape[0], dtype=np.float32)[:, None] + origin[1]
-    xs = np.arange(shape[1], dtype=np.float32)[None, :] + origin[0]
+    ys = np.arange(shape[0], dtype=np.float32)[:, None] + np.float32(origin[1])
+    xs = np.arange(shape[1], dtype=np.float32)[None, :] + np.float32(origin[0])
     vertical = _smoothstep((ys - (bottom - BLEND_START * fh)) / (BLEND_LENGTH * fh))
     vertical *= _smoothstep(1.0 - (ys - bottom) / (BODY_REACH * fh))
     half = NECK_HALF_WIDTH * fw + SHOULDER_SLOPE * np.maximum(ys - bottom, 0.0)
@@ -140,11 +142,17 @@ def carry_to_body(offsets: np.ndarray, face: np.ndarray, origin: tuple[int, int]
         return out
     lo, hi = point_bounds(dst_px)
     chin = dst_px[dst_px[:, 1] >= hi[1] - CHIN_ROWS * (hi[1] - lo[1])].mean(axis=0)
-    motion = np.asarray(motion, np.float32)
-    b = body_weight(face.shape, origin, (lo[0], lo[1], hi[0], hi[1]), float(chin[0]))
-    b[face] = 0.0
+    r0 = int(np.clip(np.floor(hi[1] - BLEND_START * (hi[1] - lo[1])) - origin[1], 0, out.shape[0]))
+    b = body_weight((out.shape[0] - r0, out.shape[1]), (origin[0], origin[1] + r0), (lo[0], lo[1], hi[0], hi[1]),
+                    float(chin[0]))   # zero above row r0
+    b[face[r0:]] = 0.0
+    cols = np.flatnonzero(b.max(axis=0, initial=0.0) > 1e-3)
+    if len(cols) == 0:
+        return out
+    b = b[:, cols[0]:cols[-1] + 1]
+    part = out[r0:, cols[0]:cols[-1] + 1]   # a view: written in place
+    known = np.where(part[..., :1] < 0.5 * UNCOVERED, part, np.float32(0.0))
+    blended = known + b[..., None] * (np.asarray(motion, np.float32) - known)
     reach = b > 1e-3
-    known = np.where((out[..., 0] < 0.5 * UNCOVERED)[..., None], out, 0.0)
-    blended = (1.0 - b[..., None]) * known + b[..., None] * motion
-    out[reach] = blended[reach]
+    part[reach] = blended[reach]
     return out

@@ -343,10 +343,15 @@ class Compositor:
         face = covered_pixels(offsets)
         dragged = None
         if head_motion:
-            head = head_region(offsets.shape[:2], box[:2], np.concatenate([projected, dst_px]))
-            offsets = extend_motion(offsets, head)
-            if head_motion == "body":
+            both = np.concatenate([projected, dst_px])
+            if head_motion == "body":  # the head's extension on the head's own box, the body's motion below it
+                x0, y0, x1, y1 = head_box(both, self.width, self.height) or box
+                part = (slice(y0 - box[1], y1 - box[1]), slice(x0 - box[0], x1 - box[0]))
+                offsets = offsets.copy()
+                offsets[part] = extend_motion(offsets[part], head_region(offsets[part].shape[:2], (x0, y0), both))
                 offsets = carry_to_body(offsets, face, box[:2], dst_px, self._neck)
+            else:
+                offsets = extend_motion(offsets, head_region(offsets.shape[:2], box[:2], both))
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
