@@ -2,7 +2,7 @@
 
     python benchmarks/bench_talking_heads.py reenact [--drivers d0,d3,d12] [--sources astronaut,d12]
     python benchmarks/bench_talking_heads.py coding [--videos d0,d3,d12] [--components 12] [--frames N]
-        [--body both|on|off] [--stills DIR] [--no-h264]
+        [--body both|on|off] [--stills DIR] [--no-h264] [--time-reps N]
     python benchmarks/bench_talking_heads.py graph [--videos d3,s18] [--fps 30]
 
 reenact: each source (``astronaut``: the embedded photo, mouth open showing teeth; a video name:
@@ -154,13 +154,33 @@ def _neck_psnr(decoded, frames, analysis):
 
 
 def _decode(path, n, body_motion):
+    """(the n frames decoded, ms a frame)."""
+    import time
+
     from facesculpt.app.coding import decode_file
 
     stream, decoder = decode_file(path, body_motion=body_motion)
     try:
-        return [decoder.frame(i) for i in range(n)]
+        t0 = time.perf_counter()
+        frames = [decoder.frame(i) for i in range(n)]
+        return frames, (time.perf_counter() - t0) * 1e3 / max(n, 1)
     finally:
         decoder.close()
+
+
+def _time_body(frames, analysis, args):
+    """Decode time with the body motion on over off: ``--time-reps`` passes each, alternated, medians."""
+    from facesculpt.app.coding import encode
+
+    with tempfile.TemporaryDirectory() as tmp:
+        encode(analysis, Path(tmp) / "v.fsc", components=args.components)
+        ms = {False: [], True: []}
+        for _ in range(args.time_reps):
+            for body in (False, True):
+                ms[body].append(_decode(Path(tmp) / "v.fsc", len(frames), body)[1])
+    off, on = np.median(ms[False]), np.median(ms[True])
+    print(f"    decode time: body off {off:.1f} ms/frame, on {on:.1f} ms/frame: on / off {on / off:.2f}x "
+          f"(medians of {args.time_reps} alternated passes)")
 
 
 def _stills(out_dir, name, frames, by_body, fps):
@@ -179,11 +199,11 @@ def bench_coding(args) -> None:
     for name in args.videos.split(","):
         frames, fps = _frames(_video(name), args.frames)
         analysis = analyse(frames, fps)
-        by_body = {}
+        by_body, ms = {}, {}
         with tempfile.TemporaryDirectory() as tmp:
             sizes = encode(analysis, Path(tmp) / "v.fsc", components=args.components)
             for body in bodies:
-                by_body[body] = _decode(Path(tmp) / "v.fsc", len(frames), body)
+                by_body[body], ms[body] = _decode(Path(tmp) / "v.fsc", len(frames), body)
         seconds = len(frames) / fps
         stream_kbps = sizes["stream"] * 8 / seconds / 1000
         print(f"{name} ({len(frames)} frames, {fps:g} fps): .fsc per-frame stream {stream_kbps:.2f} kbit/s, "
@@ -192,7 +212,9 @@ def bench_coding(args) -> None:
         for body, decoded in by_body.items():
             psnr, ssim = _quality(decoded, frames, analysis)
             print(f"    body motion {'on ' if body else 'off'}: face region PSNR {psnr:.2f} dB, SSIM {ssim:.3f}; "
-                  f"neck band PSNR {_neck_psnr(decoded, frames, analysis):.2f} dB")
+                  f"neck band PSNR {_neck_psnr(decoded, frames, analysis):.2f} dB; decode {ms[body]:.1f} ms/frame")
+        if len(ms) == 2 and args.time_reps:
+            _time_body(frames, analysis, args)
         if args.stills and len(by_body) == 2:
             _stills(args.stills, name, frames, by_body, fps)
         if args.no_h264:
@@ -285,6 +307,8 @@ def main() -> None:
                    help="the decoder's body motion (issue 51; both: each, on the same stream)")
     c.add_argument("--stills", default="", metavar="DIR", help="write input | body off | body on at 1, 2, 3 s")
     c.add_argument("--no-h264", action="store_true", help="skip the H.264 ladder")
+    c.add_argument("--time-reps", type=int, default=0, metavar="N",
+                   help="time the decode with the body motion off and on, N alternated passes each")
     g = sub.add_parser("graph")
     g.add_argument("--videos", default="d3,s18")
     g.add_argument("--fps", type=float, default=30.0)
