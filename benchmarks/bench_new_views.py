@@ -17,7 +17,10 @@ the new pose, on synthetic videos with exact ground truth.
    θ + Δ) from the stored view of the head closest to the one rendered (``--keyframes auto``:
    image-based rendering from keyframes, seed 003); the models of ``--geometry-models`` run once
    more with ``--keyframes off`` (geometry and the current frame only), those of
-   ``--atlas-models`` with ``--atlas on`` (the face's texture memory too).
+   ``--atlas-models`` with ``--atlas on`` (the face's texture memory too), those of
+   ``--limit-off-models`` with ``--pose-limit off`` (the whole turn on every frame, as before issue
+   51; by default a frame draws only the share of the turn that what is known of the surface it
+   reveals allows: :mod:`facesculpt.nodes.renderer.pose_limit`).
 3. Real videos (``--real-videos``, default d3, d12; no ground truth): ``process --face-camera 1`` at
    the default ``--face-camera-limit`` and at 45°; the project's landmarks and fitter run on the
    input and on each output, and the mean absolute yaw and pitch still needed to look into the
@@ -161,6 +164,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="models also run with process --keyframes off (geometry only, no stored views; '' for none)")
     p.add_argument("--atlas-models", default="facemesh,sfm",
                    help="models also run with process --atlas on (the face's texture memory; '' for none)")
+    p.add_argument("--limit-off-models", default="facemesh",
+                   help="models also run with process --pose-limit off (the whole turn on every frame, as before "
+                        "issue 51; '' for none)")
     p.add_argument("--real-videos", default="d3,d12", help="shared videos run with --face-camera 1 ('' for none)")
     p.add_argument("--real-frames", type=int, default=90, help="frames of each real video (default 90)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
@@ -168,6 +174,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     a.models = [m for m in a.models.split(",") if m]
     a.atlas_models = [m for m in a.atlas_models.split(",") if m]
     a.geometry_models = [m for m in a.geometry_models.split(",") if m]
+    a.limit_off_models = [m for m in a.limit_off_models.split(",") if m]
     a.real_videos = [v for v in a.real_videos.split(",") if v]
     a.offsets = [(float(d), 0.0) for d in a.deltas.split(",") if d] + \
                 [(0.0, float(d)) for d in a.pitch_deltas.split(",") if d]
@@ -181,6 +188,7 @@ def runs(args) -> list[tuple[str, str, tuple]]:
     out = [(m, "--keyframes off", ("--keyframes", "off")) for m in args.geometry_models]
     out += [(m, "", ()) for m in args.models]
     out += [(m, "--atlas on", ("--atlas", "on")) for m in args.atlas_models]
+    out += [(m, "--pose-limit off", ("--pose-limit", "off")) for m in args.limit_off_models]
     return out
 
 

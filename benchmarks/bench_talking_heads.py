@@ -1,7 +1,8 @@
 """Talking heads at a few kbit/s (issue 19): reenactment and model-based coding on the shared videos.
 
     python benchmarks/bench_talking_heads.py reenact [--drivers d0,d3,d12] [--sources astronaut,d12]
-    python benchmarks/bench_talking_heads.py coding [--videos d0,d3,d12] [--components 12]
+    python benchmarks/bench_talking_heads.py coding [--videos d0,d3,d12] [--components 12] [--frames N]
+        [--body both|on|off] [--stills DIR] [--no-h264] [--time-reps N]
     python benchmarks/bench_talking_heads.py graph [--videos d3,s18] [--fps 30]
 
 reenact: each source (``astronaut``: the embedded photo, mouth open showing teeth; a video name:
@@ -13,7 +14,10 @@ mouth | result) is written per pair with ``--strips DIR``.
 
 coding: each video encoded (``.fsc``) and decoded; the per-frame stream's bitrate and the whole
 file's; face-region PSNR/SSIM (the convex hull of the original frame's fit) of the decode against
-the input, next to H.264 (libx264 through PyAV, medium preset, one pass at a target bitrate; the
+the input, and the PSNR of the band below the jaw (neck, collar and the background beside them:
+``facesculpt.app.coding.neck_band``), each with the decoder's body motion off (the decoder before
+issue 51: only the head moves) and on (the chin's motion carried over the body below the jaw),
+on the same stream; then, for the body motion's decode, H.264 (libx264 through PyAV, medium preset, one pass at a target bitrate; the
 bitrate it really spent is reported) on the same frames at a ladder of bitrates, and the bitrate
 H.264 needs for the model stream's PSNR (interpolated on the ladder, log bitrate).
 
@@ -140,24 +144,81 @@ def _quality(decoded, frames, analysis):
     return float(np.mean([x[0] for x in q])), float(np.mean([x[1] for x in q]))
 
 
-def bench_coding(args) -> None:
-    from facesculpt.app.coding import analyse, decode_file, encode
+def _neck_psnr(decoded, frames, analysis):
+    """Mean PSNR (dB) over the frames with a face of the band below the jaw (:func:`neck_band`)."""
+    from facesculpt.app.coding import neck_band, region_psnr
 
+    q = [region_psnr(o, f, neck_band(f.shape, p)) for o, f, p, ok in
+         zip(decoded, frames, analysis.projected, analysis.present) if ok]
+    return float(np.nanmean(q))
+
+
+def _decode(path, n, body_motion):
+    """(the n frames decoded, ms a frame)."""
+    import time
+
+    from facesculpt.app.coding import decode_file
+
+    stream, decoder = decode_file(path, body_motion=body_motion)
+    try:
+        t0 = time.perf_counter()
+        frames = [decoder.frame(i) for i in range(n)]
+        return frames, (time.perf_counter() - t0) * 1e3 / max(n, 1)
+    finally:
+        decoder.close()
+
+
+def _time_body(frames, analysis, args):
+    """Decode time with the body motion on over off: ``--time-reps`` passes each, alternated, medians."""
+    from facesculpt.app.coding import encode
+
+    with tempfile.TemporaryDirectory() as tmp:
+        encode(analysis, Path(tmp) / "v.fsc", components=args.components)
+        ms = {False: [], True: []}
+        for _ in range(args.time_reps):
+            for body in (False, True):
+                ms[body].append(_decode(Path(tmp) / "v.fsc", len(frames), body)[1])
+    off, on = np.median(ms[False]), np.median(ms[True])
+    print(f"    decode time: body off {off:.1f} ms/frame, on {on:.1f} ms/frame: on / off {on / off:.2f}x "
+          f"(medians of {args.time_reps} alternated passes)")
+
+
+def _stills(out_dir, name, frames, by_body, fps):
+    """Writes ``coding_NAME.png``: rows at 1, 2 and 3 s (as far as the video goes): input | decoded
+    with the body's motion off (the decoder before issue 51) | on."""
+    rows = sorted({min(int(round(s * fps)), len(frames) - 1) for s in (1.0, 2.0, 3.0)})
+    strip = np.vstack([np.hstack([frames[i], by_body[False][i], by_body[True][i]]) for i in rows])
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(Path(out_dir) / f"coding_{name}.png"), strip)
+
+
+def bench_coding(args) -> None:
+    from facesculpt.app.coding import analyse, encode
+
+    bodies = {"on": (True,), "off": (False,), "both": (False, True)}[args.body]
     for name in args.videos.split(","):
-        frames, fps = _frames(_video(name))
+        frames, fps = _frames(_video(name), args.frames)
         analysis = analyse(frames, fps)
+        by_body, ms = {}, {}
         with tempfile.TemporaryDirectory() as tmp:
             sizes = encode(analysis, Path(tmp) / "v.fsc", components=args.components)
-            stream, decoder = decode_file(Path(tmp) / "v.fsc")
-            decoded = [decoder.frame(i) for i in range(len(frames))]
-            decoder.close()
+            for body in bodies:
+                by_body[body], ms[body] = _decode(Path(tmp) / "v.fsc", len(frames), body)
         seconds = len(frames) / fps
         stream_kbps = sizes["stream"] * 8 / seconds / 1000
-        psnr, ssim = _quality(decoded, frames, analysis)
         print(f"{name} ({len(frames)} frames, {fps:g} fps): .fsc per-frame stream {stream_kbps:.2f} kbit/s, "
               f"whole file {sizes['total'] * 8 / seconds / 1000:.1f} kbit/s (header {sizes['total'] - sizes['records']} "
-              f"bytes: keyframe {sizes['keyframe']}, arrays {sizes['arrays']}; records {sizes['records']} "
-              f"bytes); face region PSNR {psnr:.2f} dB, SSIM {ssim:.3f}")
+              f"bytes: keyframe {sizes['keyframe']}, arrays {sizes['arrays']}; records {sizes['records']} bytes)")
+        for body, decoded in by_body.items():
+            psnr, ssim = _quality(decoded, frames, analysis)
+            print(f"    body motion {'on ' if body else 'off'}: face region PSNR {psnr:.2f} dB, SSIM {ssim:.3f}; "
+                  f"neck band PSNR {_neck_psnr(decoded, frames, analysis):.2f} dB; decode {ms[body]:.1f} ms/frame")
+        if len(ms) == 2 and args.time_reps:
+            _time_body(frames, analysis, args)
+        if args.stills and len(by_body) == 2:
+            _stills(args.stills, name, frames, by_body, fps)
+        if args.no_h264:
+            continue
         ladder = []
         for target in (stream_kbps, sizes["total"] * 8 / seconds / 1000, 16, 32, 64, 128, 256):
             out, real = h264(frames, fps, target)
@@ -241,6 +302,13 @@ def main() -> None:
     c = sub.add_parser("coding")
     c.add_argument("--videos", default="d0,d3,d12")
     c.add_argument("--components", type=int, default=12)
+    c.add_argument("--frames", type=int, default=10**6, help="the videos' first N frames only")
+    c.add_argument("--body", default="both", choices=("on", "off", "both"),
+                   help="the decoder's body motion (issue 51; both: each, on the same stream)")
+    c.add_argument("--stills", default="", metavar="DIR", help="write input | body off | body on at 1, 2, 3 s")
+    c.add_argument("--no-h264", action="store_true", help="skip the H.264 ladder")
+    c.add_argument("--time-reps", type=int, default=0, metavar="N",
+                   help="time the decode with the body motion off and on, N alternated passes each")
     g = sub.add_parser("graph")
     g.add_argument("--videos", default="d3,s18")
     g.add_argument("--fps", type=float, default=30.0)

@@ -36,6 +36,9 @@ from facesculpt.msgs.fsc import (
 )
 from facesculpt.nodes.reenact.expression_basis import expression_basis, expression_coefficients
 
+#: The neck band of :func:`neck_band` reaches this share of the face's height below its lowest point.
+NECK_BAND = 0.35
+
 
 @dataclass
 class Analysis:
@@ -112,9 +115,11 @@ def encode(analysis: Analysis, path, components: int = 12, key_quality: int = KE
 
 
 class Decoder:
-    """Renders the frames of a :class:`CodedStream` (:meth:`frame`); :meth:`close` frees GL."""
+    """Renders the frames of a :class:`CodedStream` (:meth:`frame`); :meth:`close` frees GL.
+    body_motion: the chin's motion carried over the neck and body below the jaw (else they stay the
+    keyframe's; :mod:`facesculpt.nodes.renderer.body_motion`)."""
 
-    def __init__(self, stream: CodedStream):
+    def __init__(self, stream: CodedStream, body_motion: bool = True):
         from facesculpt.app.pipeline import load_face_model
         from facesculpt.nodes.renderer.coded_face import CodedFace
 
@@ -123,7 +128,7 @@ class Decoder:
         model = load_face_model(h["model"])
         key = int(h["key"])
         self.face = CodedFace(h, stream.keyframe, stream.arrays, model.triangles, stream.pose[key],
-                              stream.coeffs[key], lips=inner_lip_ids(model))
+                              stream.coeffs[key], lips=inner_lip_ids(model), body_motion=body_motion)
 
     def frame(self, i: int) -> np.ndarray:
         """(H, W, 3) uint8 BGR: frame ``i`` rendered (a frame without a face holds the last one's
@@ -134,12 +139,12 @@ class Decoder:
         self.face.release()
 
 
-def decode_file(path) -> tuple[CodedStream, Decoder]:
-    """The stream at ``path`` and a :class:`Decoder` for it."""
+def decode_file(path, body_motion: bool = True) -> tuple[CodedStream, Decoder]:
+    """The stream at ``path`` and a :class:`Decoder` for it (``body_motion``: as :class:`Decoder`'s)."""
     from facesculpt.app.pipeline import load_face_model
 
     stream = read_stream(path, lambda model: load_face_model(model).triangles)
-    return stream, Decoder(stream)
+    return stream, Decoder(stream, body_motion)
 
 
 def face_region_quality(decoded: np.ndarray, original: np.ndarray, projected: np.ndarray) -> tuple[float, float]:
@@ -158,3 +163,28 @@ def face_region_quality(decoded: np.ndarray, original: np.ndarray, projected: np
     g1 = cv2.cvtColor(decoded, cv2.COLOR_BGR2GRAY)[box]
     g2 = cv2.cvtColor(original, cv2.COLOR_BGR2GRAY)[box]
     return float(psnr), float(structural_similarity(g1, g2, data_range=255))
+
+
+def neck_band(original_shape: tuple[int, ...], projected: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the band below the jaw of a face fitted at ``projected`` (V, 2) px in a frame of
+    ``original_shape`` (H, W, ...): as wide as the face's box, from its middle height down to
+    ``NECK_BAND`` of its height below its lowest point, outside the face's convex hull (neck, the
+    collar and the background beside them)."""
+    H, W = original_shape[:2]
+    lo, hi = np.nanmin(projected, axis=0), np.nanmax(projected, axis=0)
+    band = np.zeros((H, W), np.uint8)
+    x0, x1 = int(np.clip(np.floor(lo[0]), 0, W)), int(np.clip(np.ceil(hi[0]) + 1, 0, W))
+    y0 = int(np.clip(np.floor(0.5 * (lo[1] + hi[1])), 0, H))
+    y1 = int(np.clip(np.ceil(hi[1] + NECK_BAND * (hi[1] - lo[1])) + 1, 0, H))
+    band[y0:y1, x0:x1] = 1
+    cv2.fillConvexPoly(band, cv2.convexHull(np.round(projected).astype(np.int32)), 0)
+    return band.astype(bool)
+
+
+def region_psnr(decoded: np.ndarray, original: np.ndarray, region: np.ndarray) -> float:
+    """PSNR (dB) of ``decoded`` against ``original`` (H, W, 3) uint8 over ``region`` (H, W) bool
+    (NaN for an empty region)."""
+    if not region.any():
+        return float("nan")
+    err = ((decoded.astype(np.float64) - original.astype(np.float64)) ** 2)[region].mean()
+    return float(10 * np.log10(255.0 ** 2 / max(err, 1e-12)))

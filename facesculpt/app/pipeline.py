@@ -157,7 +157,10 @@ class Pipeline:
     saved); rotation_prior_px: a sparse model's fit holds its pitch toward that of the landmark
     network's own 3D points with this weight (px per radian; 0: off;
     :mod:`facesculpt.nodes.fitter.detector_rotation`). The GL context is made here; call
-    :meth:`close` (or use ``with``) to free it.
+    :meth:`close` (or use ``with``) to free it. pose_limit: each frame draws only the share of its pose
+    edit that what is known of the surface it reveals allows (issue 51,
+    :mod:`facesculpt.nodes.renderer.pose_limit`; ``pose_limiter.lowest`` and ``.reduced`` say how
+    far and how often it was reduced); False: the whole edit always.
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
@@ -169,7 +172,7 @@ class Pipeline:
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
                  outline_band: float | None = None, expression: bool = True,
-                 rotation_prior_px: float = FitterConfig.rotation_prior_px):
+                 rotation_prior_px: float = FitterConfig.rotation_prior_px, pose_limit: bool = True):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -205,6 +208,7 @@ class Pipeline:
         self.face_camera, self.face_camera_limit_deg = float(face_camera), float(face_camera_limit_deg)
         self.face_camera_smoothing_s = float(face_camera_smoothing_s)
         self._pose_edits = None   # the renderer's PoseEdits (made with the compositor's package, on first use)
+        self.pose_limit, self.pose_limiter = bool(pose_limit), None
         self._uv = None
         self.faces: FaceFitters | None = None
         self.compositor = None
@@ -289,6 +293,7 @@ class Pipeline:
         for key, fit in fits.items():
             self.displacement_of(key)
             fit.pose_edit = self._pose_edit(key, fit, stamp_s)
+            fit.pose_stamp = stamp_s
         return fits, timings
 
     def _pose_edit(self, key: int, fit, stamp_s: float) -> tuple[PoseOffset, np.ndarray] | None:
@@ -305,6 +310,19 @@ class Pipeline:
 
             self._pose_edits = PoseEdits(self.face_camera, self.face_camera_limit_deg, self.face_camera_smoothing_s)
         return self._pose_edits.edit(fit, offset, self.neutral_of(key), int(round(stamp_s * 1e9)), face=key)
+
+    def _turn(self, key: int, fit, deformed: np.ndarray) -> np.ndarray:
+        """Face ``key``'s ``deformed`` (V, 3) mesh turned by its pose edit: all of it, or with
+        ``pose_limit`` the share that what is known of the surface it reveals allows (the
+        frame's own view and the compositor's stored views of the face)."""
+        if not self.pose_limit:
+            return self._pose_edits.apply(deformed, fit, fit.pose_edit)
+        from facesculpt.nodes.renderer.pose_limit import PoseLimiter, turn_within_limits
+
+        if self.pose_limiter is None:
+            self.pose_limiter = PoseLimiter()
+        return turn_within_limits(self.pose_limiter, key, getattr(fit, "pose_stamp", 0.0), fit, deformed,
+                                  fit.pose_edit, self.model.triangles, getattr(self.compositor, "views", None))[0]
 
     def compose(self, frame_bgr: np.ndarray, fits: dict, timings: dict,
                 keep_mask: np.ndarray | None = None) -> FrameResult:
@@ -325,7 +343,7 @@ class Pipeline:
             if displacement is not None:
                 deformed = merge_deformation(fit.vertices, fit.R, fit.scale, displacement)
             if fit.pose_edit is not None:
-                deformed = self._pose_edits.apply(deformed, fit, fit.pose_edit)
+                deformed = self._turn(key, fit, deformed)
             timings["merge"] += (time.perf_counter() - t0) * 1e3
             t0 = time.perf_counter()
             compositor = self._compositor()

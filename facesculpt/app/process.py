@@ -64,6 +64,9 @@ def _add_pose_arguments(p) -> None:
     p.add_argument("--face-camera-smoothing", type=float, default=FACE_CAMERA_SMOOTHING_S, metavar="S",
                    help="time constant (s) smoothing the direction to the camera over the frames (default 0: none, "
                         "which follows the head best; docs/guide/new-views.md)")
+    p.add_argument("--pose-limit", choices=("on", "off"), default="on",
+                   help="on (default): each frame draws only the share of the turn that what the video showed of the "
+                        "surface it reveals allows, reduced smoothly beyond it (with a warning); off: the whole turn")
     p.add_argument("--keyframes", choices=("auto", "on", "off"), default="auto",
                    help="render a turned head's surface from the stored view of the video closest to it where that "
                         "sees it better than the frame (image-based rendering); auto (default): with a pose edit")
@@ -382,7 +385,15 @@ def _pose_options(args) -> dict:
     check_face_camera(face_camera, limit, smoothing, ("--face-camera", "--face-camera-limit", "--face-camera-smoothing"))
     return {"pose": parse_pose_offset(getattr(args, "pose", "")), "face_camera": face_camera,
             "face_camera_limit_deg": limit, "face_camera_smoothing_s": smoothing,
-            "keyframes": getattr(args, "keyframes", "auto")}
+            "keyframes": getattr(args, "keyframes", "auto"), "pose_limit": getattr(args, "pose_limit", "on") == "on"}
+
+
+def _warn_reduced_turns(limiter) -> None:
+    """One warning line when the pose limit reduced a turn (``limiter``: the pipeline's PoseLimiter or None)."""
+    if limiter is not None and limiter.reduced:
+        print(f"facesculpt: warning: the turn was reduced on {limiter.reduced} frame(s) (to {100 * limiter.lowest:.0f} % "
+              f"at least): the video shows too little of the surface it would reveal (--pose-limit off draws it all; "
+              f"docs/guide/new-views.md)", file=sys.stderr)
 
 
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:
@@ -444,8 +455,9 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
         raise
     finally:
         source.close()
-        texture = pipeline.texture() if save_texture else None
+        texture, limiter = (pipeline.texture() if save_texture else None), pipeline.pose_limiter
         pipeline.close()
+    _warn_reduced_turns(limiter)
     problem = (f"cannot read {args.input}: it holds no frames" if output.frames == 0
                else missing_face(selection, pipeline.track_ids_seen, args.input))
     if problem:

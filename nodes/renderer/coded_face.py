@@ -7,7 +7,9 @@ between that and the keyframe's own posed shape, so the keyframe renders as itse
 keyframe image is composited onto it (:class:`Compositor`: uncovered background inpainted; the
 background stays the keyframe's). The face's motion is carried over the head around it (hair,
 forehead, ears: the compositor's ``head_motion``, as a pose edit does), so the still keyframe's hair
-does not cut a seam across a moving head. A mouth that opens wider than the keyframe's closed one gets the
+does not cut a seam across a moving head, and the chin's motion is blended into the neck and body below
+the jaw (``body_motion``: :mod:`.body_motion`), so the keyframe's still shoulders do not tear from a
+moving head. A mouth that opens wider than the keyframe's closed one gets the
 painted interior of :mod:`.mouth_interior`, as reenactment does.
 """
 
@@ -42,11 +44,12 @@ class CodedFace:
     record; lips: inner-lip vertex ids (default: the face mesh's for V = 468, else no painted
     mouth); compositor: one to draw with (e.g. :func:`coded_compositor` on a window's GL context),
     else a new :func:`coded_compositor`;
-    head_motion: carry the face's motion over the hair and neck around it (else only the face moves)."""
+    head_motion: carry the face's motion over the hair and neck around it (else only the face moves);
+    body_motion: with head_motion, the chin's motion over the neck and body below the jaw too."""
 
     def __init__(self, header: dict, keyframe: bytes, arrays: dict, triangles: np.ndarray,
                  key_pose: np.ndarray, key_coeffs: np.ndarray, lips=None, compositor: Compositor | None = None,
-                 head_motion: bool = True):
+                 head_motion: bool = True, body_motion: bool = True):
         self.image = cv2.imdecode(np.frombuffer(keyframe, np.uint8), cv2.IMREAD_COLOR)
         if self.image is None:
             raise ValueError("the coded stream's keyframe is not an image")
@@ -62,7 +65,7 @@ class CodedFace:
         self.key_opening = opening_px(arrays["key_projected"][self.lips]) if self.lips is not None else np.inf
         self.compositor = compositor if compositor is not None else coded_compositor(self.width, self.height)
         self._own_compositor = compositor is None
-        self.head_motion = bool(head_motion)
+        self.head_motion = ("body" if body_motion else True) if head_motion else False
         self.anchor = self.posed(key_pose, key_coeffs)
         self.last = (np.asarray(key_pose, np.float64), np.asarray(key_coeffs, np.float64))
 

@@ -49,6 +49,7 @@ from facesculpt.geometry import point_bounds
 from .atlas_memory import AtlasMemory
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate
+from .body_motion import body_box, carry_to_body, neck_motion, union_box
 from .camera import estimate_projection, project
 from .drag_fill import drag_fill, smooth_drag
 from .gl_context import create_headless_context
@@ -253,7 +254,8 @@ class Compositor:
         keep_mask: optional (H, W) bool, pixels composited back from the input afterwards (what
             is in front of the face, e.g. a hand: nothing re-rendered covers it); None: none.
         uv, face_key: the face's (V, 2) texture coordinates in [0, 1] and key, for its atlas (step 6).
-        head_motion: carry the face's motion over the head around it (pose edits; :mod:`.motion_extension`).
+        head_motion: carry the face's motion over the head around it (pose edits; :mod:`.motion_extension`);
+            "body": and the chin's motion over the neck and body below the jaw (:mod:`.body_motion`).
         V = 0 (no face) returns a copy of the frame. Returns a new (H, W, 3) uint8 frame; it
         equals ``frame_bgr`` exactly wherever the source position is unchanged (offset under
         ``IDENTITY_PX``) and outside the union of the original and deformed face regions
@@ -286,6 +288,7 @@ class Compositor:
         t_atlas, t0 = (time.perf_counter() - t0) * 1e3, time.perf_counter() - t_P   # the camera's stage holds P
         dst_px, depth = self.deformed_pixels(fitted, projected, deformed, P)
         self.deformed_px = dst_px
+        self._neck = neck_motion(fitted, projected, deformed, P) if head_motion == "body" else None
         offset = projected - dst_px
         moved = np.einsum("ij,ij->i", offset, offset) >= IDENTITY_PX ** 2
         box = self._work_box(projected, dst_px, moved, head_motion) if moved.any() else None
@@ -348,8 +351,15 @@ class Compositor:
         face = covered_pixels(offsets)
         dragged = None
         if head_motion:
-            head = head_region(offsets.shape[:2], box[:2], np.concatenate([projected, dst_px]))
-            offsets = extend_motion(offsets, head)
+            both = np.concatenate([projected, dst_px])
+            if head_motion == "body":  # the head's extension on the head's own box, the body's motion below it
+                x0, y0, x1, y1 = head_box(both, self.width, self.height) or box
+                part = (slice(y0 - box[1], y1 - box[1]), slice(x0 - box[0], x1 - box[0]))
+                offsets = offsets.copy()
+                offsets[part] = extend_motion(offsets[part], head_region(offsets[part].shape[:2], (x0, y0), both))
+                offsets = carry_to_body(offsets, face, box[:2], dst_px, self._neck)
+            else:
+                offsets = extend_motion(offsets, head_region(offsets.shape[:2], box[:2], both))
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
@@ -495,9 +505,11 @@ class Compositor:
         offset that far) lie before and after (projected, dst_px (V, 2) pixels), with background
         around them for the fill and the soft edge, cut to the frame. None when less than 2 x 2
         pixels of it are in the frame. ``head_motion``: the head region around the face too
-        (:func:`.motion_extension.head_box`)."""
+        (:func:`.motion_extension.head_box`); "body": and the body below it (:func:`.body_motion.body_box`)."""
         if head_motion:
-            return head_box(np.concatenate([projected, dst_px]), self.width, self.height)
+            both = np.concatenate([projected, dst_px])
+            box = head_box(both, self.width, self.height)
+            return union_box(box, body_box(both, self.width, self.height)) if head_motion == "body" else box
         near = self._mesh.rings @ moved.astype(np.float32) > 0
         pad = self.dilate_px + 10 + int(np.ceil(self.feather_px)) + self.band_px(projected)
         both = np.concatenate([projected[near], dst_px[near]])

@@ -38,6 +38,8 @@ class DecoderNode(Node):
         "title": Param("facesculpt decoder", "window title"),
         "head_motion": Param(True, "carry the face's motion over the hair and neck around it (off: only the face "
                                    "moves, over the keyframe's still head; cheaper for a face that fills the frame)"),
+        "body_motion": Param(True, "with head_motion, carry the head's sway over the neck and body below the jaw "
+                                   "(off: the keyframe's body stays still)"),
     }
 
     def setup(self):
@@ -93,7 +95,7 @@ class DecoderNode(Node):
                 raise ValueError("its steps and its keyframe record do not match its basis")
             compositor = self._compositor(int(header["width"]), int(header["height"]))
             self.face = CodedFace(header, jpeg, arrays, triangles, pose[0], coeffs[0], compositor=compositor,
-                                  head_motion=self.params.head_motion)
+                                  head_motion=self.params.head_motion, body_motion=self.params.body_motion)
         except RuntimeError as exc:  # no window could be opened: the node cannot do what it was asked
             self.log.error("%s", exc)
             self.shutdown()

@@ -60,6 +60,7 @@ from .pose_edit import (
     FACE_CAMERA_SMOOTHING_S,
     PoseEdits,
 )
+from .pose_limit import PoseLimiter, turn_within_limits
 from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import uv_layout
 
@@ -142,6 +143,8 @@ class RendererNode(Node):
                                          range=(0.0, FACE_CAMERA_SMOOTHING_MAX_S)),
         "face_camera_limit": Param(FACE_CAMERA_LIMIT_DEG, "face_camera: the largest turn, degrees of yaw and of "
                                                           "pitch", range=FACE_CAMERA_LIMIT_RANGE),
+        "pose_limit": Param(True, "draw only the share of a pose edit that what the video showed of the surface it "
+                                  "reveals allows, reduced smoothly beyond it (a note in the window says how far)"),
         "keyframes": Param("off", "keep views of each face at the poses it shows and render a turned head's surface "
                                   "from the closest one where it sees it better than the frame (image-based rendering "
                                   "for pose edits; a few ms a frame)", choices=("on", "off")),
@@ -195,6 +198,8 @@ class RendererNode(Node):
         self._overlay_px: np.ndarray | None = None  # (V, 2) the edited face's deformed pixels this frame
         self.correction = CorrectionMode()  # the window's landmark correction mode (L)
         self.poses = PoseEdits(p.face_camera, p.face_camera_limit, p.face_camera_smoothing_s)
+        self.pose_limiter = PoseLimiter() if p.pose_limit else None
+        self._turn_share = 1.0   # the share of the last pose edit drawn
         if p.window:
             self.timer(1.0 / 120.0, self.on_tick)
 
@@ -285,9 +290,15 @@ class RendererNode(Node):
         carried over the head around it. ValueError on input the compositor refuses."""
         deformed = self._deformed_vertices(state)
         edit = self.poses.edit(state, self._pose_of(state), self.model.neutral_of(state.face_id), stamp)
+        self._turn_share = 1.0 if edit is None else self._turn_share
         if edit is not None:
             with self.stage("pose"):
-                deformed = self.poses.apply(deformed, state, edit)
+                if self.pose_limiter is None:
+                    deformed = self.poses.apply(deformed, state, edit)
+                else:
+                    deformed, self._turn_share = turn_within_limits(
+                        self.pose_limiter, state.face_id, stamp * 1e-9, state, deformed, edit, self.model.triangles,
+                        self.compositor.views)
             self.count("pose_edited")
         return self.compositor.render(out, state.vertices, state.projected, self.model.triangles, deformed,
                                       keep_mask=keep, uv=self._uv_of(state), face_key=state.face_id,
@@ -436,6 +447,8 @@ class RendererNode(Node):
         if correcting:  # the 68 landmarks to drag, the one under the cursor named
             out = self.correction.draw(out, self.window.pointer)
             lines.append("correction mode: drag a landmark where it belongs (L: back to editing)")
+        if self._turn_share < 0.995:
+            lines.append(f"turn reduced to {100 * self._turn_share:.0f} %: the video has not shown the surface it reveals")
         if self._notice is not None:
             if now < self._notice[1]:
                 lines.append(self._notice[0])
