@@ -57,7 +57,7 @@ def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir)
             if not fits:
                 continue
             jaw.append(float(fits[0].expression[NAMES.index("jaw_open")]))
-            points = to_ibug68(pipeline.detector._faces()[0].points)
+            points = to_ibug68(pipeline.detector.results()[0].points)
             opening.append(np.linalg.norm(points[62] - points[66]) / np.linalg.norm(points[36] - points[45]))
     cap.release()
     assert len(jaw) > 100
