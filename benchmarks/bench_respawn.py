@@ -10,7 +10,8 @@ later than the kill ("back", the chaos test's figure), and the CPU time (user + 
 /proc) the respawned node process had used when that image arrived ("node CPU": its imports, model
 load, first frames; on a machine shared with other work the CPU time measures the node's own start-up,
 the wall clock the others' too). Reported per checkout as medians over all its kills, and the
-ratios this / other.
+ratios this / other. Before each graph, the fitter's start-up in phases (PHASES: imports, model
+load, first fit; CPU time of a fresh process of each checkout), also alone with --phases-only.
 """
 
 from __future__ import annotations
@@ -82,7 +83,10 @@ PHASES = """
 import sys, time
 c0 = time.process_time()
 from facesculpt import cli
-cli.build_parser()
+try:
+    cli.build_parser(["run", "fitter"])   # what `facesculpt run fitter` builds
+except TypeError:                         # a checkout whose parser always has every command
+    cli.build_parser()
 from facesculpt.nodes import node_class
 node_class("fitter")
 c1 = time.process_time()
@@ -190,6 +194,7 @@ def main() -> int:
     ap.add_argument("--kills", type=int, default=3)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--phases-only", action="store_true", help="only the start-up phases (PHASES), no graph")
     args = ap.parse_args()
     from facesculpt.paths import shared_data_dir
 
@@ -199,14 +204,31 @@ def main() -> int:
         return 1
     video = data / "video" / "d3.mp4"
     runs: dict[str, list[dict]] = {"this": [], "other": []}
+    steps: dict[str, list[dict]] = {"this": [], "other": []}
     for r in range(args.rounds):
         for label, checkout in (("other", args.against.resolve()), ("this", REPO)) if r % 2 else (
                 ("this", REPO), ("other", args.against.resolve())):
+            steps[label].append(phases(checkout))
+            print(f"round {r + 1} {label} fitter start-up, CPU s: " + ", ".join(
+                f"{k} {v:.3f}" for k, v in steps[label][-1].items()), flush=True)
+            if args.phases_only:
+                continue
             got = measure(checkout, args.node, args.kills, video)
             print(f"round {r + 1} {label}: " + ", ".join(
                 f"spawned {g['spawned_s']:.2f} s, face/state {g['state_s']:.2f} s, back {g['back_s']:.2f} s, "
                 f"node CPU {g['node_cpu_s']:.2f} s" for g in got), flush=True)
             runs[label] += got
+    med = {label: {k: statistics.median(g[k] for g in got) for k in PHASE_KEYS[:4]} for label, got in steps.items()}
+    for label in med:
+        med[label]["start_up_cpu_s"] = statistics.median(sum(g[k] for k in PHASE_KEYS[:3]) for g in steps[label])
+    print("fitter start-up (imports + model + first fit), CPU s, medians over the rounds:")
+    for k in (*PHASE_KEYS[:4], "start_up_cpu_s"):
+        print(f"  {k:19s} this {med['this'][k]:.3f}  other {med['other'][k]:.3f}  "
+              f"this/other {med['this'][k] / max(med['other'][k], 1e-9):.2f}")
+    if args.json and args.phases_only:
+        args.json.write_text(json.dumps({"phases": steps, "medians": med}, indent=2))
+    if args.phases_only:
+        return 0
     med = {label: {k: statistics.median(g[k] for g in got) for k in KEYS}
            for label, got in runs.items()}
     print(f"{args.node} killed, medians over {len(runs['this'])} kills each:")
@@ -214,7 +236,7 @@ def main() -> int:
         print(f"  {k:11s} this {med['this'][k]:.2f}  other {med['other'][k]:.2f}  "
               f"this/other {med['this'][k] / med['other'][k]:.2f}")
     if args.json:
-        args.json.write_text(json.dumps({"node": args.node, "runs": runs, "medians": med}, indent=2))
+        args.json.write_text(json.dumps({"node": args.node, "runs": runs, "phases": steps, "medians": med}, indent=2))
     return 0
 
 
