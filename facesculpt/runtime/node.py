@@ -149,6 +149,7 @@ class MasterLink(threading.Thread):
         if beat is None:
             return
         reply = beat[0]
+        self.node.graph_registrations = int(reply.get("registrations", 0))
         if not reply.get("known"):
             self.registered = False
             return
@@ -172,7 +173,6 @@ class MasterLink(threading.Thread):
                     self.latched_versions[sub.topic] = got[0]["version"]
                     self.node.receiver.inject(sub, [sub.topic.encode()] + got[1])
         self.generation = reply["generation"]
-        self.node.graph_generation = self.generation
 
     def run(self) -> None:
         while not self.stopping:
@@ -249,9 +249,9 @@ class Node:
         self.exit_code = 0            # what run() returns (EXIT_STOP_GRAPH after stop_graph())
         self.running = False
         self._stopped = threading.Event()
-        # The master's publisher-table generation as this node's link last saw it: it changes when
-        # a node (re)starts or leaves (e.g. a respawned node has joined again). Read-only for nodes.
-        self.graph_generation = -1
+        # How many node registrations the master had counted at this node's last heartbeat: it
+        # grows when a node (re)starts (a respawned node joined again). Read-only for nodes.
+        self.graph_registrations = 0
         self.link = MasterLink(self)
         self._diag_pub: Publisher | None = None
         self._diag_window: dict[str, float] = {}

@@ -130,7 +130,7 @@ class CameraNode(Node):
         self.ended = False        # lockstep: the source is done; waiting for the last acknowledgements
         self.done_sub = None
         self.settle_until = 0.0   # lockstep: monotonic time the first frame may go out
-        self.seen_generation = -1  # lockstep: the graph generation the frames in flight were sent in
+        self.seen_registrations = 0  # lockstep: the master's node registrations when last looked at
         self.joined_at = 0.0      # lockstep: monotonic time the graph last changed (0: no resend due)
         self.paced = bool(p.pace_by) and not self.lockstep
         self.pending = None       # paced: the newest frame read while the in-flight frames were full
@@ -266,8 +266,8 @@ class CameraNode(Node):
         allow, and stop once the source ended and nothing is in flight."""
         p = self.params
         now = time.monotonic()
-        if self.graph_generation != self.seen_generation:
-            self.seen_generation, self.joined_at = self.graph_generation, now
+        if self.graph_registrations != self.seen_registrations:
+            self.seen_registrations, self.joined_at = self.graph_registrations, now
         # A node joined the graph: once its links are connected, what is in flight goes out again.
         rejoin = bool(p.resend_s and self.joined_at) and now - self.joined_at >= LOCKSTEP_SETTLE_S
         for seq, entry in list(self.in_flight.items()):
@@ -282,8 +282,10 @@ class CameraNode(Node):
                 if self.analysis_pub is not None:
                     self._publish_analysis(msg)
                 entry[2] = now
-                self.count("resent_on_join" if rejoin and now - last_sent < p.resend_s else "resent")
-                self.log.info("frame %d: no acknowledgement after %.1f s; sent again", seq, now - first_sent)
+                joined = rejoin and now - last_sent < p.resend_s
+                self.count("resent_on_join" if joined else "resent")
+                self.log.info("frame %d: no acknowledgement after %.1f s; sent again%s", seq, now - first_sent,
+                              " (a node joined the graph)" if joined else "")
         if rejoin:
             self.joined_at = 0.0
         while not self.ended and len(self.in_flight) < p.max_in_flight and now >= self.next_send_at:
