@@ -266,8 +266,8 @@ class CameraNode(Node):
         allow, and stop once the source ended and nothing is in flight."""
         p = self.params
         now = time.monotonic()
-        if self.graph_registrations != self.seen_registrations:
-            self.seen_registrations, self.joined_at = self.graph_registrations, now
+        if self.link.registrations != self.seen_registrations:
+            self.seen_registrations, self.joined_at = self.link.registrations, now
         # A node joined the graph: once its links are connected, what is in flight goes out again.
         rejoin = bool(p.resend_s and self.joined_at) and now - self.joined_at >= LOCKSTEP_SETTLE_S
         for seq, entry in list(self.in_flight.items()):
