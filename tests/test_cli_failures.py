@@ -107,3 +107,37 @@ def test_a_json_object_that_is_not_a_preset_names_its_file(tmp_path):
         assert result.returncode == 1 and "Traceback" not in result.stderr
         assert result.stderr.strip().splitlines()[-1] == f"facesculpt: {sentence}"
         assert not (tmp_path / "out.mp4").exists()
+
+
+def test_each_command_module_adds_the_commands_the_cli_names_for_it():
+    import argparse
+    import importlib
+
+    from facesculpt.cli import COMMAND_MODULES, build_parser
+
+    for module, commands in COMMAND_MODULES.items():
+        sub = argparse.ArgumentParser().add_subparsers()
+        importlib.import_module(module).register(sub)
+        assert tuple(sub.choices) == commands, module
+    assert build_parser(["-v", "run", "fitter"]).parse_args(["-v", "run", "fitter"]).command == "run"
+
+
+def test_a_dense_fitter_process_starts_without_the_other_commands_or_scipy(tmp_path):
+    """What a respawned `facesculpt run fitter` imports, loads and fits before its first state:
+    not the other commands' modules, and not scipy (only the sparse fitter and the appearance
+    refinement use it)."""
+    code = ("import sys, numpy as np\n"
+            "from facesculpt import cli\n"
+            "cli.build_parser(['run', 'fitter'])\n"
+            "from facesculpt.nodes import node_class\n"
+            "node_class('fitter')\n"
+            "from facesculpt.nodes.fitter import FitterConfig, fit_landmarks, load_model, make_fitter\n"
+            "model = load_model('facemesh')\n"
+            "fitter = make_fitter(model, FitterConfig(), image_size=(640, 480))\n"
+            "p = np.asarray(model.mean, np.float64)[:468]\n"
+            "p = np.column_stack([320 + 2 * p[:, 0], 240 - 2 * p[:, 1], -2 * p[:, 2]])[None]\n"
+            "assert fit_landmarks(fitter, p, np.ones(1), 0.0).fit is not None\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy' or m.startswith('facesculpt.app.')))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "['facesculpt.app.graph_commands']"   # `run`'s own module only

@@ -17,7 +17,7 @@ import numpy as np
 import psutil
 from conftest import free_port
 
-from facesculpt.msgs import FaceLandmarks, FrameDone, Image, encode
+from facesculpt.msgs import FaceLandmarks, FaceState, FrameDone, Image, encode
 from facesculpt.runtime.bag import BagWriter
 from facesculpt.runtime.master import MasterClient
 from facesculpt.runtime.node import Node
@@ -131,6 +131,26 @@ def test_lockstep_camera_waits_for_each_acknowledgement_resends_and_drains(graph
     # late on a loaded machine), and not one after
     assert int(ACK_TIMEOUT_S / RESEND_S) <= seqs.count(10) <= int(ACK_TIMEOUT_S / RESEND_S) + 1, seqs
     assert 30 in acked, "the camera ended before its last frame was acknowledged"
+
+
+def test_lockstep_camera_sends_its_frame_again_when_a_node_joins(graph, tmp_path):
+    """A node that (re)joins the graph (a respawned fitter, which lost the frame it was fitting)
+    gets the frame in flight again once it is connected, long before resend_s."""
+    bag = tmp_path / "numbers.bag"
+    _write_bag(bag, [np.full((48, 64, 3), 5 * i, np.uint8) for i in range(5)])
+    arrivals: list[int] = []
+    watcher = graph.node(Node(name="unacking"))
+    watcher.advertise("render/done", FrameDone, qos=EVERY_MESSAGE)   # the camera's acknowledger: never acks
+    watcher.subscribe("camera/image", Image, lambda m: arrivals.append(m.seq), qos=EVERY_MESSAGE)
+    graph.spawn("run", "camera", f"source=bag:{bag}", "fps=-1", "wait_for=render/done", "wait_subscribers=1",
+                "resend_s=600", "ack_timeout_s=1200")
+    assert graph.spin_until(watcher, lambda: arrivals == [1], 30), arrivals
+    graph.spin_until(watcher, lambda: False, 1.0)
+    assert arrivals == [1]                        # unacknowledged, nothing joined: held
+    joiner = graph.node(Node(name="respawned_fitter"))
+    joiner.advertise("face/state", FaceState)
+    assert graph.spin_until(watcher, lambda: len(arrivals) >= 2, 30), arrivals
+    assert arrivals[:2] == [1, 1]                 # the same frame again, not the next one
 
 
 def test_a_frame_without_a_fit_gets_an_empty_state_of_its_stamp(monkeypatch, tmp_path, models_dir):

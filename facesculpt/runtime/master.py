@@ -41,6 +41,7 @@ class Registry:
         self.subscribers: dict[str, set] = {}     # topic -> {node}
         self.latched: dict[str, tuple[int, list[bytes]]] = {}  # topic -> (version, frames)
         self.generation = 0
+        self.registrations = 0  # node registrations so far: grows when a node (re)starts
 
     # -- bookkeeping ----------------------------------------------------------
     def _touch(self, node: str) -> bool:
@@ -89,6 +90,7 @@ class Registry:
         now = self.clock()
         self.nodes[name] = {"pid": int(req.get("pid", 0)), "host": str(req.get("host", "")),
                             "since": now, "seen": now}
+        self.registrations += 1
         return {"ok": True, "generation": self.generation}, []
 
     def op_unregister_node(self, req, frames):
@@ -116,7 +118,7 @@ class Registry:
 
     def op_heartbeat(self, req, frames):
         known = self._touch(str(req["node"]))
-        return {"ok": True, "known": known, "generation": self.generation}, []
+        return {"ok": True, "known": known, "generation": self.generation, "registrations": self.registrations}, []
 
     def op_lookup(self, req, frames):
         topic = str(req["topic"])

@@ -81,7 +81,6 @@ LOG_FORMAT = "%(asctime)s %(levelname).1s [%(name)s] %(message)s"
 # -- the master link ----------------------------------------------------------------------
 class MasterLink(threading.Thread):
     """Keeps this node registered with the master and its subscriptions connected."""
-
     # Heartbeat and lookup period: also how late a subscriber may notice a respawned publisher.
     PERIOD_S = 0.1
 
@@ -91,7 +90,7 @@ class MasterLink(threading.Thread):
         self.client = MasterClient(node.master, timeout_s=1.0, security=node.security)
         self.registered = False
         self.dirty = False          # a publisher/subscription was added while registering
-        self.generation = -1
+        self.generation, self.registrations = -1, 0  # registrations: the master's count; grows when a node (re)starts
         self.latched_versions: dict[str, int] = {}
         self.latch_pending: dict[str, list] = {}
         self.lock = threading.Lock()
@@ -149,6 +148,7 @@ class MasterLink(threading.Thread):
         if beat is None:
             return
         reply = beat[0]
+        self.registrations = int(reply.get("registrations", self.registrations))
         if not reply.get("known"):
             self.registered = False
             return

@@ -20,7 +20,9 @@ with the renderer: a frame goes out only while fewer than ``max_in_flight`` sent
 their :class:`~facesculpt.msgs.FrameDone`, no frame is skipped, and at the end of the source the
 camera waits for the last ones before it ends, so every frame reaches the file. A frame still
 unacknowledged after ``resend_s`` is published again (a node that connected after it went out
-missed it; the renderer ignores a copy of a frame it already has); one unacknowledged after
+missed it; the renderer ignores a copy of a frame it already has), and so is every frame in flight
+``LOCKSTEP_SETTLE_S`` after the graph changed (a node joined: a respawned fitter lost the frame it
+was fitting when it was killed; counter ``resent_on_join``); one unacknowledged after
 ``ack_timeout_s`` is given up (counter ``ack_timeout``) and the camera sends on.
 
 With ``analysis_pixels`` set, each frame also goes out on ``camera/analysis`` halved until it
@@ -132,6 +134,8 @@ class CameraNode(Node):
         self.ended = False        # lockstep: the source is done; waiting for the last acknowledgements
         self.done_sub = None
         self.settle_until = 0.0   # lockstep: monotonic time the first frame may go out
+        self.seen_registrations = 0  # lockstep: the master's node registrations when last looked at
+        self.joined_at = 0.0      # lockstep: monotonic time the graph last changed (0: no resend due)
         self.paced = bool(p.pace_by) and not self.lockstep
         self.pending = None       # paced: the newest frame read while the in-flight frames were full
         # paced: read only when a frame may go out (not for a webcam, whose frames come anyway)
@@ -274,6 +278,10 @@ class CameraNode(Node):
         allow, and stop once the source ended and nothing is in flight."""
         p = self.params
         now = time.monotonic()
+        if self.link.registrations != self.seen_registrations:
+            self.seen_registrations, self.joined_at = self.link.registrations, now
+        # A node joined the graph: once its links are connected, what is in flight goes out again.
+        rejoin = bool(p.resend_s and self.joined_at) and now - self.joined_at >= LOCKSTEP_SETTLE_S
         for seq, entry in list(self.in_flight.items()):
             msg, first_sent, last_sent, _ = entry
             if now - first_sent >= p.ack_timeout_s:
@@ -281,13 +289,17 @@ class CameraNode(Node):
                 self.count("ack_timeout")
                 self.log.warning("frame %d: no acknowledgement on %s within %.1f s; sending on",
                                  seq, self.done_sub.topic, p.ack_timeout_s)
-            elif p.resend_s and now - last_sent >= p.resend_s:
+            elif (p.resend_s and now - last_sent >= p.resend_s) or (rejoin and last_sent < self.joined_at):
                 self.pub.publish(msg)
                 if self.analysis_pub is not None:
                     self._publish_analysis(msg)
                 entry[2] = now
-                self.count("resent")
-                self.log.info("frame %d: no acknowledgement after %.1f s; sent again", seq, now - first_sent)
+                joined = rejoin and now - last_sent < p.resend_s
+                self.count("resent_on_join" if joined else "resent")
+                self.log.info("frame %d: no acknowledgement after %.1f s; sent again%s", seq, now - first_sent,
+                              " (a node joined the graph)" if joined else "")
+        if rejoin:
+            self.joined_at = 0.0
         while not self.ended and len(self.in_flight) < p.max_in_flight and now >= self.next_send_at:
             if p.max_frames and self.sent >= p.max_frames:
                 self._end()

@@ -82,6 +82,7 @@ class _System:
     L_fh: sp.csr_matrix  # (n_f, H): coupling to the handles
     rhs_fixed: np.ndarray  # (n_f, 3): coupling to the vertices fixed at rest (negated, moved to rhs)
     spokes: sp.csr_matrix  # (V, V): sum over active cells of w_ij |p'_i - p'_j|^2 = sum(P' * (spokes @ P'))
+    cov_spokes: sp.csr_matrix  # (3 n_a + V, V): cov over spokes, one product for both per iteration
     rest_spokes: float  # the same sum for the rest mesh: sum over active cells of w_ij |p_i - p_j|^2
     solve: object  # callable: (n_f, 3) -> (n_f, 3)
     factor_ms: float
@@ -305,16 +306,18 @@ class ArapDeformer:
         fixed[free] = False
         fixed[handles] = False
         fixed_idx = np.flatnonzero(fixed)
+        cov = _covariance_operator(cell, i, j, w, P, active.size)
         return _System(
             free=free,
             handles=handles,
             static=static,
             active=active,
-            cov=_covariance_operator(cell, i, j, w, P, active.size),
+            cov=cov,
             rot_to_rhs=_rotation_rhs_operator(self.weights, P, free, active),
             L_fh=Lf[:, handles].tocsr(),
             rhs_fixed=-(Lf[:, fixed_idx] @ P[fixed_idx]),
             spokes=spokes,
+            cov_spokes=sp.vstack([cov, spokes]).tocsr(),
             rest_spokes=float(np.sum(P * (spokes @ P))),
             solve=_factorise(Lf[:, free].tocsc(), self.solver),
             factor_ms=(time.perf_counter() - t0) * 1e3,
@@ -368,12 +371,16 @@ class ArapDeformer:
         step = np.inf
         while done < iters:
             Q[free] = x
-            S = (sys_.cov @ Q).reshape(n_a, 3, 3)
+            if accelerate:  # the covariances and the spokes' products in one sparse product
+                CQ = sys_.cov_spokes @ Q
+                S = CQ[: 3 * n_a].reshape(n_a, 3, 3)
+            else:
+                S = (sys_.cov @ Q).reshape(n_a, 3, 3)
             R = fit_rotations(S, self.rotation_method)
             if accelerate:
                 # The energy of x's cells with their optimal rotations, nearly free from the local
                 # step: sum w |e'|^2 + sum w |e|^2 - 2 sum_i tr(R_i S_i) (e rest, e' deformed spokes).
-                energy = float(np.sum(Q * (sys_.spokes @ Q)) + sys_.rest_spokes - 2.0 * np.einsum("nab,nba->", R, S))
+                energy = float(np.sum(Q * CQ[3 * n_a :]) + sys_.rest_spokes - 2.0 * np.einsum("nab,nba->", R, S))
                 if x_extrapolated and energy > energies[-1]:
                     # The extrapolation overshot: take the plain step from the last accepted iterate.
                     anderson.restart()

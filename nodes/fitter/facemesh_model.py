@@ -8,11 +8,14 @@ placeholder built from the tessellation alone (:func:`_placeholder_facemesh_neut
 
 from __future__ import annotations
 
+import hashlib
+import os
+
 import numpy as np
 
 from facesculpt.geometry.boundary_loops import boundary_loops
 from facesculpt.nodes.fitter.model import ModelFormatError, MorphableModel
-from facesculpt.paths import model_file
+from facesculpt.paths import model_file, model_home
 
 #: MediaPipe face-mesh vertex of each semantic landmark (the mesh's published keypoint annotations).
 FACEMESH_SEMANTIC = {
@@ -38,7 +41,7 @@ def facemesh_model(neutral: np.ndarray | None = None) -> MorphableModel:
     source = "facemesh tessellation from facesculpt setup"
     texcoords = np.zeros((0, 2), np.float32)
     if neutral is None:
-        neutral = _placeholder_facemesh_neutral(triangles)
+        neutral = _stored_placeholder(triangles)
         source += "; placeholder neutral (learned from frames when fitting)"
     neutral = normalise_facemesh_neutral(np.asarray(neutral, np.float32))
     sem = {k: v for k, v in FACEMESH_SEMANTIC.items()}
@@ -86,13 +89,33 @@ def normalise_facemesh_neutral(points: np.ndarray) -> np.ndarray:
     return (centred * (FACEMESH_EYE_CORNER_MM / dist)).astype(np.float32)
 
 
+def _stored_placeholder(triangles: np.ndarray) -> np.ndarray:
+    """:func:`_placeholder_facemesh_neutral` of ``triangles``, computed once and kept beside the
+    tessellation in the model home (named by a hash of ``triangles``, so a new tessellation gets
+    its own): every fitter start loads it instead of solving for it. Where the file cannot be
+    read or written, it is computed."""
+    tri = np.ascontiguousarray(triangles, np.int64)
+    path = model_home() / f"facemesh_placeholder_{hashlib.sha1(tri.tobytes()).hexdigest()[:16]}.npy"
+    try:
+        stored = np.load(path, allow_pickle=False)
+        if stored.shape == (FACEMESH_VERTICES, 3) and np.isfinite(stored).all():
+            return stored
+    except (OSError, ValueError):
+        pass
+    neutral = _placeholder_facemesh_neutral(tri)
+    try:  # written whole, then renamed: a fitter starting beside this one never reads half a file
+        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npy")
+        np.save(tmp, neutral, allow_pickle=False)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return neutral
+
+
 def _placeholder_facemesh_neutral(triangles: np.ndarray) -> np.ndarray:
     """A stand-in neutral before any frame: a flat 2D layout of the tessellation (Tutte embedding
     with the mesh boundary on an ellipse), bulged toward the viewer in the middle, so the model is
     valid and roughly face-shaped. Replaced by the neutral learned from the first frames."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.linalg import spsolve
-
     V = FACEMESH_VERTICES
     tri = np.asarray(triangles, np.int64)
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
@@ -107,15 +130,16 @@ def _placeholder_facemesh_neutral(triangles: np.ndarray) -> np.ndarray:
         ang = np.linspace(0, 2 * np.pi, len(loop), endpoint=False)
         pos[loop] = np.stack([70 * np.cos(ang), 90 * np.sin(ang)], axis=1)
         fixed[loop] = True
-    A = coo_matrix((np.ones(len(uniq) * 2), (np.r_[uniq[:, 0], uniq[:, 1]], np.r_[uniq[:, 1], uniq[:, 0]])), shape=(V, V)).tocsr()
-    deg = np.asarray(A.sum(axis=1)).ravel()
+    # The graph Laplacian, dense: 468 vertices solve in milliseconds with numpy alone (scipy's
+    # import would lengthen every fitter's start-up, a respawned node's time away).
+    L = np.zeros((V, V))
+    L[uniq[:, 0], uniq[:, 1]] = -1.0
+    L[uniq[:, 1], uniq[:, 0]] = -1.0
+    L[np.arange(V), np.arange(V)] = -L.sum(axis=1)
     free = ~fixed
     if free.any() and fixed.any():
-        from scipy.sparse import diags
-
-        L = (diags(deg) - A).tocsr()
-        rhs = -L[free][:, fixed] @ pos[fixed]
-        pos[free] = np.stack([spsolve(L[free][:, free], rhs[:, k]) for k in range(2)], axis=1)
+        rhs = -L[np.ix_(free, fixed)] @ pos[fixed]
+        pos[free] = np.linalg.solve(L[np.ix_(free, free)], rhs)
     r2 = (pos[:, 0] / 70) ** 2 + (pos[:, 1] / 90) ** 2
     z = 40 * np.clip(1 - r2, 0, None)
     pts = np.column_stack([pos, z])

@@ -206,11 +206,15 @@ def make_fitter(model: MorphableModel | str = "facemesh", config: FitterConfig |
     :func:`.model.load_model`): dense when ``model.dense``, sparse otherwise. config: the options
     (default :class:`FitterConfig`'s); image_size (W, H) px; K (3, 3) intrinsics or None.
     Raises :class:`FitError` for a bad image size, K or projection."""
-    # The two fitters subclass Fitter (above): imported here, where both are known.
-    from facesculpt.nodes.fitter.dense_fitter import DenseFitter
-    from facesculpt.nodes.fitter.sparse_fitter import SparseFitter
-
+    # The two fitters subclass Fitter (above): imported here, and only the one used (the sparse
+    # one brings scipy, which would lengthen a respawned dense fitter's start-up).
     model = model if isinstance(model, MorphableModel) else load_model(model)
     config = FitterConfig() if config is None else config
     camera = FitCamera.make(image_size, K, config.projection)
-    return (DenseFitter if model.dense else SparseFitter)(model, config, camera)
+    if model.dense:
+        from facesculpt.nodes.fitter.dense_fitter import DenseFitter
+
+        return DenseFitter(model, config, camera)
+    from facesculpt.nodes.fitter.sparse_fitter import SparseFitter
+
+    return SparseFitter(model, config, camera)

@@ -19,7 +19,6 @@ see :class:`IdentityAccumulator`.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import lsq_linear, nnls
 
 
 def correspondence_rows(basis: np.ndarray, vertices: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -156,6 +155,10 @@ def _bounded_quadratic(Q: np.ndarray, q: np.ndarray, lower, upper) -> np.ndarray
     Q = 0.5 * (Q + Q.T) + 1e-12 * max(np.trace(Q), 1e-30) / K * np.eye(K)
     if not np.isfinite(lo).any() and not np.isfinite(hi).any():
         return np.linalg.solve(Q, q)
+    # Imported here, not at the top: a fitter that never bounds its coefficients (the dense one)
+    # starts without scipy, which would lengthen a respawned fitter's time away.
+    from scipy.optimize import lsq_linear, nnls
+
     L = np.linalg.cholesky(Q)
     M = L.T
     y = np.linalg.solve(L, q)

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from facesculpt.geometry.point_bounds import point_bounds
 
@@ -89,6 +88,10 @@ def surface_features(grey: np.ndarray, projected: np.ndarray, usable: np.ndarray
             pixels = np.vstack([pixels, corners.reshape(-1, 2).astype(np.float64) + [x0, y0]])
     if len(pixels) < 10:
         return None
+    # Imported here, not at the top: only refine=appearance comes here, and importing scipy would
+    # lengthen every fitter's start-up (a respawned node's time away).
+    from scipy.spatial import cKDTree
+
     # built for one query: an unbalanced tree builds in half the time and finds the same neighbours
     dist, nearest = cKDTree(px, balanced_tree=False, compact_nodes=False).query(pixels, k=3)
     weights = 1.0 / np.maximum(dist, 0.5)
