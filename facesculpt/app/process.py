@@ -420,8 +420,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
     pose_options, fit_options = _pose_options(args), _fit_options(args)
     source = open_input(args.input)
-    fps = source.native_fps
-    total = source.frame_count or None
+    fps, total = source.native_fps, source.frame_count or None
     if total and args.max_frames:
         total = min(total, args.max_frames)
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input,

@@ -58,7 +58,7 @@ from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
-from .sinc_sampling import Upsampled
+from .sinc_sampling import Upsampled, upsampled_around
 from .source_map import UNCOVERED, SourceMapRenderer
 from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import TextureAtlas, blend_atlas
@@ -310,7 +310,8 @@ class Compositor:
         crop = out[y0:y1, x0:x1]
         write = changed | (covered & (fill != 0))
         shared = source is not None and dragged is not None   # two samplings of the frame: one upsampling
-        upsampled = self._upsampled(frame_bgr, box, write | fill.view(bool), offset) if shared else None
+        upsampled = (upsampled_around(frame_bgr, box, write | fill.view(bool), offset)
+                     if shared and self.interpolation == "sinc" else None)
         t_up = time.perf_counter() - t4   # the sampling's (the texture stage's), though the fill uses it first
         if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
             self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)),
@@ -482,21 +483,6 @@ class Compositor:
         self.atlas_region = np.zeros(offsets.shape[:2], np.float32)
         self.atlas_region[block] = blend_atlas(warped, offsets[block], self.maps.read_extra(box)[block],
                                                changed[block], self.atlas)
-
-    def _upsampled(self, frame: np.ndarray, box: tuple[int, int, int, int], need: np.ndarray,
-                   offset: np.ndarray) -> Upsampled | None:
-        """With the sinc: ``frame`` upsampled once (:class:`.sinc_sampling.Upsampled`) where the
-        ``need`` pixels (h, w) bool of ``box`` read it, for both the drag fill and the face: their
-        bounding box grown by the vertices' ``offset`` (V, 2) px each way (every offset of the source
-        map is a weighted mean of those). None for other kernels or nothing needed."""
-        rect = bounding_slices(need) if self.interpolation == "sinc" else None
-        if rect is None:
-            return None
-        lo = np.ceil(np.maximum(-offset.min(axis=0), 0.0)).astype(int) + 1
-        hi = np.ceil(np.maximum(offset.max(axis=0), 0.0)).astype(int) + 1
-        (rows, cols), (x0, y0) = rect, box[:2]
-        return Upsampled(frame, (x0 + cols.start - lo[0], y0 + rows.start - lo[1],
-                                 x0 + cols.stop + hi[0], y0 + rows.stop + hi[1]))
 
     def _work_box(self, projected: np.ndarray, dst_px: np.ndarray, moved: np.ndarray,
                   head_motion: bool = False) -> tuple[int, int, int, int] | None:

@@ -78,6 +78,21 @@ class Upsampled:
                 and x_hi <= self.x_hi and y_hi <= self.y_hi)
 
 
+def upsampled_around(image: np.ndarray, box: tuple[int, int, int, int], need: np.ndarray,
+                     offset: np.ndarray) -> Upsampled | None:
+    """``image`` (H, W, 3) uint8 upsampled once where the ``need`` pixels (h, w) bool of ``box``
+    (x0, y0, x1, y1) px read it, e.g. for both a drag fill and a face: their bounding box grown by
+    the vertices' ``offset`` (V, 2) px each way (every offset of a source map is a weighted mean of
+    those). None when nothing is needed."""
+    x, y, w, h = cv2.boundingRect(need.view(np.uint8))
+    if w == 0 or h == 0:
+        return None
+    lo = np.ceil(np.maximum(-offset.min(axis=0), 0.0)).astype(int) + 1
+    hi = np.ceil(np.maximum(offset.max(axis=0), 0.0)).astype(int) + 1
+    x0, y0 = box[:2]
+    return Upsampled(image, (x0 + x - lo[0], y0 + y - lo[1], x0 + x + w + hi[0], y0 + y + h + hi[1]))
+
+
 def sample_sinc(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, upsampled: Upsampled | None = None
                 ) -> np.ndarray:
     """(h', w', 3) uint8: ``image`` (H, W, 3) uint8 sampled at the positions (``map_x``,
