@@ -15,12 +15,15 @@ from facesculpt.nodes.fitter.smoothing import OneEuroFilter
 
 
 class PoseSmoother:
-    """min_cutoff Hz; beta Hz per unit/s for rotation (rad), scale and expression; beta_mm Hz
-    per mm/s for translation and vertices; orthographic: t is in pixels, s in px per mm."""
+    """min_cutoff Hz; beta Hz per unit/s for scale and expression; beta_rotation Hz per rad/s for
+    the rotation (None: ``beta``); beta_mm Hz per mm/s for translation and vertices; orthographic:
+    t is in pixels, s in px per mm."""
 
-    def __init__(self, min_cutoff: float, beta: float, beta_mm: float, orthographic: bool):
+    def __init__(self, min_cutoff: float, beta: float, beta_mm: float, orthographic: bool,
+                 beta_rotation: float | None = None):
         self.orthographic = orthographic
-        self._filters = {k: OneEuroFilter(min_cutoff, beta) for k in ("rot", "s", "beta")}
+        self._filters = {k: OneEuroFilter(min_cutoff, beta) for k in ("s", "beta")}
+        self._filters["rot"] = OneEuroFilter(min_cutoff, beta if beta_rotation is None else beta_rotation)
         for k in ("t", "shape"):  # millimetre-valued signals
             self._filters[k] = OneEuroFilter(min_cutoff, beta_mm)
 
