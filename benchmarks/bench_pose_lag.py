@@ -2,7 +2,7 @@
 whose pose is known.
 
     python benchmarks/bench_pose_lag.py [--frames 60] [--still-frames 60] [--scenes 0,1,2,bench]
-        [--variants before,beta 2,...] [--out DIR]
+        [--variants before,default,...] [--oracle] [--out DIR]
 
 Each variant (:data:`VARIANTS`: :class:`FitterConfig` fields changed from the defaults) fits the
 Surrey model (``Pipeline``, default settings otherwise, as ``process`` fits) over
@@ -22,6 +22,7 @@ and ``facesculpt setup``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -40,9 +41,12 @@ from realism.scene import FOV_DEG, make_scene  # noqa: E402
 
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
-#: name -> FitterConfig fields changed from the defaults ("before": the defaults as they are).
+#: name -> FitterConfig fields changed from the defaults ("before": the smoothing before issue
+#: 46's change, one speed coefficient for rotation and expression, 0.05 Hz per mm/s; "default":
+#: the defaults as they are).
 VARIANTS = {
-    "before": {},
+    "before": {"smooth_beta_rotation": None, "smooth_beta_mm": 0.05},
+    "default": {},
     "no smoothing": {"smoothing": False},
     "beta 2": {"smooth_beta": 2.0},
     "beta 5": {"smooth_beta": 5.0},
@@ -50,6 +54,7 @@ VARIANTS = {
     "beta 5 beta_mm 0.5": {"smooth_beta": 5.0, "smooth_beta_mm": 0.5},
     "beta 10": {"smooth_beta": 10.0},
     "rotation 5": {"smooth_beta_rotation": 5.0},
+    "rotation 5 mm 0.1": {"smooth_beta_rotation": 5.0, "smooth_beta_mm": 0.1},
     "rotation 5 mm 0.2": {"smooth_beta_rotation": 5.0, "smooth_beta_mm": 0.2},
     "rotation 10 mm 0.2": {"smooth_beta_rotation": 10.0, "smooth_beta_mm": 0.2},
     "beta 10 beta_mm 0.2": {"smooth_beta": 10.0, "smooth_beta_mm": 0.2},
@@ -59,6 +64,24 @@ VARIANTS = {
     "outline off": {"outline": "off"},
     "no smoothing no rotation prior": {"smoothing": False, "rotation_prior_px": 0.0},
 }
+
+
+@contextlib.contextmanager
+def true_points(scene, size: tuple[int, int], on: bool):
+    """With ``on``: every landmark detector of this process gives ``scene``'s true inner iBUG
+    points (:mod:`realism.landmark_oracle`, KEEP 0; the jaw line and the network's depth stay the
+    detector's), counted from this fit's first frame; the detector as it was afterwards."""
+    from realism import landmark_oracle
+
+    from facesculpt.nodes.landmarks.detector import LandmarkDetector
+
+    saved = LandmarkDetector.track, LandmarkDetector.reset
+    if on:
+        landmark_oracle.install(landmark_oracle.true_landmarks(scene), size, 0.0)
+    try:
+        yield
+    finally:
+        LandmarkDetector.track, LandmarkDetector.reset = saved
 
 
 def still_tracks(frames: list, config: dict) -> np.ndarray:
@@ -85,6 +108,8 @@ def main(argv=None) -> int:
     p.add_argument("--still-frames", type=int, default=60, help="frames of the still head (0: none)")
     p.add_argument("--scenes", default="0,1,2,bench", help="calibration scene indices and/or 'bench'")
     p.add_argument("--variants", default=",".join(VARIANTS), help="names of VARIANTS, comma-separated")
+    p.add_argument("--oracle", action="store_true",
+                   help="the moving sequences fitted to their true inner points (the fitter's own error)")
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
     data = shared_data_dir()
@@ -96,20 +121,27 @@ def main(argv=None) -> int:
     workers = max(1, min(4, len(os.sched_getaffinity(0))))
     variants = [v for v in args.variants.split(",") if v]
     results = {}
+    # every scene is rendered before the first fit: the rendering processes fork, which a process
+    # that runs the networks' threads must not do
+    rendered = []
     for name in [s for s in args.scenes.split(",") if s]:
         scene = (make_scene(data, frames=args.frames) if name == "bench"
                  else make_calibration_scene(data, CALIBRATION_SCENES[int(name)], args.frames))
-        truths = render(scene, workers)
+        rendered.append((name, scene, render(scene, workers)))
+    if args.still_frames:
+        still = make_scene(data, frames=args.still_frames, motion="still")
+        still_frames = [t["image"] for t in render(still, workers)]
+    for name, scene, truths in rendered:
         frames = [t["image"] for t in truths]
-        label = "benchmark (untouched)" if name == "bench" else f"calibration {name}"
+        label = ("benchmark (untouched)" if name == "bench" else f"calibration {name}") + (", true points" if args.oracle else "")
+        size = (frames[0].shape[1], frames[0].shape[0])
         for v in variants:
-            results.setdefault(label, {})[v] = fitted_rotation(scene, frames, truths, "sfm", config=VARIANTS[v])
+            with true_points(scene, size, args.oracle):
+                results.setdefault(label, {})[v] = fitted_rotation(scene, frames, truths, "sfm", config=VARIANTS[v])
             print(label, v, {k: round(x, 3) for k, x in results[label][v].items()}, flush=True)
     if args.still_frames:
-        scene = make_scene(data, frames=args.still_frames, motion="still")
-        frames = [t["image"] for t in render(scene, workers)]
         for v in variants:
-            tracks = still_tracks(frames, VARIANTS[v])
+            tracks = still_tracks(still_frames, VARIANTS[v])
             results.setdefault("still head jitter px", {})[v] = float(jitter(tracks[STILL_SKIP_FRAMES:])[0])
             print("still", v, results["still head jitter px"][v], flush=True)
     lines = ["| sequence | variant | rotation error deg | pitch error mean / sd deg | r(pitch error, pitch) "
