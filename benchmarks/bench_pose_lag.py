@@ -54,6 +54,8 @@ VARIANTS = {
     "beta 5 beta_mm 0.5": {"smooth_beta": 5.0, "smooth_beta_mm": 0.5},
     "beta 10": {"smooth_beta": 10.0},
     "rotation 5": {"smooth_beta_rotation": 5.0},
+    "predict": {"smooth_predict_rotation": 0.5, "smooth_predict_mm": 50.0},
+    "predict rotation": {"smooth_predict_rotation": 0.5},
     "rotation 5 mm 0.1": {"smooth_beta_rotation": 5.0, "smooth_beta_mm": 0.1},
     "rotation 5 mm 0.2": {"smooth_beta_rotation": 5.0, "smooth_beta_mm": 0.2},
     "rotation 10 mm 0.2": {"smooth_beta_rotation": 10.0, "smooth_beta_mm": 0.2},

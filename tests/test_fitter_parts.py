@@ -139,3 +139,18 @@ def test_pose_smoother_rotation_beta_cuts_the_lag_of_a_turn_and_leaves_the_expre
     np.testing.assert_allclose(a, b)   # the expression's filter keeps smooth_beta
     with pytest.raises(ValueError, match="smooth_beta_rotation"):
         FitterConfig(smooth_beta_rotation=-1.0)
+
+
+def test_one_euro_prediction_follows_a_nod_without_lag_and_leaves_a_still_signal_as_it_was():
+    def run(predict):
+        f = OneEuroFilter(min_cutoff=1.5, beta=0.5, predict_speed=predict)
+        nod = [np.radians(16) * np.sin(2 * np.pi * i / 41) for i in range(100)]   # 1.07 rad/s at most
+        err = [f(np.array([a]), i / 25)[0] - a for i, a in enumerate(nod)]
+        f.reset()
+        rng = np.random.default_rng(0)
+        still = [f(rng.normal(0, 0.005, 1), i / 25)[0] for i in range(300)]
+        return np.sqrt(np.mean(np.square(err[41:]))), np.std(still[25:])
+
+    (lag, noise), (lag_p, noise_p) = run(0.0), run(0.5)
+    assert lag_p < 0.5 * lag
+    assert noise_p < 1.05 * noise
