@@ -131,8 +131,11 @@ def test_pose_smoother_rotation_beta_cuts_the_lag_of_a_turn_and_leaves_the_expre
         return float(np.degrees(np.linalg.norm(pose.rotation_log(Rs @ R.T))))
 
     shared = PoseSmoother(1.5, 0.5, 0.05, orthographic=False)
+    shared_lag = lag_deg(shared)
+    shared.reset()
     own = PoseSmoother(1.5, 0.5, 0.05, orthographic=False, beta_rotation=5.0)
-    assert lag_deg(own) < 0.5 * lag_deg(shared)
+    assert lag_deg(own) < 0.5 * shared_lag
+    assert lag_deg(PoseSmoother(1.5, 0.5, 0.05, orthographic=False, predict_rotation=0.5)) < 0.5 * shared_lag
     step = [np.zeros(3), np.ones(3)]
     for i, beta in enumerate(step):
         a, b = shared.expression(beta, i / 25), own.expression(beta, i / 25)

@@ -25,9 +25,10 @@ class PoseSmoother:
                  beta_rotation: float | None = None, predict_rotation: float = 0.0, predict_mm: float = 0.0):
         self.orthographic = orthographic
         self._filters = {k: OneEuroFilter(min_cutoff, beta) for k in ("s", "beta")}
-        self._filters["rot"] = OneEuroFilter(min_cutoff, beta if beta_rotation is None else beta_rotation)
-        for k in ("t", "shape"):  # millimetre-valued signals
-            self._filters[k] = OneEuroFilter(min_cutoff, beta_mm)
+        self._filters["rot"] = OneEuroFilter(min_cutoff, beta if beta_rotation is None else beta_rotation,
+                                             predict_speed=predict_rotation)
+        self._filters["t"] = OneEuroFilter(min_cutoff, beta_mm, predict_speed=predict_mm)
+        self._filters["shape"] = OneEuroFilter(min_cutoff, beta_mm)   # millimetre-valued signals
 
     def reset(self) -> None:
         """Forget the past: the next values pass through unfiltered."""
