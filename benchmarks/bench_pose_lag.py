@@ -41,9 +41,9 @@ from realism.scene import FOV_DEG, make_scene  # noqa: E402
 
 from facesculpt.paths import shared_data_dir  # noqa: E402
 
-#: name -> FitterConfig fields changed from the defaults ("before": the smoothing before issue
-#: 46's change, one speed coefficient for rotation and expression, 0.05 Hz per mm/s; "default":
-#: the defaults as they are).
+#: name -> FitterConfig fields changed from the defaults ("before": the smoothing as it was before
+#: issue 46's options, one speed coefficient for rotation and expression, 0.05 Hz per mm/s, no
+#: prediction; "default": the defaults as they are).
 VARIANTS = {
     "before": {"smooth_beta_rotation": None, "smooth_beta_mm": 0.05},
     "default": {},
