@@ -118,3 +118,42 @@ def test_one_euro_filter_steadies_noise_and_follows_motion():
     assert abs(ramp[-1] - 10.0 * 89 / 30) < 1.0  # lag well under a tenth of a second of motion
     with pytest.raises(ValueError):
         OneEuroFilter(min_cutoff=0)
+
+
+def test_pose_smoother_rotation_beta_cuts_the_lag_of_a_turn_and_leaves_the_expression_filter():
+    from facesculpt.nodes.fitter.config import FitterConfig
+    from facesculpt.nodes.fitter.pose_smoothing import PoseSmoother
+
+    def lag_deg(smoother):
+        for i in range(50):  # a nod at 0.5 rad/s for 2 s, 25 frames/s
+            R = pose.rodrigues(np.array([0.5 * i / 25, 0.0, 0.0])) @ pose.FRONTAL
+            Rs, _, _ = smoother.rigid(R, np.zeros(3), 1.0, i / 25)
+        return float(np.degrees(np.linalg.norm(pose.rotation_log(Rs @ R.T))))
+
+    shared = PoseSmoother(1.5, 0.5, 0.05, orthographic=False)
+    shared_lag = lag_deg(shared)
+    shared.reset()
+    own = PoseSmoother(1.5, 0.5, 0.05, orthographic=False, beta_rotation=5.0)
+    assert lag_deg(own) < 0.5 * shared_lag
+    assert lag_deg(PoseSmoother(1.5, 0.5, 0.05, orthographic=False, predict_rotation=0.5)) < 0.5 * shared_lag
+    step = [np.zeros(3), np.ones(3)]
+    for i, beta in enumerate(step):
+        a, b = shared.expression(beta, i / 25), own.expression(beta, i / 25)
+    np.testing.assert_allclose(a, b)   # the expression's filter keeps smooth_beta
+    with pytest.raises(ValueError, match="smooth_beta_rotation"):
+        FitterConfig(smooth_beta_rotation=-1.0)
+
+
+def test_one_euro_prediction_follows_a_nod_without_lag_and_leaves_a_still_signal_as_it_was():
+    def run(predict):
+        f = OneEuroFilter(min_cutoff=1.5, beta=0.5, predict_speed=predict)
+        nod = [np.radians(16) * np.sin(2 * np.pi * i / 41) for i in range(100)]   # 1.07 rad/s at most
+        err = [f(np.array([a]), i / 25)[0] - a for i, a in enumerate(nod)]
+        f.reset()
+        rng = np.random.default_rng(0)
+        still = [f(rng.normal(0, 0.005, 1), i / 25)[0] for i in range(300)]
+        return np.sqrt(np.mean(np.square(err[41:]))), np.std(still[25:])
+
+    (lag, noise), (lag_p, noise_p) = run(0.0), run(0.5)
+    assert lag_p < 0.5 * lag
+    assert noise_p < 1.05 * noise

@@ -44,7 +44,11 @@ class FitterConfig:
     identity_max_frames (> 0): cap on the evidence's total weight, in frames.
     smoothing: One Euro filtering of the pose, the expression and (dense) the fitted shape;
     smooth_min_cutoff (> 0, Hz); smooth_beta (>= 0, Hz per unit/s) for rotation (rad), scale
-    and expression; smooth_beta_mm (>= 0, Hz per mm/s) for translation and dense vertices.
+    and expression; smooth_beta_mm (>= 0, Hz per mm/s) for translation and dense vertices;
+    smooth_beta_rotation (>= 0, Hz per rad/s, or None: ``smooth_beta``) for the rotation alone;
+    smooth_predict_rotation (>= 0, rad/s) and smooth_predict_mm (>= 0, mm/s; 0: off): the
+    rotation's and the translation's filters predict at constant velocity, weighed in as their
+    speed clears this (a still head keeps the plain filter).
     neutral_frames (>= 1): frames averaged into the learned neutral reference (dense) and into
     the reference of the network's 3D points (sparse, ``rotation_prior_px``).
     warm_start_gap_s (> 0, s): a frame later than this after the previous one (or earlier than
@@ -78,6 +82,9 @@ class FitterConfig:
     smooth_min_cutoff: float = 1.5
     smooth_beta: float = 0.5
     smooth_beta_mm: float = 0.05
+    smooth_beta_rotation: float | None = None
+    smooth_predict_rotation: float = 0.0
+    smooth_predict_mm: float = 0.0
     neutral_frames: int = 30
     warm_start_gap_s: float = 0.5
     correction_weight: float = 20.0
@@ -97,9 +104,12 @@ class FitterConfig:
         _at_least("min_landmarks", self.min_landmarks, 4)
         if self.tracking_iterations is not None:
             _at_least("tracking_iterations", self.tracking_iterations, 1, "(or None)")
+        if self.smooth_beta_rotation is not None and not self.smooth_beta_rotation >= 0:
+            raise FitError(f"smooth_beta_rotation must be >= 0 (or None), got {self.smooth_beta_rotation}")
         if self.num_shape is not None:
             _at_least("num_shape", self.num_shape, 0, "(or None)")
-        for name in ("shape_lambda", "expression_lambda", "smooth_beta", "smooth_beta_mm", "rotation_prior_px"):
+        for name in ("shape_lambda", "expression_lambda", "smooth_beta", "smooth_beta_mm", "rotation_prior_px",
+                     "smooth_predict_rotation", "smooth_predict_mm"):
             if not getattr(self, name) >= 0:
                 raise FitError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("outline_weight", "identity_max_frames", "smooth_min_cutoff", "warm_start_gap_s",
@@ -113,7 +123,7 @@ class FitterConfig:
             value = getattr(self, f.name)
             if f.type in ("int", "int | None") and value is not None:
                 object.__setattr__(self, f.name, int(value))
-            elif f.type == "float":
+            elif f.type in ("float", "float | None") and value is not None:
                 object.__setattr__(self, f.name, float(value))
 
 

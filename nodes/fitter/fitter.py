@@ -39,7 +39,9 @@ class Fitter:
         self.camera = camera
         self._names = model.landmark_index()
         self.smoother = PoseSmoother(config.smooth_min_cutoff, config.smooth_beta, config.smooth_beta_mm,
-                                     orthographic=not camera.perspective)
+                                     orthographic=not camera.perspective,
+                                     beta_rotation=config.smooth_beta_rotation,
+                                     predict_rotation=config.smooth_predict_rotation, predict_mm=config.smooth_predict_mm)
         self.neutral_version = 0  # changes of the neutral (dense: each learned frame)
         self._rigid_smoothing_deferred = False   # fit(): the subclass leaves the pose unsmoothed
         self.refiner = AppearanceRefiner(

@@ -15,14 +15,20 @@ from facesculpt.nodes.fitter.smoothing import OneEuroFilter
 
 
 class PoseSmoother:
-    """min_cutoff Hz; beta Hz per unit/s for rotation (rad), scale and expression; beta_mm Hz
-    per mm/s for translation and vertices; orthographic: t is in pixels, s in px per mm."""
+    """min_cutoff Hz; beta Hz per unit/s for scale and expression; beta_rotation Hz per rad/s for
+    the rotation (None: ``beta``); beta_mm Hz per mm/s for translation and vertices;
+    predict_rotation (rad/s) and predict_mm (mm/s; 0: off): the rotation's and the translation's
+    filters predict at constant velocity, weighed in as the speed clears them
+    (:class:`.smoothing.OneEuroFilter`); orthographic: t is in pixels, s in px per mm."""
 
-    def __init__(self, min_cutoff: float, beta: float, beta_mm: float, orthographic: bool):
+    def __init__(self, min_cutoff: float, beta: float, beta_mm: float, orthographic: bool,
+                 beta_rotation: float | None = None, predict_rotation: float = 0.0, predict_mm: float = 0.0):
         self.orthographic = orthographic
-        self._filters = {k: OneEuroFilter(min_cutoff, beta) for k in ("rot", "s", "beta")}
-        for k in ("t", "shape"):  # millimetre-valued signals
-            self._filters[k] = OneEuroFilter(min_cutoff, beta_mm)
+        self._filters = {k: OneEuroFilter(min_cutoff, beta) for k in ("s", "beta")}
+        self._filters["rot"] = OneEuroFilter(min_cutoff, beta if beta_rotation is None else beta_rotation,
+                                             predict_speed=predict_rotation)
+        self._filters["t"] = OneEuroFilter(min_cutoff, beta_mm, predict_speed=predict_mm)
+        self._filters["shape"] = OneEuroFilter(min_cutoff, beta_mm)   # millimetre-valued signals
 
     def reset(self) -> None:
         """Forget the past: the next values pass through unfiltered."""

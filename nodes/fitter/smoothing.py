@@ -21,14 +21,17 @@ def _alpha(cutoff: np.ndarray | float, dt: float) -> np.ndarray:
 
 class OneEuroFilter:
     """One Euro filter over a fixed-shape array. ``min_cutoff`` Hz, ``beta`` (Hz per unit/s),
-    ``d_cutoff`` Hz. Call with the value and its time in seconds; returns the filtered value."""
+    ``d_cutoff`` Hz; ``predict_speed`` (units/s, 0: off): each step starts from the last output
+    moved on at the smoothed velocity, weighed by speed² / (speed² + predict_speed²), so a signal
+    at constant speed is followed without lag while a still one is filtered as without it. Call with the value and its time in seconds; returns the filtered value."""
 
-    def __init__(self, min_cutoff: float = 1.0, beta: float = 0.05, d_cutoff: float = 1.0):
+    def __init__(self, min_cutoff: float = 1.0, beta: float = 0.05, d_cutoff: float = 1.0, predict_speed: float = 0.0):
         if min_cutoff <= 0 or d_cutoff <= 0 or beta < 0:
             raise ValueError("One Euro filter needs min_cutoff > 0, d_cutoff > 0, beta >= 0")
         self.min_cutoff = float(min_cutoff)
         self.beta = float(beta)
         self.d_cutoff = float(d_cutoff)
+        self.predict_speed = float(predict_speed)
         self.reset()
 
     def reset(self) -> None:
@@ -47,6 +50,10 @@ class OneEuroFilter:
         dx = (x - self._x) / dt
         self._dx = self._dx + _alpha(self.d_cutoff, dt) * (dx - self._dx)
         cutoff = self.min_cutoff + self.beta * np.abs(self._dx)
-        self._x = self._x + _alpha(cutoff, dt) * (x - self._x)
+        base = self._x
+        if self.predict_speed > 0:  # constant velocity, weighed in as the speed clears predict_speed
+            speed2 = self._dx ** 2
+            base = self._x + speed2 / (speed2 + self.predict_speed ** 2) * self._dx * dt
+        self._x = base + _alpha(cutoff, dt) * (x - base)
         self._t = float(t)
         return self._x.copy()
