@@ -31,6 +31,8 @@ from pathlib import Path
 import psutil
 import yaml
 
+from facesculpt.app.bench_graph import node_processes
+
 REPO = Path(__file__).resolve().parents[1]
 KEYS = ("spawned_s", "state_s", "back_s", "node_cpu_s")
 
@@ -55,17 +57,6 @@ def _launch_file(checkout: Path, video: Path, out: Path) -> Path:
         nodes.append(entry)
     out.write_text(yaml.safe_dump({"nodes": nodes}))
     return out
-
-
-def _node_process(launch: psutil.Process, name: str) -> psutil.Process | None:
-    tag = f'"name": "{name}"'
-    for proc in launch.children():
-        try:
-            if any(tag in arg for arg in proc.cmdline()):
-                return proc
-        except psutil.NoSuchProcess:
-            pass
-    return None
 
 
 def _cpu_s(proc: psutil.Process | None) -> float:
@@ -145,7 +136,6 @@ def measure(checkout: Path, node_name: str, kills: int, video: Path) -> list[dic
                 time.sleep(0.5)
                 if time.monotonic() > deadline:
                     raise
-        launch = psutil.Process(proc.pid)
 
         def spin(predicate, timeout):
             end = time.monotonic() + timeout
@@ -157,14 +147,14 @@ def measure(checkout: Path, node_name: str, kills: int, video: Path) -> list[dic
             raise RuntimeError(f"{checkout}: the graph never rendered")
         spin(lambda: False, 3.0)   # past the first frames' model updates
         for _ in range(kills):
-            victim = _node_process(launch, node_name)
+            victim = node_processes(proc.pid).get(node_name)
             if victim is None:
                 raise RuntimeError(f"{checkout}: no {node_name} process")
             victim.send_signal(signal.SIGKILL)
             killed_at, killed_ns = time.monotonic(), time.time_ns()
             new = None
             while new is None and time.monotonic() < killed_at + 10:
-                new = _node_process(launch, node_name)
+                new = node_processes(proc.pid).get(node_name)
                 new = None if new is None or new.pid == victim.pid else new
                 time.sleep(0.005)
             spawned = time.monotonic() - killed_at

@@ -52,7 +52,7 @@ def launch_spec(source: str, model: str, camera_fps: float, size: tuple[int, int
     ]}
 
 
-def _node_processes(launch_pid: int) -> dict:
+def node_processes(launch_pid: int) -> dict:
     """Node name -> psutil.Process of the graph started by the launcher ``launch_pid``."""
     import psutil
 
@@ -218,7 +218,7 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
                   log_path)
         if not scenario:
             spin_for(warmup_s)
-        procs = _node_processes(proc.pid)
+        procs = node_processes(proc.pid)
         cpu0 = _cpu_seconds(procs)
         t0, t0_ns = time.monotonic(), time.time_ns()  # before the clear: every frame kept arrives after t0_ns
         for kept in (arrivals, diagnostics, camera_sent):
