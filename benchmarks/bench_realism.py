@@ -50,7 +50,7 @@ libigl: ``realism/paper_arap.py``); several, comma-separated, score each process
 once more from each DIR (as ``--pythonpath``), as rows ``MODEL [LABEL]`` of the same run. Every row
 also gives how far the lower lip (iBUG 58) moved along the edit's image displacement (median px).
 
-Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
+Run: ``python -m benchmarks.bench_realism [--out DIR] [--frames 90] [--models facemesh,sfm]
 [--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--no-oracle] [--pythonpath DIR]
 [--process-args "--fill drag"] [--landmark-oracle KEEP] [--truth-edit falloff,arap,paper]
 [--variants old=DIR,...]``
@@ -73,19 +73,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, write_preset  # noqa: E402
-from realism.landmark_oracle import MODULE as LANDMARK_ORACLE  # noqa: E402
-from realism.landmark_oracle import process_environment, true_landmarks, write_true_landmarks  # noqa: E402
-from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
-from realism.oracle import deformer_displacement, oracle_frames  # noqa: E402
-from realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
-from realism.scene import make_scene  # noqa: E402
-from realism.scoring import landing, landing_by_yaw, score_frame, score_real_frame, summarise  # noqa: E402
-from realism.sequences import Sequences, read_video, render_sequences, run_process, write_lossless  # noqa: E402
-
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, write_preset
+from benchmarks.realism.landmark_oracle import MODULE as LANDMARK_ORACLE
+from benchmarks.realism.landmark_oracle import process_environment, true_landmarks, write_true_landmarks
+from benchmarks.realism.metrics import Pooled, liquify, shift_along
+from benchmarks.realism.oracle import deformer_displacement, oracle_frames
+from benchmarks.realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table
+from benchmarks.realism.scene import make_scene
+from benchmarks.realism.scoring import landing, landing_by_yaw, score_frame, score_real_frame, summarise
+from benchmarks.realism.sequences import Sequences, read_video, render_sequences, run_process, write_lossless
+from facesculpt.paths import shared_data_dir
 
 REPO = Path(__file__).resolve().parent.parent
 #: The rows that take the fit away (``--oracle``): the true head through the project's compositor.

@@ -53,7 +53,7 @@ def test_every_page_the_readme_links_to_exists():
 
 def test_every_docs_page_the_code_names_exists():
     """Help texts and docstrings point at documentation pages by path (docs/guide/new-views.md)."""
-    named = {(path.relative_to(REPO), page) for folder in ("facesculpt", "nodes", "msgs", "examples", "benchmarks")
+    named = {(path.relative_to(REPO), page) for folder in ("facesculpt", "examples", "benchmarks")
              for path in (REPO / folder).rglob("*.py")
              for page in re.findall(r"docs/[\w/.-]+?\.md", path.read_text())}
     assert named

@@ -86,7 +86,6 @@ def test_the_sfm_fit_of_exact_landmarks_recovers_the_true_expression(data_dir):
     (no detector) through the SFM fitter give expression parameters that follow the true ones."""
     if not (data_dir / "sfm").is_dir() or not (data_dir / "video" / "s18.mp4").is_file():
         pytest.skip("needs ../shared/data/sfm and video/s18.mp4")
-    sys.path.insert(0, str(REPO))
     from argparse import Namespace
 
     from benchmarks.bench_expression_synthetic import fit_sequence

@@ -221,13 +221,10 @@ def test_the_refinement_brings_the_synthetic_heads_outline_and_shape_closer(data
     """SFM on the realism benchmark's synthetic head (true pose and shape known): refined, the
     vertices at the head's outline land at least a fifth closer to the true ones than the landmark fit's, and the
     learned neutral is closer to the true shape (the person's size comes from the pixels)."""
-    import sys
-    from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-    from bench_appearance import run
-    from realism.posed import render_all
-    from realism.scene import make_scene
+    from benchmarks.bench_appearance import run
+    from benchmarks.realism.posed import render_all
+    from benchmarks.realism.scene import make_scene
 
     scene = make_scene(data_dir, frames=45)
     truths = render_all(scene, [(0.0, 0.0)], 2)[(0.0, 0.0)]

@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 import pytest
 from conftest import free_port
-from renderer_scene import read_frames
 
+from benchmarks.renderer_scene import read_frames
 from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER
 
 

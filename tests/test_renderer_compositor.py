@@ -13,7 +13,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import (
+
+from benchmarks.renderer_scene import (
     dilate,
     issue_edit,
     place_fitted,
@@ -22,7 +23,6 @@ from renderer_scene import (
     rasterize_region,
     read_frames,
 )
-
 from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.renderer import Compositor
 from facesculpt.nodes.renderer.gl_context import create_headless_context

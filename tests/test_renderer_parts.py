@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import read_frames
 
+from benchmarks.renderer_scene import read_frames
 from facesculpt.geometry import boundary_loops, point_bounds
 from facesculpt.geometry.close_holes import close_holes
 from facesculpt.geometry.subdivision import loop_subdivision

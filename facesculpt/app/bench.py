@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
+from facesculpt.app.bench_graph import SIZE
 from facesculpt.app.bench_reference import add_ratios, as_ratio, reference_workload
 
-SIZE = (856, 480)
 FRONTAL_YAW_DEG = 20.0
 PRESETS = ("nose_longer.json", "chin.json", "cheeks.json")  # the paper's Fig. 6e, in order
 
@@ -159,7 +159,8 @@ def read_frames(spec: str, count: int, size: tuple[int, int] | None = None
                 ) -> tuple[list[np.ndarray], float, tuple[int, int]]:
     """The first ``count`` frames of a camera source (a video loops) at ``size`` (scaled to cover
     it and cropped) or else :func:`bench_size`, its fps and that size."""
-    from facesculpt.nodes.camera.sources import open_source, resize_frame
+    from facesculpt.nodes.camera.source_opening import open_source
+    from facesculpt.nodes.camera.sources import resize_frame
 
     source = open_source(spec, loop=True)
     mode = "fill" if size else "stretch"  # bench_size keeps the input's aspect: nothing to crop

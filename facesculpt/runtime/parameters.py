@@ -26,7 +26,7 @@ from typing import Any
 
 import yaml
 
-from facesculpt.runtime.topics import topic_problem
+from facesculpt.runtime.topic_names import topic_problem
 
 # Exit status of a node stopped by a parameter it cannot run with.
 EXIT_BAD_PARAMETER = 2

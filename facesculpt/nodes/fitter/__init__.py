@@ -10,7 +10,7 @@ files in memory.
 
 Files, one concept each: ``model.py`` (the model format, .npz save/load), ``eos_import.py``,
 ``eos_reader.py``, ``facemesh_model.py`` (the built-in model); ``config.py`` (the options),
-``fitter.py`` (what both fitters share, :func:`make_fitter`), ``sparse_fitter.py``,
+``model_loading.py`` (:func:`load_model`), ``fitter.py`` (what both fitters share), ``fitter_factory.py`` (:func:`make_fitter`), ``sparse_fitter.py``,
 ``dense_fitter.py``, ``result.py``, ``fit_camera.py``, ``pose.py``, ``fitting.py`` (the
 coefficient solves), ``outline.py``, ``pose_smoothing.py`` and ``smoothing.py`` (One Euro),
 ``neutral_learning.py``; ``stage.py`` (the stage, :func:`fit_landmarks`); ``faces.py`` (several faces:
@@ -19,12 +19,8 @@ the selection and one fitter per face, :class:`FaceFitters`); ``node.py`` (the n
 
 from facesculpt.nodes.fitter.eos_import import import_eos
 from facesculpt.nodes.fitter.facemesh_model import facemesh_model
-from facesculpt.nodes.fitter.model import (
-    ModelFormatError,
-    MorphableModel,
-    load_model,
-    save_model,
-)
+from facesculpt.nodes.fitter.model import ModelFormatError, MorphableModel, save_model
+from facesculpt.nodes.fitter.model_loading import load_model
 
 __all__ = [
     "FitError",
@@ -48,7 +44,7 @@ __all__ = [
 
 # The fitters pull in scipy; load them only when asked for.
 _LAZY = {
-    "Fitter": "fitter", "make_fitter": "fitter", "FitResult": "result", "FitError": "result",
+    "Fitter": "fitter", "make_fitter": "fitter_factory", "FitResult": "result", "FitError": "result",
     "FitterConfig": "config", "fit_landmarks": "stage", "LandmarksFit": "stage",
     "FaceFitters": "faces", "FaceFit": "faces", "parse_faces": "faces", "max_faces_for": "faces",
 }

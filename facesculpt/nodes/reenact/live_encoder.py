@@ -3,7 +3,7 @@
 A file's encoder sees the whole video before it chooses its expression basis; a live one cannot.
 :class:`LiveEncoder` learns the basis from the first ``learn_frames`` frames with a face, then sends
 its key (the frame that completes the learning: its image, fit and the neutral;
-:func:`facesculpt.msgs.fsc.pack_key_arrays`) and the basis (:func:`~facesculpt.msgs.fsc.pack_basis`),
+:func:`facesculpt.coding.fsc.pack_key_arrays`) and the basis (:func:`~facesculpt.coding.fsc.pack_basis`),
 and from then on one record per frame: the face's pose as a similarity (7 numbers) and its
 expression displacement from the key's neutral projected onto the basis. An expression the learning
 frames never showed is carried only as far as the basis spans it: a frame the basis misses by more
@@ -19,8 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facesculpt.geometry.similarity import similarity_vector
-from facesculpt.msgs.fsc import (
+from facesculpt.coding.fsc import (
     FORMAT_VERSION,
     KEY_QUALITY,
     coefficient_steps,
@@ -29,6 +28,7 @@ from facesculpt.msgs.fsc import (
     pack_key_arrays,
     pack_records,
 )
+from facesculpt.geometry.similarity import similarity_vector
 
 from .expression_basis import expression_basis, expression_coefficients
 
@@ -41,7 +41,7 @@ POOL_FRAMES = 300
 @dataclass
 class CodedKeyParts:
     """A keyframe as ``coding/key`` carries it: header (dict: fps, width, height, K, vertices,
-    model, version), keyframe (WebP bytes), arrays (:func:`~facesculpt.msgs.fsc.pack_key_arrays`)."""
+    model, version), keyframe (WebP bytes), arrays (:func:`~facesculpt.coding.fsc.pack_key_arrays`)."""
 
     header: dict
     keyframe: bytes
@@ -51,7 +51,7 @@ class CodedKeyParts:
 @dataclass
 class CodedBasisParts:
     """A basis as ``coding/basis`` carries it: version (1, 2, ...), arrays
-    (:func:`~facesculpt.msgs.fsc.pack_basis`), basis_steps (C,), coeff_steps (C,), record (the
+    (:func:`~facesculpt.coding.fsc.pack_basis`), basis_steps (C,), coeff_steps (C,), record (the
     keyframe's own record in this basis)."""
 
     version: int

@@ -21,7 +21,7 @@ from facesculpt.nodes.fitter import pose
 from facesculpt.nodes.fitter.appearance_refiner import AppearanceRefiner
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.fit_camera import FitCamera
-from facesculpt.nodes.fitter.model import MorphableModel, load_model
+from facesculpt.nodes.fitter.model import MorphableModel
 from facesculpt.nodes.fitter.pose_smoothing import PoseSmoother
 from facesculpt.nodes.fitter.result import FitError, FitResult
 
@@ -200,23 +200,3 @@ class Fitter:
             raise FitError(f"weights must be ({n},), got {w.shape}")
         finite = np.isfinite(pts[:, :2]).all(axis=1) & np.isfinite(w) & (w > 0)
         return pts, ids, w, finite
-
-
-def make_fitter(model: MorphableModel | str = "facemesh", config: FitterConfig | None = None,
-                image_size=(640, 480), K: np.ndarray | None = None) -> Fitter:
-    """The fitter for ``model`` (a :class:`MorphableModel`, or a name or path for
-    :func:`.model.load_model`): dense when ``model.dense``, sparse otherwise. config: the options
-    (default :class:`FitterConfig`'s); image_size (W, H) px; K (3, 3) intrinsics or None.
-    Raises :class:`FitError` for a bad image size, K or projection."""
-    # The two fitters subclass Fitter (above): imported here, and only the one used (the sparse
-    # one brings scipy, which would lengthen a respawned dense fitter's start-up).
-    model = model if isinstance(model, MorphableModel) else load_model(model)
-    config = FitterConfig() if config is None else config
-    camera = FitCamera.make(image_size, K, config.projection)
-    if model.dense:
-        from facesculpt.nodes.fitter.dense_fitter import DenseFitter
-
-        return DenseFitter(model, config, camera)
-    from facesculpt.nodes.fitter.sparse_fitter import SparseFitter
-
-    return SparseFitter(model, config, camera)

@@ -163,43 +163,6 @@ class ImageSource(FrameSource):
             i += 1
 
 
-class BagImageSource(FrameSource):
-    """The `camera/image` records of a bag (or another topic), in order."""
-
-    def __init__(self, path: str, topic: str = "camera/image", loop: bool = False, restamp: bool = True):
-        from facesculpt.runtime.bag import BagReader
-
-        self.reader = BagReader(path)
-        self.topic = topic
-        self.loop = loop
-        self.restamp = restamp
-        self.description = f"bag {path}"
-        times = [r.time_ns for r in self.reader if r.topic == topic]
-        if not times:
-            raise SourceError(f"bag {path} has no {topic} messages")
-        self.native_fps = (len(times) - 1) / max(1e-9, (times[-1] - times[0]) / 1e9) if len(times) > 1 else 30.0
-
-    def frames(self):
-        from facesculpt.msgs import Image, decode
-
-        while True:
-            for rec in self.reader:
-                if rec.topic != self.topic:
-                    continue
-                _, msg = decode([rec.topic.encode()] + rec.frames, Image)
-                stamp = time.time_ns() if self.restamp else msg.stamp
-                if msg.depth is not None:  # an RGB-D recording: the depth and both cameras go along
-                    from .rgbd_sources import RGBDFrame
-
-                    yield RGBDFrame(np.array(msg.image), np.array(msg.depth), np.array(msg.depth_K),
-                                    None if msg.depth_to_color is None else np.array(msg.depth_to_color),
-                                    np.array(msg.K)), stamp
-                    continue
-                yield np.array(msg.image), stamp
-            if not self.loop:
-                return
-
-
 # The head-and-shoulders part of astronaut.png (x0, y0, x1, y1), shown at 640x480.
 EMBEDDED_CROP = (100, 0, 420, 240)
 
@@ -214,26 +177,3 @@ def embedded_source(fps: float = 30.0) -> ImageSource:
     source.image = cv2.resize(source.image[y0:y1, x0:x1], (640, 480), interpolation=cv2.INTER_CUBIC)
     source.description = "embedded face photo (astronaut.png, virtual camera)"
     return source
-
-
-def open_source(spec: str, *, loop: bool = False, motion: bool = False, fps: float = 30.0) -> FrameSource:
-    """``"0"`` (webcam index), a video file, an image file, ``bag:FILE``, ``embedded``
-    (a face photo shipped with the install, seen by a moving virtual camera), or an RGB-D source
-    (:mod:`.rgbd_sources`): a folder of colour + depth PNGs, or ``realsense[:SERIAL]``."""
-    spec = str(spec).strip()
-    if spec == "realsense" or spec.startswith("realsense:") or Path(spec).is_dir():
-        from .rgbd_sources import RealSenseSource, RGBDFolderSource
-
-        if Path(spec).is_dir():
-            return RGBDFolderSource(spec, loop=loop)   # its rate from its camera.json
-        return RealSenseSource(spec.partition(":")[2], fps=fps if fps > 0 else 30.0)
-    if spec == "embedded":
-        return embedded_source(fps if fps > 0 else 30.0)
-    if spec.startswith("bag:"):
-        return BagImageSource(spec[4:], loop=loop)
-    if spec.lstrip("-").isdigit():
-        return VideoSource(int(spec))
-    path = Path(spec)
-    if path.suffix.lower() in IMAGE_SUFFIXES:
-        return ImageSource(spec, motion=motion, fps=fps if fps > 0 else 30.0)
-    return VideoSource(spec, loop=loop)

@@ -13,7 +13,7 @@ class EosPeer:
     :func:`facesculpt.nodes.fitter.eos_import.sfm_files`."""
 
     def __init__(self, files: dict, image_size: tuple[int, int] = (640, 480), iterations: int = 5):
-        import eos  # noqa: PLC0415 - optional peer
+        import eos
 
         self.eos = eos
         mm = eos.morphablemodel

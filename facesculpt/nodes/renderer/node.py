@@ -90,7 +90,7 @@ class RendererNode(Node):
                                      "nearby, seams corrected)", choices=FILL_METHODS),
         "mouth": Param("off", "paint: where an edit opens a mouth that is closed in the frame, paint a dark "
                               "interior with a soft teeth band instead of stretching the lips (face-mesh "
-                              "model; on in launch/reenact.yaml); off: the lips stretch", choices=("off", "paint")),
+                              "model; on in facesculpt/launch/reenact.yaml); off: the lips stretch", choices=("off", "paint")),
         "interpolation": Param("auto", "kernel the frame is resampled with where the face moved: sinc (a long "
                                        "windowed sinc: keeps the skin's finest detail), cubic (faster, softer), "
                                        "lanczos (Lanczos-4), or auto: sinc for frames smaller than 1280x720, "

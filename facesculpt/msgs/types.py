@@ -337,11 +337,11 @@ class FaceTexture(Message):
 @dataclass
 class CodedKey(Message):
     """The keyframe of model-based coding (latched on `coding/key`), sent once per keyframe
-    (:mod:`facesculpt.msgs.fsc`).
+    (:mod:`facesculpt.coding.fsc`).
 
     header: JSON text (version, fps, width, height, K, vertices, model); keyframe: (J,) uint8 the
     keyframe image's bytes (WebP); arrays: (Z,) uint8 zlib of its fit and the person's neutral
-    (:func:`~facesculpt.msgs.fsc.pack_key_arrays`); triangles: (T, 3) int32 the model's mesh (the
+    (:func:`~facesculpt.coding.fsc.pack_key_arrays`); triangles: (T, 3) int32 the model's mesh (the
     receiver loads no model); version: this keyframe's number.
     """
 
@@ -360,7 +360,7 @@ class CodedBasis(Message):
     and again whenever the coder learns it anew.
 
     key_version: the key it belongs to; version: this basis's number; arrays: (Z,) uint8 zlib of
-    the mean and the basis at control vertices, int8 (:func:`~facesculpt.msgs.fsc.pack_basis`; the
+    the mean and the basis at control vertices, int8 (:func:`~facesculpt.coding.fsc.pack_basis`; the
     receiver fills them in over the key's triangles); basis_steps (C,) and
     coeff_steps (C,) float64 their quantisation steps; record: (R,) uint8 the keyframe's own
     per-frame record in this basis (the pose and expression the keyframe is rendered from).

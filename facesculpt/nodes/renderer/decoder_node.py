@@ -1,4 +1,4 @@
-"""The decoder node: ``facesculpt run decoder`` (launch/coding.yaml): a coded talking head rendered.
+"""The decoder node: ``facesculpt run decoder`` (facesculpt/launch/coding.yaml): a coded talking head rendered.
 
 Subscribes the latched ``coding/key`` (CodedKey: the keyframe) and ``coding/basis`` (CodedBasis:
 the expression basis) and ``coding/frame`` (CodedFrame) of an encoder node (``facesculpt run
@@ -15,8 +15,8 @@ import json
 
 import numpy as np
 
+from facesculpt.coding.fsc import FORMAT_VERSION, unpack_basis, unpack_key_arrays, unpack_records
 from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, Image
-from facesculpt.msgs.fsc import FORMAT_VERSION, unpack_basis, unpack_key_arrays, unpack_records
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import LATCHED

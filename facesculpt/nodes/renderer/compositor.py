@@ -179,7 +179,7 @@ class Compositor:
         """(V, 2) float: where the drawn (subdivided) surface of the last frame's mesh puts its
         vertices whose pixels are ``px`` (V, 2), e.g. :attr:`deformed_px`: a deformer may hand over
         a displacement whose subdivided surface, not the vertices themselves, follows the edit
-        (``nodes/deformer/solve_mesh.py``), so marks on the face go here."""
+        (``facesculpt/nodes/deformer/solve_mesh.py``), so marks on the face go here."""
         p = np.asarray(px, np.float64)
         if self._mesh is None or self._mesh.S.shape[1] != len(p):
             return p

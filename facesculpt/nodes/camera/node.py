@@ -45,7 +45,8 @@ from facesculpt.runtime.qos import EVERY_MESSAGE
 
 from .intrinsics import intrinsics_from_fov
 from .rgbd_sources import RGBDFrame, depth_fields, resized_intrinsics
-from .sources import RESIZE_MODES, SourceError, open_source, resize_frame
+from .source_opening import open_source
+from .sources import RESIZE_MODES, SourceError, resize_frame
 
 # Lockstep: how often the camera looks at its pacing and its acknowledgement deadlines, s (the
 # acknowledgements themselves send the next frame at once).

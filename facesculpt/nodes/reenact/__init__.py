@@ -9,7 +9,7 @@ another's. Its pure part: :mod:`.transfer`.
 ``encoder`` (:mod:`.encoder_node`) codes a live face as a keyframe, an expression basis and a
 27-byte record a frame (model-based coding, :mod:`.live_encoder`, :mod:`.expression_basis`) on
 ``coding/key``, ``coding/basis`` and ``coding/frame``, which the renderer room's ``decoder``
-renders, here or on another machine (launch/coding.yaml).
+renders, here or on another machine (facesculpt/launch/coding.yaml).
 """
 
 from .transfer import expression_displacement, model_space_shape

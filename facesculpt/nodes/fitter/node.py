@@ -35,8 +35,10 @@ from .depth_fitting import DepthImage
 from .expression import NAMES, face_expression, head_pose
 from .faces import FaceFitters, parse_faces
 from .fit_camera import FitCamera
-from .fitter import Fitter, make_fitter
-from .model import MorphableModel, load_model
+from .fitter import Fitter
+from .fitter_factory import make_fitter
+from .model import MorphableModel
+from .model_loading import load_model
 from .result import FitError
 
 

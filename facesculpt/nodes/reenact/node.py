@@ -1,4 +1,4 @@
-"""The reenact node: ``facesculpt run reenact`` (launch/reenact.yaml: two cameras, one face drives the other).
+"""The reenact node: ``facesculpt run reenact`` (facesculpt/launch/reenact.yaml: two cameras, one face drives the other).
 
 Subscribes the driving face's ``driver/state`` (FaceState) and its latched ``driver/model``
 (FaceModel: the neutral its fitter learned) and publishes the latched ``face/deformation``

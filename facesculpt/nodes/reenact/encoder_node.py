@@ -1,4 +1,4 @@
-"""The encoder node: ``facesculpt run encoder`` (launch/coding.yaml): a talking head coded live.
+"""The encoder node: ``facesculpt run encoder`` (facesculpt/launch/coding.yaml): a talking head coded live.
 
 Subscribes the fitter's ``face/state`` and latched ``face/model`` (the person's neutral and the
 mesh's triangles) and ``camera/image`` (for the keyframe), and codes the first face it sees
@@ -19,8 +19,8 @@ import json
 
 import numpy as np
 
+from facesculpt.coding.fsc import KEY_QUALITY
 from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, FaceModel, FaceState, Image
-from facesculpt.msgs.fsc import KEY_QUALITY
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param
 from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED

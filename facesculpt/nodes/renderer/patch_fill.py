@@ -20,6 +20,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .pushpull import pushpull_into
+
 TILE_PX = 16          # side of a tile, px (full resolution)
 RIM_PX = 8            # known background matched around a tile, px
 SEARCH_PX = 24        # how far a source may lie from its tile, px
@@ -119,8 +121,6 @@ def fill_patch(image: np.ndarray, fill: np.ndarray, known: np.ndarray, smooth: n
     uint8 colours (meaningful at ``fill`` only). ``smooth`` (h, w, 3) uint8 is the pull-push fill
     of the same region, kept where no tile found a source; its pull-push pyramid also spreads the
     seam correction (:func:`spread`)."""
-    from .inpaint import _pushpull_into
-
     fill = np.asarray(fill, bool)
     known = np.asarray(known, bool) & ~fill
     copy, wsum = patch_copy(image, fill, known)
@@ -133,7 +133,7 @@ def fill_patch(image: np.ndarray, fill: np.ndarray, known: np.ndarray, smooth: n
     if ring.any():
         diff = np.clip(image.astype(np.float32) - copy + 128.0, 0, 255).astype(np.uint8)
         spread = np.zeros_like(diff)
-        _pushpull_into(spread, diff, copied, ring)
+        pushpull_into(spread, diff, copied, ring)
         corrected = copy + spread.astype(np.float32) - 128.0
     else:
         corrected = copy
