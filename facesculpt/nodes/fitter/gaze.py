@@ -1,20 +1,28 @@
 """Gaze from the fitted head and the irises: a geometric eyeball model (Le 2014, chapter 8).
 
-Each eye is a sphere fixed in the head. Where it sits is learned per person over the first frames
-(``learn_frames``) in head (model) coordinates, mm, x to the subject's left, y up, z out of the face:
+Each eye is a sphere fixed in the head: radius :data:`EYEBALL_RADIUS_MM` (an adult eye's, 24 mm
+long, varies little between people), its iris a circle of radius ``rho`` whose centre lies
+``D = sqrt(r² - rho²)`` ahead of the eyeball's centre. The limbus is taken to lie at the eye's
+opening (the iris sits just behind the lids), so the centre is ``D`` behind the opening along the
+head's forward axis (model +z, through the fitted rotation). Where the opening is comes from two
+sources, each for what it measures well:
 
-* the eye's **lids** (16 face-mesh points, or the six iBUG-68 points of a sparse model) averaged
-  over those frames give the opening's centre ``o``; the eye's forward axis is the head's +z;
-* the **iris radius** ``rho`` (mm) is the iris network's limbus radius (pixels, along the lids'
-  axis, where the lids do not cover it) carried to mm at the eye's depth, the median over those
-  frames (clamped to :data:`IRIS_RADIUS_RANGE_MM`);
-* the eyeball's radius is :data:`EYEBALL_RADIUS_MM` (an adult eye's, 24 mm long, varies little
-  between people); the limbus circle lies at the opening (the iris sits just behind the lids), so
-  the centre is ``c = o - sqrt(r² - rho²) z``.
+* across the face: the iris network's lids, each frame, their corners' midpoint back-projected
+  at the depth the fit gives the eye, plus the offset from there to the lids' centroid (model
+  mm) averaged over the person's first ``learn_frames`` frames (the corners hardly move as the eye
+  turns; the centroid follows the lids);
+* up and down: the fitted model's lid vertices, their centroid averaged over those frames in head
+  (model) coordinates (the network's lids, and with them its corners, follow the gaze up and down);
+* ``rho`` (mm) is the iris network's limbus radius along the eye's corner axis (where the lids
+  do not cover it), carried to mm at the eye's depth, the median over those frames (clamped to
+  :data:`IRIS_RADIUS_RANGE_MM`; :data:`IRIS_RADIUS_MM` before).
+
+The head's rotation places the centres, so an error in the fitted head rotation turns the gaze
+by about as much (docs/results/gaze.md).
 
 Every frame, the iris centre's pixel is back-projected to a ray that meets the sphere of radius
-``sqrt(r² - rho²)`` about ``c`` (the circle of limbus centres as the eye turns); the gaze ray goes
-from ``c`` through that point. A ray that misses the sphere takes its point nearest to ``c``, with
+``D`` about the centre (the circle of limbus centres as the eye turns); the gaze ray goes
+from the centre through that point. A ray that misses the sphere takes its point nearest to the centre, with
 a confidence that falls with the miss. Both eyes are combined, weighted by confidence, into one
 ray from between the eyeballs; their **vergence** is the angle between the two rays, and their
 **fixation** point the midpoint of the rays' closest approach when they converge in front.
@@ -156,9 +164,11 @@ class EyeballLearning:
 
     learn_frames: int = LEARN_FRAMES
     frames: int = 0
-    centre_sum: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))
+    centre_sum: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))  # of the lids' offsets
+    model_sum: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))  # of the lid vertices' centroids
     iris_radii: list = field(default_factory=list)
     openings: tuple = field(default_factory=lambda: (deque(maxlen=OPENING_MEMORY), deque(maxlen=OPENING_MEMORY)))
+    _levels: dict = field(default_factory=dict, repr=False)
 
     @property
     def learned(self) -> bool:
@@ -170,8 +180,16 @@ class EyeballLearning:
         return float(np.clip(np.median(self.iris_radii), *IRIS_RADIUS_RANGE_MM))
 
     def openings_level(self, eye: int) -> float:
+        """The eye's usual opening: the 90th percentile of its recent openings, brought up to date
+        every 10 frames (NaN before 5)."""
         seen = self.openings[eye]
-        return float(np.percentile(seen, 90)) if len(seen) >= 5 else np.nan
+        if len(seen) < 5:
+            return np.nan
+        level, age = self._levels.get(eye, (np.nan, 10))
+        if age >= 10:
+            level, age = float(np.percentile(seen, 90)), 0
+        self._levels[eye] = (level, age + 1)
+        return level
 
 
 def _limbus_radius_px(iris: np.ndarray, lids: np.ndarray) -> float:
@@ -194,21 +212,25 @@ def _closest_approach(c0, d0, c1, d1) -> tuple[float, float]:
     return (b * e - d) / den, (e - b * d) / den
 
 
-def _opening_centres(mv, lid_vertices, lids, R, t, s, K) -> np.ndarray:
-    """(2, 3) model mm: each eye's opening centre, the model's lid vertices' centroid moved (in the
-    plane facing the camera) to where the iris network's lids (2, 16, >=2) pixels put it (K None:
-    an orthographic fit, camera x, y in pixels)."""
-    out = np.empty((2, 3))
+def _back_project(px: np.ndarray, depth: float, K: np.ndarray | None) -> np.ndarray:
+    """The camera-space point (3,) at ``depth`` on the ray of pixel ``px`` (2,) (K None: an
+    orthographic fit, whose camera x, y are the pixels)."""
+    if K is None:
+        return np.array([px[0], px[1], depth])
+    return np.array([(px[0] - K[0, 2]) / K[0, 0] * depth, (px[1] - K[1, 2]) / K[1, 1] * depth, depth])
+
+
+def _openings(mv, lid_vertices, lids, R, t, s, K) -> tuple[np.ndarray, np.ndarray]:
+    """Each eye's corners' midpoint (2, 3) camera space, where the iris network's lids (2, 16,
+    >=2) pixels put it at the depth the fit gives the eye's lid vertices, and the offset (2, 3)
+    model mm from it to the centroid of those lids (K None: orthographic)."""
+    mids, offsets = np.empty((2, 3)), np.empty((2, 3))
     for e in (0, 1):
-        centre = mv[np.asarray(lid_vertices[e])].mean(axis=0)
-        X = s * (R @ centre) + t
-        seen = lids[e, :, :2].mean(axis=0)
-        if K is None:  # orthographic: camera x, y are pixels
-            shift = np.array([*(seen - X[:2]), 0.0])
-        else:
-            shift = np.array([*((seen - (K[:2, :2] @ X[:2] / X[2] + K[:2, 2])) * X[2] / np.diag(K)[:2]), 0.0])
-        out[e] = centre + R.T @ shift / s
-    return out
+        depth = float((s * (R @ mv[np.asarray(lid_vertices[e])].mean(axis=0)) + t)[2])
+        mids[e] = _back_project((lids[e, 0, :2] + lids[e, 8, :2]) / 2.0, depth, K)
+        centroid = _back_project(lids[e, :, :2].mean(axis=0), depth, K)
+        offsets[e] = R.T @ (centroid - mids[e]) / s
+    return mids, offsets
 
 
 def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state: EyeballLearning) -> Gaze:
@@ -227,16 +249,22 @@ def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state
     for e in (0, 1):
         state.openings[e].append(float(openings[e]))
     K = None if fit.K is None else np.asarray(fit.K, np.float64)
-    lid_centres = _opening_centres(mv, lid_vertices, lids, R, t, s, None if ortho else K)
+    mids, offsets = _openings(mv, lid_vertices, lids, R, t, s, None if ortho else K)
+    in_model = np.stack([mv[np.asarray(v)].mean(axis=0) for v in lid_vertices])
     if not state.learned and not closed.any():
         state.frames += 1
-        state.centre_sum += lid_centres
-    opening_centres = state.centre_sum / state.frames if state.frames else lid_centres
+        state.centre_sum += offsets
+        state.model_sum += in_model
+    offsets = state.centre_sum / state.frames if state.frames else offsets
+    in_model = state.model_sum / state.frames if state.frames else in_model
     forward = np.array([0.0, 0.0, 1.0])
-    to_cam = lambda X: s * (R @ X) + t  # noqa: E731 - model mm -> camera space
     rho = state.iris_radius()
     depth_mm = np.sqrt(EYEBALL_RADIUS_MM ** 2 - rho ** 2)
-    centres = np.stack([to_cam(o - depth_mm * forward) for o in opening_centres])
+    centres = mids + s * ((offsets - depth_mm * forward) @ R.T)
+    # the lids put the eye across the face, the head model puts its height (the lids follow the gaze up and down)
+    up = R[:, 1]
+    by_model = s * ((in_model - depth_mm * forward) @ R.T) + t
+    centres += np.outer((by_model - centres) @ up, up)
     origins, rays = pixel_rays(K, irises[:, 0, :2], ortho)
     directions = np.full((2, 3), np.nan)
     confidences = np.zeros(2)
@@ -288,3 +316,16 @@ def _combined(centres, directions, confidences, closed, openings, R, learned) ->
                 yaw_deg=float(yaw), pitch_deg=float(pitch), head_yaw_deg=float(head_yaw),
                 head_pitch_deg=float(head_pitch), vergence_deg=vergence, fixation=fixation,
                 confidence=confidence, learned=bool(learned))
+
+
+#: The columns of a gaze in tables (``process --export-params`` with ``--gaze``): the combined
+#: ray's yaw and pitch in camera space and in the head (degrees), the vergence (degrees), the
+#: confidence (0..1) and each eye's blink flag (1 closed, 0 open).
+GAZE_NAMES = ("gaze_yaw_deg", "gaze_pitch_deg", "gaze_head_yaw_deg", "gaze_head_pitch_deg", "gaze_vergence_deg",
+              "gaze_confidence", "blink_right", "blink_left")
+
+
+def gaze_values(gaze: Gaze) -> tuple:
+    """The values of :data:`GAZE_NAMES` of one :class:`Gaze` (NaN where there is none)."""
+    return (gaze.yaw_deg, gaze.pitch_deg, gaze.head_yaw_deg, gaze.head_pitch_deg, gaze.vergence_deg,
+            gaze.confidence, int(gaze.closed[0]), int(gaze.closed[1]))

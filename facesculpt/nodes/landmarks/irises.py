@@ -20,6 +20,7 @@ points of :class:`~facesculpt.nodes.landmarks.detector.Face`.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,6 +39,18 @@ NUM_CONTOUR = 71
 NUM_LIDS = 16
 NUM_IRIS = 5
 _FILES = ("iris_landmark.onnx",)
+
+
+@dataclass(frozen=True)
+class IrisOptions:
+    """Whether the irises are found (the landmarks node's ``irises``, ``process --gaze``)."""
+
+    irises: bool = field(default=False, metadata={
+        "help": "run the iris network on each face's eyes: face/landmarks then carries irises and eye_lids, "
+                "and the fitter publishes face/gaze (costs about two face-mesh networks a face)"})
+
+
+IRIS_OPTIONS = IrisOptions()
 
 
 def eye_roi(points_xy: np.ndarray, eye: int) -> np.ndarray:
