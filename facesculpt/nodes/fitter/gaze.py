@@ -11,8 +11,10 @@ sources, each for what it measures well:
   at the depth the fit gives the eye, plus the offset from there to the lids' centroid (model
   mm) averaged over the person's first ``learn_frames`` frames (the corners hardly move as the eye
   turns; the centroid follows the lids);
-* up and down: the fitted model's lid vertices, their centroid averaged over those frames in head
-  (model) coordinates (the network's lids, and with them its corners, follow the gaze up and down);
+* up and down: this frame's face-mesh eye corners (the points the fit was made from, so not
+  lagging behind a fast head as the smoothed fitted pose does), plus the offset in the head from
+  them to the iris network's lids' centroid averaged over those frames (without the face mesh's
+  points: the lids' centroid averaged in head coordinates, placed by the fitted pose);
 * ``rho`` (mm) is the iris network's limbus radius along the eye's corner axis (where the lids
   do not cover it), carried to mm at the eye's depth, the median over those frames (clamped to
   :data:`IRIS_RADIUS_RANGE_MM`; :data:`IRIS_RADIUS_MM` before).
@@ -44,7 +46,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facesculpt.geometry.eye_points import IBUG_EYE_LIDS, MESH_EYE_LIDS, eye_opening
+from facesculpt.geometry.eye_points import IBUG_EYE_LIDS, MESH_EYE_CORNERS, MESH_EYE_LIDS, eye_opening
 
 #: An adult eyeball's radius, mm.
 EYEBALL_RADIUS_MM = 12.0
@@ -73,7 +75,9 @@ class Gaze:
     (0, 0: looking straight out of the face); vergence_deg: the angle between the two rays
     (positive when they converge; NaN unless both are open); fixation (3,): where they meet (NaN
     unless they converge in front); confidence 0..1; learned: the eyeballs are learned (before
-    that they come from the frames seen so far)."""
+    that they come from the frames seen so far); irises (2, 5, 2) and lids (2, 16, 2): the pixels
+    it was estimated from; sphere_mm: the radius (camera units) of the sphere the iris centre
+    moves on."""
 
     centres: np.ndarray
     directions: np.ndarray
@@ -91,6 +95,9 @@ class Gaze:
     fixation: np.ndarray
     confidence: float
     learned: bool
+    irises: np.ndarray | None = None
+    lids: np.ndarray | None = None
+    sphere_mm: float = 0.0
 
     @property
     def blink(self) -> bool:
@@ -165,7 +172,7 @@ class EyeballLearning:
     learn_frames: int = LEARN_FRAMES
     frames: int = 0
     centre_sum: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))  # of the lids' offsets
-    model_sum: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))  # of the lid vertices' centroids
+    model_sum: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))  # of the lids' centroids in the head
     iris_radii: list = field(default_factory=list)
     openings: tuple = field(default_factory=lambda: (deque(maxlen=OPENING_MEMORY), deque(maxlen=OPENING_MEMORY)))
     _levels: dict = field(default_factory=dict, repr=False)
@@ -233,12 +240,14 @@ def _openings(mv, lid_vertices, lids, R, t, s, K) -> tuple[np.ndarray, np.ndarra
     return mids, offsets
 
 
-def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state: EyeballLearning) -> Gaze:
+def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state: EyeballLearning,
+                  mesh_points: np.ndarray | None = None) -> Gaze:
     """One face's :class:`Gaze` in one frame. fit: its :class:`FitResult` (R, t, scale,
     projection, K, model_vertices (V, 3) model mm); lid_vertices: each eye's lid vertices
     (:func:`eye_lid_vertices`); irises (2, 5, >=2) and lids (2, 16, >=2): the iris network's
     points (pixel indices, eye 0 the right eye); state: the person's :class:`EyeballLearning`
-    (updated here)."""
+    (updated here); mesh_points: this frame's face-mesh points (468, >=2) px, whose lids place the
+    eyes' height (else the fitted head, whose pose the fitter smooths, does)."""
     R, t, s = np.asarray(fit.R, np.float64), np.asarray(fit.t, np.float64), float(fit.scale)
     ortho = fit.projection != "perspective"
     irises, lids = np.asarray(irises, np.float64), np.asarray(lids, np.float64)
@@ -250,7 +259,13 @@ def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state
         state.openings[e].append(float(openings[e]))
     K = None if fit.K is None else np.asarray(fit.K, np.float64)
     mids, offsets = _openings(mv, lid_vertices, lids, R, t, s, None if ortho else K)
-    in_model = np.stack([mv[np.asarray(v)].mean(axis=0) for v in lid_vertices])
+    net_centres = mids + s * (offsets @ R.T)  # the iris network's lids' centroids, camera space
+    if mesh_points is None:  # the network's lids' centroid in head coordinates
+        height_from, in_model = t, (net_centres - t) @ R / s
+    else:  # the face mesh's lids of this frame, and the offset from them to the network's in the head
+        height_from = np.stack([_back_project(np.asarray(mesh_points, np.float64)[list(MESH_EYE_CORNERS[e]), :2]
+                                              .mean(axis=0), float(mids[e, 2]), None if ortho else K) for e in (0, 1)])
+        in_model = (net_centres - height_from) @ R / s
     if not state.learned and not closed.any():
         state.frames += 1
         state.centre_sum += offsets
@@ -261,9 +276,10 @@ def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state
     rho = state.iris_radius()
     depth_mm = np.sqrt(EYEBALL_RADIUS_MM ** 2 - rho ** 2)
     centres = mids + s * ((offsets - depth_mm * forward) @ R.T)
-    # the lids put the eye across the face, the head model puts its height (the lids follow the gaze up and down)
+    # across the face the lids' corners of this frame place the eye; its height is where the lids'
+    # centroid sat in the head over the first frames (the lids follow the gaze up and down)
     up = R[:, 1]
-    by_model = s * ((in_model - depth_mm * forward) @ R.T) + t
+    by_model = s * ((in_model - depth_mm * forward) @ R.T) + height_from
     centres += np.outer((by_model - centres) @ up, up)
     origins, rays = pixel_rays(K, irises[:, 0, :2], ortho)
     directions = np.full((2, 3), np.nan)
@@ -283,7 +299,9 @@ def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state
         level = levels[e] if np.isfinite(levels[e]) else 0.3
         open_f = np.clip((openings[e] / level - CLOSED_SHARE) / 0.3, 0.0, 1.0)
         confidences[e] = (np.exp(-(miss / (rho * s)) ** 2) * open_f * np.clip(forward_cam @ view, 0.0, 1.0) ** 2)
-    return _combined(centres, directions, confidences, closed, openings, R, state.learned)
+    gaze = _combined(centres, directions, confidences, closed, openings, R, state.learned)
+    gaze.irises, gaze.lids, gaze.sphere_mm = irises[..., :2], lids[..., :2], float(depth_mm * s)
+    return gaze
 
 
 def _combined(centres, directions, confidences, closed, openings, R, learned) -> Gaze:

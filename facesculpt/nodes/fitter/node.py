@@ -185,7 +185,8 @@ class FitterNode(Node):
                 return
             with self.stage("gaze"):
                 learning = self.eyeballs.setdefault(f.key, EyeballLearning())
-                gaze = estimate_gaze(f.outcome.fit, lid_vertices, msg.irises[f.index], msg.eye_lids[f.index], learning)
+                gaze = estimate_gaze(f.outcome.fit, lid_vertices, msg.irises[f.index], msg.eye_lids[f.index], learning,
+                                     msg.points[f.index] if np.shape(msg.points)[1] == 468 else None)
             self.gaze_pub.publish(gaze_message(gaze, msg.stamp, msg.frame_id, f.key))
 
     def maybe_publish_model(self, stamp: int, now_s: float) -> None:
