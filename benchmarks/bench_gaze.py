@@ -97,92 +97,6 @@ def render_sequence(scene, eyes, schedule: np.ndarray) -> tuple[list, list]:
     return frames, truths
 
 
-def looking_at_camera(scene, eyes, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frame ``i`` of the head with both eyes looking into the camera: the frame (uint8 BGR), each
-    eye's centre (2, 3) camera mm and where its iris centre is seen (2, 2) px (pixel indices)."""
-    from benchmarks.realism.raster import project_pixels
-    from benchmarks.realism.scene import FACING, PIVOT
-
-    yaw, pitch, t = scene.pose(i)
-    R = rotation(yaw, pitch) @ FACING
-    to_camera = lambda V: (np.asarray(V, np.float64) - PIVOT) @ R.T + t  # noqa: E731
-    camera_in_model = PIVOT + R.T @ (-t)
-    angles = np.zeros((2, 2))
-    for e in (0, 1):
-        v = camera_in_model - eyes.centres[e]
-        angles[e] = np.degrees([np.arctan2(v[0], v[2]), np.arctan2(v[1], np.hypot(v[0], v[2]))])
-    img = render_textured(scene.K, to_camera(scene.rest), scene.triangles, scene.texcoords, scene.alpha,
-                          scene.texture, scene.background)
-    img = draw_eyes(img, scene, eyes, R, to_camera, angles)
-    centres = to_camera(eyes.centres)
-    D = np.sqrt(eyes.radius ** 2 - eyes.iris_radius ** 2)
-    irises = project_pixels(scene.K, centres - D * centres / np.linalg.norm(centres, axis=1, keepdims=True))
-    return np.clip(img + 0.5, 0, 255).astype(np.uint8), centres, irises
-
-
-def eye_contact_check(args, data: Path, seed: int, frames: list) -> dict:
-    """Eye contact on the synthetic frames: the corrected frames' irises (the iris network on them)
-    against where they would be with the eyes looking into the camera, as the angle of the eye that
-    would put them there (the true eyeball), and the eye region's PSNR against the head rendered
-    looking into the camera, beside the same for the frames as they are."""
-    from facesculpt.app.pipeline import Pipeline
-    from facesculpt.nodes.fitter.gaze import pixel_rays, ray_sphere
-    from facesculpt.nodes.landmarks import LandmarkDetector
-    from facesculpt.nodes.landmarks.irises import IrisDetector
-    from facesculpt.nodes.renderer.eye_contact import EyeContactOptions
-
-    scene = make_scene(data, frames=args.frames, seed=seed)
-    eyes = eye_anatomy(scene, seed)
-    shown = list(range(40, len(frames), 3))
-    corrected = {}
-    with Pipeline(eye_contact=EyeContactOptions()) as p:
-        for i, f in enumerate(frames):
-            result = p.process(f, i / 25.0)
-            if i in shown:
-                corrected[i] = result.image
-    detector, irises = LandmarkDetector(), IrisDetector()
-    D = np.sqrt(eyes.radius ** 2 - eyes.iris_radius ** 2)
-    rows, crops = [], []
-    for i in shown:
-        truth, centres, want = looking_at_camera(scene, eyes, i)
-        faces = detector.detect(truth)
-        if not faces:
-            continue
-        lids = irises.find(truth, faces[0].points)[1]
-        lo = np.floor(lids[..., :2].reshape(-1, 2).min(axis=0)).astype(int) - 3
-        hi = np.ceil(lids[..., :2].reshape(-1, 2).max(axis=0)).astype(int) + 4
-        region = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
-        row = [i]
-        for image in (frames[i], corrected[i]):
-            found = detector.detect(image)
-            angle = np.nan
-            if found:
-                seen = irises.find(image, found[0].points)[0][:, 0, :2]
-                o, rays = pixel_rays(scene.K, seen, False)
-                angle = max(np.degrees(np.arccos(np.clip(
-                    (ray_sphere(o[e], rays[e], centres[e], D)[0] - centres[e]) @ (-centres[e]) / D
-                    / np.linalg.norm(centres[e]), -1, 1))) for e in (0, 1))
-            err = np.mean((image[region].astype(float) - truth[region].astype(float)) ** 2)
-            row += [angle, 10 * np.log10(255.0 ** 2 / max(err, 1e-9))]
-        rows.append(row)
-        if len(crops) < 4:
-            crops.append(np.hstack([cv2.resize(x[region], None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST)
-                                    for x in (frames[i], corrected[i], truth)]))
-    if crops:
-        width = max(c.shape[1] for c in crops)
-        cv2.imwrite(str(args.out / f"eye_contact_{seed}.png"),
-                    np.vstack([cv2.copyMakeBorder(c, 0, 4, 0, width - c.shape[1], cv2.BORDER_CONSTANT) for c in crops]))
-    a = np.array(rows, float)
-    near = a[:, 1] <= 15.0  # frames whose eyes look within the correction's limit
-    return {"frames": len(a), "frames within 15 deg": int(near.sum()),
-            "as is: median eye angle from the camera deg": float(np.nanmedian(a[near, 1])),
-            "corrected: median eye angle from the camera deg": float(np.nanmedian(a[near, 3])),
-            "as is: eye region PSNR dB": float(np.mean(a[near, 2])),
-            "corrected: eye region PSNR dB": float(np.mean(a[near, 4])),
-            "all frames, as is: median angle deg": float(np.nanmedian(a[:, 1])),
-            "all frames, corrected: median angle deg": float(np.nanmedian(a[:, 3]))}
-
-
 def eye_crop(frame: np.ndarray, gaze, K: np.ndarray, truth: np.ndarray | None = None, size=(360, 150)) -> np.ndarray:
     """The frame's eye region with the estimated rays drawn (green; a closed eye orange) and, when
     given, the true combined direction from between the eyes (red), scaled to ``size`` (W, H)."""
@@ -306,8 +220,6 @@ def synthetic(args, data: Path) -> dict:
             "gaze / mesh network cpu": cpu["gaze"] / cpu["mesh"],
             "irises + gaze / mesh network cpu": (cpu["irises"] + cpu["gaze"]) / cpu["mesh"],
         }
-        if args.eye_contact:
-            results[str(seed)]["eye contact"] = eye_contact_check(args, data, seed, frames)
         print(seed, json.dumps(results[str(seed)], indent=1), flush=True)
     return results
 
@@ -367,7 +279,6 @@ def main(argv=None) -> int:
     ap.add_argument("--max-frames", type=int, default=0, help="at most this many frames of each video (0: all)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/bench_gaze"),
                     help="where gaze.json, the pictures and the rendered frames (kept for a rerun) go")
-    ap.add_argument("--eye-contact", action="store_true", help="also measure eye contact on the synthetic frames")
     ap.add_argument("--verbose", action="store_true", help="print each synthetic frame's estimate and truth")
     args = ap.parse_args(argv)
     data = shared_data_dir()

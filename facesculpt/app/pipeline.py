@@ -164,9 +164,7 @@ class Pipeline:
     far and how often it was reduced); False: the whole edit always. gaze: run the iris network on
     each found face's eyes (``FrameResult``'s timings "irises") and give each fit its gaze
     (``fit.gaze``, :mod:`facesculpt.nodes.fitter.gaze`, each face's eyeballs learned over its first
-    frames; timings "gaze"). eye_contact: an
-    :class:`~facesculpt.nodes.renderer.eye_contact.EyeContactOptions` to move each face's irises
-    toward looking into the camera in :meth:`compose` (implies ``gaze``); None: off.
+    frames; timings "gaze").
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
@@ -179,7 +177,7 @@ class Pipeline:
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
                  outline_band: float | None = None, expression: bool = True,
                  rotation_prior_px: float = FitterConfig.rotation_prior_px, pose_limit: bool = True,
-                 gaze: bool = False, eye_contact=None):
+                 gaze: bool = False):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -209,8 +207,8 @@ class Pipeline:
 
             self.compositor_options["segmenter"] = PersonSegmenter(models_dir, threads)
         self.expression = bool(expression)
-        self.irises, self.eye_contact = None, eye_contact
-        if gaze or eye_contact is not None:
+        self.irises = None
+        if gaze:
             from facesculpt.nodes.landmarks.irises import IrisDetector
 
             self.irises = IrisDetector(models_dir or "", threads)
@@ -383,14 +381,6 @@ class Pipeline:
             for k, v in compositor.timings.items():
                 if k != "total":
                     render_ms[k] = render_ms.get(k, 0.0) + v
-        if self.eye_contact is not None:
-            from facesculpt.nodes.renderer.eye_contact import eye_contact
-
-            t0 = time.perf_counter()
-            for fit in fits.values():
-                if fit.gaze is not None and fit.pose_edit is None:  # the eyes where the input shows them
-                    out = eye_contact(out, self.K, fit.gaze, self.eye_contact)
-            timings["eye_contact"] = (time.perf_counter() - t0) * 1e3
         return FrameResult(out, fits[min(fits)], timings, render_ms, fits)
 
     def uv_layout(self) -> np.ndarray | None:

@@ -247,19 +247,6 @@ def _fit_options(args) -> dict:
             "refine": None if refine == "off" else refine}
 
 
-def _eye_options(args) -> dict:
-    """The Pipeline's gaze and eye-contact options from --gaze and --eye-contact (ValueError in one
-    sentence on a limit out of range)."""
-    limit = getattr(args, "eye_contact", None)
-    if limit is None:
-        return {"gaze": bool(getattr(args, "gaze", False)), "eye_contact": None}
-    from facesculpt.nodes.renderer.eye_contact import EyeContactOptions
-
-    if not 0.0 <= limit <= 60.0:
-        raise ValueError(f"--eye-contact must be a limit from 0 to 60 degrees, got {limit}")
-    return {"gaze": True, "eye_contact": EyeContactOptions(limit_deg=float(limit))}
-
-
 def _pose_options(args) -> dict:
     """The Pipeline's pose options from --pose, --face-camera, its limit and smoothing, --keyframes (ValueError
     in one sentence on a bad value)."""
@@ -295,12 +282,12 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     args = copy.copy(args)
     args.input, args.output = input_path, output_spec
     refuse_output_over_input(args.input, args.output)  # before anything is opened
-    export, eyes = None, _eye_options(args)
+    export, gaze = None, bool(getattr(args, "gaze", False))
     if getattr(args, "export_params", ""):
         from facesculpt.app.params_export import ParamsExport
 
         refuse_output_over_input(args.input, args.export_params)
-        export = ParamsExport(args.export_params, gaze=eyes["gaze"])
+        export = ParamsExport(args.export_params, gaze=gaze)
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
@@ -315,7 +302,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     pipeline = Pipeline(args.model, threads=args.threads, **fit_options, **pose_options,
                         faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "drag"),
                         plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "sinc"),
-                        outline_band=getattr(args, "outline_band", None), expression=export is not None, **eyes)
+                        outline_band=getattr(args, "outline_band", None), expression=export is not None, gaze=gaze)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

@@ -85,9 +85,6 @@ def register(sub) -> None:
     p.add_argument("--gaze", action="store_true",
                    help="find the irises and estimate each face's gaze (docs/guide/eyes.md); --export-params then "
                         "writes the gaze columns too")
-    p.add_argument("--eye-contact", type=float, nargs="?", const=15.0, default=None, metavar="DEG",
-                   help="move each iris toward looking into the camera while the gaze is within DEG degrees of it "
-                        "(default 15), fading out over 5 more and during blinks; implies --gaze (docs/guide/eyes.md)")
     p.add_argument("--codec", default=None, metavar="NAME",
                    help="video encoder (default by suffix: libx264 (H.264) for .mp4/.mov/.m4v/.mkv, mjpeg for .avi; "
                         "others: libx265, mpeg4, ffv1, ...)")
