@@ -129,7 +129,7 @@ def run(frames: list, truths: list, background: np.ndarray, scene, fitter_option
 
     rows, took = [], []
     size = (frames[0].shape[1], frames[0].shape[0])
-    with Pipeline("sfm", fov_deg=FOV_DEG, **fitter_options) as pipe:
+    with Pipeline("sfm", fov_deg=FOV_DEG, fit=FitterConfig(**fitter_options)) as pipe:
         for i, frame in enumerate(frames):
             t0 = time.perf_counter()
             fit = pipe.fit_frame(frame, i / 25.0)
@@ -146,7 +146,7 @@ def fitted_pixels(frames: list, model: str, options: dict, **pipeline) -> np.nda
     from facesculpt.app.pipeline import Pipeline
 
     tracks = []
-    with Pipeline(model, **options, **pipeline) as pipe:
+    with Pipeline(model, fit=FitterConfig(**options), **pipeline) as pipe:
         for i, frame in enumerate(frames):
             fit = pipe.fit_frame(frame, i / 25.0)
             if fit is None:
@@ -157,6 +157,7 @@ def fitted_pixels(frames: list, model: str, options: dict, **pipeline) -> np.nda
 
 #: The fits compared: the project's default, the same without the landmark network's rotation
 #: as the pose's prior (``rotation_prior_px=0``), and refined by appearance.
+#: FitterConfig fields of each method.
 METHODS = {
     "landmarks only": {},
     "landmarks only, no network rotation": {"rotation_prior_px": 0.0},

@@ -59,6 +59,7 @@ from benchmarks.realism.scene import Scene, make_scene
 from benchmarks.realism.sequences import read_video, render_sequences
 from facesculpt.app.pipeline import Pipeline, read_preset
 from facesculpt.geometry import merge_deformation
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.paths import shared_data_dir
 
 EDITS = {
@@ -178,7 +179,7 @@ class FittedFaces:
     on the first ``neutral_frames``), each edit's preset solved once on its neutral."""
 
     def __init__(self, model: str, inputs: list, presets: dict, neutral_frames: int):
-        self.pipe = Pipeline(model, neutral_frames=neutral_frames)
+        self.pipe = Pipeline(model, fit=FitterConfig(neutral_frames=neutral_frames))
         self.pipe.calibrate(inputs[:neutral_frames], 25.0)
         self.disps = {}
         for e, preset in presets.items():
@@ -293,7 +294,7 @@ def real_video(args, data: Path, out: Path) -> dict:
     """Part 4: the plate's share of the uncovered pixels over a real video, flicker, a picture."""
     frames = read_video(data / "video" / f"{args.real_video}.mp4", args.real_frames)
     H, W = frames[0].shape[:2]
-    pipe = Pipeline("facemesh", neutral_frames=args.neutral_frames)
+    pipe = Pipeline("facemesh", fit=FitterConfig(neutral_frames=args.neutral_frames))
     pipe.calibrate(frames[: args.neutral_frames], 25.0)
     pipe.set_edits(read_preset(REAL_PRESET))
     plates = ["drag+plate", "drag+plate-face-only"]

@@ -75,7 +75,7 @@ def fit_sequence(args, scene, model, exact: bool) -> dict:
     fitter = make_fitter(model, FitterConfig(neutral_frames=args.neutral_frames), size,
                          intrinsics_from_fov(*size, 60.0)) if exact else None
     refine = getattr(args, "refine", None)   # a caller's Namespace may predate the option
-    with nullcontext() if exact else Pipeline(args.model, neutral_frames=args.neutral_frames, refine=refine) as pipe:
+    with nullcontext() if exact else Pipeline(args.model, fit=FitterConfig(neutral_frames=args.neutral_frames, refine=refine)) as pipe:
         for i in range(args.frames):
             w = activation(i, args.neutral_frames)
             shape = scene.rest.copy()

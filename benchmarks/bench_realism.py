@@ -52,7 +52,7 @@ also gives how far the lower lip (iBUG 58) moved along the edit's image displace
 
 Run: ``python -m benchmarks.bench_realism [--out DIR] [--frames 90] [--models facemesh,sfm]
 [--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--no-oracle] [--pythonpath DIR]
-[--process-args "--fill drag"] [--landmark-oracle KEEP] [--truth-edit falloff,arap,paper]
+[--process-args "--inpaint drag"] [--landmark-oracle KEEP] [--truth-edit falloff,arap,paper]
 [--variants old=DIR,...]``
 (``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
 revision, to compare compositors on the same ground truth). Needs the shared data
@@ -102,7 +102,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--atlas-edits", default=",".join(ATLAS_EDITS),
                    help=f"edits also run with process --atlas on (default {','.join(ATLAS_EDITS)}; '' for none)")
     p.add_argument("--process-args", default="", type=str.split, metavar="ARGS",
-                   help="more options for every process run, e.g. '--fill drag' (compare settings on one truth)")
+                   help="more options for every process run, e.g. '--inpaint drag' (compare settings on one truth)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--oracle", action=argparse.BooleanOptionalAction, default=True,
                    help="also score the project's compositor on the true head (the true edit, and the preset as the "

@@ -40,6 +40,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.nodes.fitter.config import FitterConfig
+
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -68,7 +70,7 @@ def _expressions(frames, fps, neutral_frames=30):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.nodes.fitter.expression import NAMES
 
-    pipe = Pipeline("facemesh", neutral_frames=neutral_frames)
+    pipe = Pipeline("facemesh", fit=FitterConfig(neutral_frames=neutral_frames))
     pipe.calibrate(frames[:neutral_frames], fps)
     fits, E = [], []
     for i, frame in enumerate(frames):

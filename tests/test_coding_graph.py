@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 from conftest import free_port
 
+from facesculpt.nodes.fitter.config import FitterConfig
+
 
 def _face_psnr(a: np.ndarray, b: np.ndarray, projected: np.ndarray) -> float:
     mask = np.zeros(a.shape[:2], np.uint8)
@@ -34,7 +36,7 @@ def d0_fits(data_dir, models_dir):
         assert ok
         frames.append(frame)
     cap.release()
-    with Pipeline("facemesh", neutral_frames=10) as pipe:
+    with Pipeline("facemesh", fit=FitterConfig(neutral_frames=10)) as pipe:
         fits = [pipe.fit_frame(f, i / 25.0) for i, f in enumerate(frames)]
         neutral = np.array(pipe.neutral, np.float64)
         triangles = pipe.model.triangles

@@ -79,7 +79,7 @@ def test_the_cli_reference_has_every_command_and_every_option():
                     "facesculpt keys generate", "facesculpt model import-eos"):
         assert f"`{command}`" in page, command
     process = page.split("## `facesculpt process`", 1)[1].split("\n## ", 1)[0]
-    for option in ("--edits", "--fill", "--refine", "--pose", "--face-camera", "--export-params", "--cluster"):
+    for option in ("--edits", "--inpaint", "--refine", "--pose", "--face-camera", "--export-params", "--cluster"):
         assert f"`{option}" in process, option
 
 

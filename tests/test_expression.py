@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.expression import NAMES, expression_parameters, expression_points
 
 REPO = Path(__file__).resolve().parent.parent
@@ -48,7 +49,7 @@ def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir)
 
     cap = cv2.VideoCapture(str(data_dir / "video" / "d3.mp4"))
     jaw, opening = [], []
-    with Pipeline(model, neutral_frames=30) as pipeline:
+    with Pipeline(model, fit=FitterConfig(neutral_frames=30)) as pipeline:
         for i in range(150):
             ok, frame = cap.read()
             if not ok:

@@ -90,7 +90,7 @@ def test_the_fitter_option_is_checked_and_refines_real_frames(data_dir, models_d
     cap.release()
     fits = {}
     for refine in (None, "appearance"):
-        with Pipeline("facemesh", refine=refine) as pipe:
+        with Pipeline("facemesh", fit=FitterConfig(refine=refine)) as pipe:
             fits[refine] = [pipe.fit_frame(f, i / 25.0) for i, f in enumerate(frames)]
             assert pipe.fitter.config.refine == refine
     moved = [np.abs(a.projected - b.projected).max() for a, b in zip(fits[None], fits["appearance"])]
@@ -180,7 +180,7 @@ def test_the_refined_shape_reaches_the_learned_neutral(data_dir, models_dir):
     cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
     frames = [cap.read()[1] for _ in range(16)]
     cap.release()
-    with Pipeline("sfm", refine="appearance") as pipe:
+    with Pipeline("sfm", fit=FitterConfig(refine="appearance")) as pipe:
         for i, f in enumerate(frames):
             pipe.fit_frame(f, i / 25.0)
         fitter = pipe.fitter

@@ -191,7 +191,7 @@ def test_bad_input_is_refused_with_a_clear_error(gl, data_dir, sfm):
         comp.render(frame, X, px, T, bad)
     with pytest.raises(ValueError, match="triangle indices"):
         comp.render(frame, X, px, T + len(X), X)
-    with pytest.raises(ValueError, match="inpaint method"):
+    with pytest.raises(ValueError, match="inpaint must be one of"):
         Compositor(W, H, ctx=gl, inpaint="navier")
     # After the errors it still renders correctly.
     assert np.array_equal(comp.render(frame, X, px, T, X), frame)

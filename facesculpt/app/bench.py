@@ -43,6 +43,7 @@ import numpy as np
 
 from facesculpt.app.bench_graph import SIZE
 from facesculpt.app.bench_reference import add_ratios, as_ratio, reference_workload
+from facesculpt.nodes.fitter.config import FitterConfig
 
 FRONTAL_YAW_DEG = 20.0
 PRESETS = ("nose_longer.json", "chin.json", "cheeks.json")  # the paper's Fig. 6e, in order
@@ -225,7 +226,7 @@ def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dic
     from facesculpt.app.pipeline import Pipeline
 
     skip = 3  # the first frames create the GL context and warm the caches
-    with Pipeline(model, refine=refine, plate=memory, atlas=memory) as pipeline:
+    with Pipeline(model, plate=memory, atlas=memory, fit=FitterConfig(refine=refine)) as pipeline:
         pipeline.calibrate(iter(frames), fps)
         if pipeline.fitted_frames == 0:
             raise RuntimeError(f"no face found in the bench input with the {model} model")

@@ -34,6 +34,7 @@ from facesculpt.coding.fsc import (
     write_stream,
 )
 from facesculpt.geometry.similarity import similarity_vector
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.reenact.expression_basis import expression_basis, expression_coefficients
 
 #: The neck band of :func:`neck_band` reaches this share of the face's height below its lowest point.
@@ -60,7 +61,8 @@ class Analysis:
     triangles: np.ndarray
 
 
-def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0, progress=None) -> Analysis:
+def analyse(frames, fps: float, neutral_frames: int = FitterConfig.neutral_frames, fov_deg: float = 60.0,
+            progress=None) -> Analysis:
     """Fit every frame of a video; ValueError without a face. ``frames``: a list of (H, W, 3)
     uint8 BGR, or a callable returning a fresh iterator over them (called twice: the neutral's
     pass over the first frames, then every frame), so a long video is never held in memory;
@@ -72,7 +74,7 @@ def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0,
     def fresh():
         return iter(frames()) if callable(frames) else iter(frames)
 
-    with Pipeline("facemesh", fov_deg=fov_deg, neutral_frames=neutral_frames) as pipe:
+    with Pipeline("facemesh", fov_deg=fov_deg, fit=FitterConfig(neutral_frames=neutral_frames)) as pipe:
         pipe.calibrate(islice(fresh(), neutral_frames), fps)
         neutral = np.array(pipe.neutral, np.float64)
         present, pose, expression, projected = [], [], [], []

@@ -236,15 +236,22 @@ def _atlas_options(args) -> tuple[str, str]:
     return save_texture, "on" if atlas == "on" else ("learn" if save_texture else "off")
 
 
-def _fit_options(args) -> dict:
-    """The Pipeline's fitting options from --fov, --neutral-frames, --refine and --rotation-prior
-    (ValueError in one sentence on a negative --rotation-prior)."""
+def _stage_options(args) -> dict:
+    """The Pipeline's fitting and compositing options (``fit``, ``render``, ``fov_deg``) from the
+    command line's flags (ValueError in one sentence on a bad value)."""
+    from facesculpt.nodes.fitter.config import FitterConfig
+    from facesculpt.nodes.renderer.compositor_options import CompositorOptions
+
     rotation_prior = args.rotation_prior
     if not rotation_prior >= 0:
         raise ValueError(f"--rotation-prior must be a weight >= 0 px per radian (0: off), got {rotation_prior}")
     refine = getattr(args, "refine", "off")
-    return {"fov_deg": args.fov, "neutral_frames": args.neutral_frames, "rotation_prior_px": rotation_prior,
-            "refine": None if refine == "off" else refine}
+    fit = FitterConfig(neutral_frames=args.neutral_frames, rotation_prior_px=rotation_prior,
+                       refine=None if refine == "off" else refine)
+    render = {"inpaint": getattr(args, "inpaint", "drag"), "interpolation": getattr(args, "interpolation", "sinc")}
+    if getattr(args, "outline_band", None) is not None:
+        render["outline_band"] = args.outline_band
+    return {"fov_deg": args.fov, "fit": fit, "render": CompositorOptions(**render)}
 
 
 def _pose_options(args) -> dict:
@@ -291,7 +298,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
-    pose_options, fit_options = _pose_options(args), _fit_options(args)
+    pose_options, stage_options = _pose_options(args), _stage_options(args)
     source = open_input(args.input)
     fps, total = source.native_fps, source.frame_count or None
     if total and args.max_frames:
@@ -299,10 +306,9 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input,
                          getattr(args, "preset", None))
     save_texture, atlas = _atlas_options(args)
-    pipeline = Pipeline(args.model, threads=args.threads, **fit_options, **pose_options,
-                        faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "drag"),
-                        plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "sinc"),
-                        outline_band=getattr(args, "outline_band", None), expression=export is not None, gaze=gaze)
+    pipeline = Pipeline(args.model, threads=args.threads, **stage_options, **pose_options,
+                        faces=selection, detector=detector, atlas=atlas, plate=getattr(args, "plate", "off"),
+                        expression=export is not None, gaze=gaze)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

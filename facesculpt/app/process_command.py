@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import sys
 
+from facesculpt.app.option_arguments import add_option_argument
 from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_SMOOTHING_S
+from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.nodes.renderer.compositor_options import CompositorOptions
+
+#: The defaults of the flags that are fitter and compositor options (declared in those classes).
+FITTER, RENDER = FitterConfig(), CompositorOptions()
 
 
 def _add_fit_arguments(p) -> None:
@@ -13,17 +19,13 @@ def _add_fit_arguments(p) -> None:
     p.add_argument("--model", default="facemesh", metavar="facemesh|sfm|MODEL.npz",
                    help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
                         "non-commercial) or a .npz from `facesculpt model import-eos`")
-    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
-                   help="frames the first pass learns the neutral face from, before the edits are solved (default 30)")
+    add_option_argument(p, FITTER, "neutral_frames", "--neutral-frames", metavar="N",
+                        extra_help="the first pass learns the neutral face from them, before the edits are solved")
     p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
                    help="horizontal field of view assumed for the camera (default 60)")
-    p.add_argument("--refine", choices=("off", "appearance"), default="off",
-                   help="refine each frame's landmark fit on its pixels against the person's learned appearance "
-                        "(issue 20; docs/guide/face-models.md)")
-    p.add_argument("--rotation-prior", type=float, default=100.0, metavar="PX",
-                   help="with --model sfm: hold each fit's pitch toward the landmark network's own 3D rotation "
-                        "with this weight, px per radian (default 100; 0: the landmarks alone; "
-                        "docs/guide/face-models.md)")
+    add_option_argument(p, FITTER, "refine", "--refine")
+    add_option_argument(p, FITTER, "rotation_prior_px", "--rotation-prior", metavar="PX",
+                        extra_help="with --model sfm (docs/guide/face-models.md)")
 
 
 def _add_pose_arguments(p) -> None:
@@ -104,22 +106,13 @@ def register(sub) -> None:
     p.add_argument("--save-texture", default="", metavar="FILE.png",
                    help="write the face's texture atlas (in the model's UV layout) as a PNG at the end "
                         "(learned even with --atlas off)")
-    p.add_argument("--fill", choices=("drag", "pushpull", "telea", "ns", "patch"), default="drag",
-                   help="fill of the background an edit uncovers where it was never seen: drag (the background "
-                        "beside the face carried in by its motion, the default), pushpull (smooth), telea / ns "
-                        "(OpenCV inpainting), patch (background copied in from nearby)")
+    add_option_argument(p, RENDER, "inpaint", "--inpaint", old_flags=("--fill",))
     p.add_argument("--plate", choices=("on", "off"), default="off",
                    help="keep a background plate (the background seen behind the face and the person in other frames, "
                         "registered when the camera moves) and take what an edit uncovers from it where known "
                         "(default off)")
-    p.add_argument("--outline-band", type=float, default=None, metavar="S",
-                   help="carry an edit's motion this far past the fitted outline, fading out, as a share of the "
-                        "face's size, so a real outline the fit lies inside moves with the face (default 0.05; "
-                        "0: not at all)")
-    p.add_argument("--interpolation", choices=("sinc", "cubic", "lanczos"), default="sinc",
-                   help="kernel the frame is resampled with where the face moved: sinc (the default: a long "
-                        "windowed sinc, keeps the skin's finest detail), cubic (faster, softer) or lanczos "
-                        "(Lanczos-4)")
+    add_option_argument(p, RENDER, "outline_band", "--outline-band", metavar="S")
+    add_option_argument(p, RENDER, "interpolation", "--interpolation")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_process)
 

@@ -1,7 +1,8 @@
-"""Every option of the fitters (:func:`.fitter.make_fitter`), with its unit and valid range.
+"""Every option of the fitters (:func:`.fitter_factory.make_fitter`), declared once with its
+default, unit, valid range and help (:func:`facesculpt.options.option`).
 
-The fitter node builds one from its parameters, the in-process pipeline from its options; the
-defaults are the node's. An option out of range raises :class:`.result.FitError` (a ValueError)
+The fitter node's parameters derive from these fields, and the in-process pipeline takes a
+:class:`FitterConfig` itself. An option out of range raises :class:`.result.FitError` (a ValueError)
 with one sentence naming it.
 """
 
@@ -11,6 +12,7 @@ import numbers
 from dataclasses import dataclass, fields
 
 from facesculpt.nodes.fitter.result import FitError
+from facesculpt.options import check_options, option
 
 PROJECTIONS = ("auto", "perspective", "orthographic")
 OUTLINE_MODES = ("ray", "nearest", "off")
@@ -64,33 +66,56 @@ class FitterConfig:
     frames (:mod:`.appearance`, issue 20); ``refine_after`` (>= 1): frames learned first.
     """
 
-    projection: str = "auto"
-    iterations: int = 5
-    tracking_iterations: int | None = 1
-    shape_lambda: float = 3.0
-    expression_lambda: float = 4.0
-    outline: str = "ray"
-    coefficients: str = "joint"
-    inner_steps: int = 3
-    outline_weight: float = 0.3
-    num_shape: int | None = None
-    min_landmarks: int = 6
-    accumulate_identity: bool = True
-    identity_decay: float = 0.98
-    identity_max_frames: float = 50.0
-    smoothing: bool = True
-    smooth_min_cutoff: float = 1.5
-    smooth_beta: float = 0.5
-    smooth_beta_mm: float = 0.05
-    smooth_beta_rotation: float | None = None
-    smooth_predict_rotation: float = 0.0
-    smooth_predict_mm: float = 0.0
-    neutral_frames: int = 30
-    warm_start_gap_s: float = 0.5
-    correction_weight: float = 20.0
-    rotation_prior_px: float = 100.0
-    refine: str | None = None
-    refine_after: int = 10
+    projection: str = option("auto", "perspective (needs K), orthographic, or auto: perspective when K is given",
+                             choices=PROJECTIONS)
+    iterations: int = option(5, "pose / outline-correspondence / coefficient iterations of a cold-started frame",
+                             range=(1, 50))
+    tracking_iterations: int | None = option(1, "iterations of a frame warm-started from the previous one (at "
+                                                "most iterations)", range=(1, 50), none="always iterations")
+    shape_lambda: float = option(3.0, "Eq. 2 regularisation of the shape coefficients", "mm²", range=(0.0, None))
+    expression_lambda: float = option(4.0, "Eq. 2 regularisation of the expression coefficients", "mm²",
+                                      range=(0.0, None))
+    outline: str = option("ray", "contour correspondences: ray (the paper's ray-triangle points), nearest (nearest "
+                                 "outline vertex), or off", choices=OUTLINE_MODES)
+    coefficients: str = option("joint", "coefficient solve per iteration: joint (the alternation's fixed point, "
+                                        "exact) or alternate (one shape then one expression solve, as eos)",
+                               choices=COEFFICIENT_SOLVES)
+    inner_steps: int = option(3, "pose / coefficient alternations per iteration", range=(1, 100))
+    outline_weight: float = option(0.3, "weight of an outline landmark relative to a fixed one", range=(1e-9, None))
+    num_shape: int | None = option(None, "leading shape components fitted (at most the model's)", range=(0, None),
+                                   none="all")
+    min_landmarks: int = option(6, "fewest landmarks with a fixed model vertex a frame needs", range=(4, None))
+    accumulate_identity: bool = option(True, "keep identity (shape) evidence across frames (sparse)")
+    identity_decay: float = option(0.98, "weight an earlier frame's identity evidence keeps per frame",
+                                   range=(1e-9, 1.0))
+    identity_max_frames: float = option(50.0, "cap on the identity evidence's total weight", "frames",
+                                        range=(1e-9, None))
+    smoothing: bool = option(True, "One Euro filtering of the pose, the expression and (dense) the fitted shape")
+    smooth_min_cutoff: float = option(1.5, "One Euro minimum cutoff frequency", "Hz", range=(0.001, 100.0))
+    smooth_beta: float = option(0.5, "One Euro speed coefficient of rotation, scale and expression",
+                                "Hz per unit/s", range=(0.0, None))
+    smooth_beta_mm: float = option(0.05, "One Euro speed coefficient of translation and dense vertices",
+                                   "Hz per mm/s", range=(0.0, None))
+    smooth_beta_rotation: float | None = option(None, "One Euro speed coefficient of the rotation alone",
+                                                "Hz per rad/s", range=(0.0, None), none="smooth_beta")
+    smooth_predict_rotation: float = option(0.0, "the rotation's filter predicts at constant velocity, weighed in "
+                                                 "as its speed clears this (0: off)", "rad/s", range=(0.0, None))
+    smooth_predict_mm: float = option(0.0, "the translation's filter predicts at constant velocity, weighed in as "
+                                           "its speed clears this (0: off)", "mm/s", range=(0.0, None))
+    neutral_frames: int = option(30, "frames averaged into the learned neutral (dense) and into the landmark "
+                                     "network's 3D reference (sparse, rotation_prior_px)", "frames",
+                                 range=(1, 100000))
+    warm_start_gap_s: float = option(0.5, "a frame later than this after the previous one starts cold", "s",
+                                     range=(1e-9, None))
+    correction_weight: float = option(20.0, "weight of a user-corrected landmark relative to a detected one",
+                                      range=(1e-9, None))
+    rotation_prior_px: float = option(100.0, "sparse, perspective: weight holding the fitted pitch toward that of "
+                                             "the landmark network's own 3D points; 0: off", "px per radian",
+                                      range=(0.0, 10000.0))
+    refine: str | None = option(None, "appearance: refine each landmark fit on its frame's pixels against the "
+                                      "person's learned appearance and corners tracked from the last frame "
+                                      "(docs/guide/face-models.md)", choices=("appearance",), none="landmarks only")
+    refine_after: int = option(10, "frames learned before refine starts", "frames", range=(1, None))
 
     def __post_init__(self) -> None:
         _choice("projection", self.projection, PROJECTIONS)
@@ -118,6 +143,7 @@ class FitterConfig:
                 raise FitError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.identity_decay <= 1:
             raise FitError(f"identity_decay must be in (0, 1], got {self.identity_decay}")
+        check_options(self, FitError)  # the rest of each field's declared range and choices
         # Plain Python numbers from here on (numpy scalars and ints given for floats alike).
         for f in fields(self):
             value = getattr(self, f.name)

@@ -29,7 +29,7 @@ import numpy as np
 
 from facesculpt.msgs import FaceExpression, FaceGaze, FaceLandmarks, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import ConfigurationError, Param
+from facesculpt.runtime.parameters import ConfigurationError, Param, Renamed, option_params
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
 
 from .config import FitterConfig
@@ -51,6 +51,11 @@ def valid_intrinsics(K) -> bool:
     return K.shape == (3, 3) and bool(np.isfinite(K).all()) and K[0, 0] > 0 and K[1, 1] > 0 and abs(K[2, 2] - 1) < 1e-6
 
 
+#: The :class:`FitterConfig` fields the node takes as parameters (the others keep their defaults).
+FITTER_PARAMS = ("iterations", "tracking_iterations", "projection", "shape_lambda", "expression_lambda", "outline",
+                 "smoothing", "smooth_min_cutoff", "neutral_frames", "rotation_prior_px", "refine")
+
+
 class FitterNode(Node):
     """Fits the face model to face/landmarks: publishes face/state, face/expression and face/model."""
 
@@ -58,23 +63,9 @@ class FitterNode(Node):
     TOPICS = ("face/state", "face/model", "face/expression", "face/gaze", "face/landmarks", "input/events", "camera/image")
     PARAMS = {
         "model": Param("facemesh", "\"facemesh\" (built in), or a .npz model file (facesculpt model import-eos)"),
-        "iterations": Param(5, "pose / correspondence / coefficient iterations per frame (cold start)",
-                            range=(1, 50)),
-        "tracking_iterations": Param(1, "iterations when warm-started from the previous frame", range=(1, 50)),
-        "projection": Param("auto", "perspective (with the frame's K), orthographic, or auto: K if valid",
-                            choices=("auto", "perspective", "orthographic")),
-        "shape_lambda": Param(3.0, "Eq. 2 regularisation of the shape coefficients, mm²", range=(0.0, None)),
-        "expression_lambda": Param(4.0, "Eq. 2 regularisation of the expression coefficients, mm²",
-                                   range=(0.0, None)),
-        "outline": Param("ray", "contour correspondences: ray (paper), nearest, or off",
-                         choices=("ray", "nearest", "off")),
-        "smoothing": Param(True, "One Euro filter on pose and expression"),
-        "min_cutoff": Param(1.5, "One Euro minimum cutoff frequency, Hz", range=(0.001, 100.0)),
-        "neutral_frames": Param(30, "frames averaged into the neutral reference (dense) and into the landmark "
-                                    "network's 3D reference (sparse, rotation_prior_px)", range=(1, 100000)),
-        "rotation_prior_px": Param(100.0, "sparse, perspective: weight (px per radian) holding the fitted pitch "
-                                          "toward that of the landmark network's own 3D points; 0: off",
-                                   range=(0.0, 10000.0)),
+        # the fitter's own options, declared once in FitterConfig
+        **option_params(FitterConfig(), FITTER_PARAMS),
+        "min_cutoff": Renamed("smooth_min_cutoff"),
         "model_period_s": Param(1.0, "least time between face/model updates while the neutral is learned, s",
                                 range=(0.0, 3600.0)),
         "model_change_mm": Param(2.0, "sparse, once learned (2 x neutral_frames frames): republish when a "
@@ -82,9 +73,6 @@ class FitterNode(Node):
         "min_score": Param(0.5, "faces below this landmark score are not fitted", range=(0.0, 1.0)),
         "faces": Param("largest", "which faces to fit: largest, all, or a face number from 1 (numbered from the "
                                   "left as first seen; the landmarks node's max_faces must cover them)"),
-        "refine": Param("off", "appearance: refine each fit on its frame's pixels (camera/image): the person's "
-                               "learned appearance and corners tracked from the last frame (docs/guide/"
-                               "face-models.md); off: landmarks only", choices=("off", "appearance")),
         "depth": Param("off", "on: refine each fit on its frame's aligned depth image (camera/image of an RGB-D "
                               "camera, docs/guide/depth-cameras.md; perspective only); off: no depth",
                        choices=("off", "on")),
@@ -292,13 +280,8 @@ class FitterNode(Node):
     def fitter_config(self) -> FitterConfig:
         """The fitter's options from this node's params (the others at their defaults)."""
         p = self.params
-        return FitterConfig(
-            projection=p.projection, iterations=p.iterations, tracking_iterations=p.tracking_iterations,
-            shape_lambda=p.shape_lambda, expression_lambda=p.expression_lambda, outline=p.outline,
-            smoothing=p.smoothing, smooth_min_cutoff=p.min_cutoff, neutral_frames=p.neutral_frames,
-            rotation_prior_px=p.rotation_prior_px,
-            refine=None if p.refine == "off" else p.refine,
-        )
+        values = {name: getattr(p, name) for name in FITTER_PARAMS}
+        return FitterConfig(**{**values, "refine": None if p.refine == "off" else p.refine})
 
     def prepare_fitter(self, size: tuple[int, int], K: np.ndarray | None) -> None:
         """A fitter for this camera (image size, K), made anew when the camera changed; the

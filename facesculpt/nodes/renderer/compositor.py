@@ -38,6 +38,7 @@ crop for work that numpy/OpenCV do cheaply on it (benchmarks/bench_renderer.py m
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import cv2
@@ -45,26 +46,26 @@ import moderngl
 import numpy as np
 
 from facesculpt.geometry import point_bounds
+from facesculpt.options import check_options
 
 from .atlas_memory import AtlasMemory
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate
 from .body_motion import body_box, carry_to_body, neck_motion, union_box
 from .camera import estimate_projection, project
+from .compositor_options import OUTLINE_BAND, CompositorOptions  # noqa: F401 (OUTLINE_BAND: its old home)
 from .drag_fill import drag_fill, smooth_drag
 from .gl_context import create_headless_context
-from .inpaint import FILL_METHODS, dilate, fill_by_parts, uncovered_mask
+from .inpaint import dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
 from .sinc_sampling import Upsampled, upsampled_around
 from .source_map import UNCOVERED, SourceMapRenderer
-from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
     IDENTITY_PX,
-    INTERPOLATIONS,
     bounding_slices,
     changed_pixels,
     covered_pixels,
@@ -80,7 +81,6 @@ FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's
 # anti-aliasing of a filmed silhouette. The wider feather blended the outline over the fill and
 # left a pale band along a narrowed jaw.
 SILHOUETTE_FEATHER_PX = 2.0
-OUTLINE_BAND = 0.05  # a shape edit's motion reaches this far past the fitted outline (share of the face's size)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
 
@@ -95,8 +95,9 @@ def face_size(projected: np.ndarray) -> float:
 class Compositor:
     """Renders a deformed face into video frames of one size. Usable without the graph.
 
-    Compositor(width, height, ctx=None, inpaint="drag", feather_px=3.0, dilate_px=2, telea_radius=3.0,
-    interpolation="sinc", subdivision=None, max_fine_edge_px=MAX_FINE_EDGE_PX): frame size in pixels; ``ctx`` a
+    Compositor(width, height, options=CompositorOptions(), ctx=None, segmenter=None, **fields): frame
+    size in pixels; ``options`` a :class:`.compositor_options.CompositorOptions` (every option's
+    default, unit and range), whose fields may also be given by name; ``ctx`` a
     moderngl context to draw with (default: a headless EGL context of its own); ``inpaint`` the fill
     of what the face uncovers: "pushpull", "telea", "ns", "patch" (:mod:`.inpaint`) or "drag"
     (:mod:`.drag_fill`); ``feather_px`` least width of the soft edge inside the deformed outline
@@ -126,49 +127,39 @@ class Compositor:
     ``meshes.last_levels``, the Loop levels of the mesh it drew.
     """
 
-    def __init__(self, width: int, height: int, *, ctx: moderngl.Context | None = None,
-                 inpaint: str = "drag", feather_px: float = 3.0, dilate_px: int = 2,
-                 telea_radius: float = 3.0, interpolation: str = "sinc", subdivision: int | None = None,
-                 max_fine_edge_px: float | None = MAX_FINE_EDGE_PX,
-                 atlas: bool = False, atlas_size: int = 256, atlas_every: int = 1, atlas_blend: bool = True,
-                 atlas_thread: bool = False,
-                 plate: bool = False, plate_max_age: int = 150, plate_register: bool = True,
-                 segmenter=None, keyframes: bool = False, outline_band: float = OUTLINE_BAND):
+    def __init__(self, width: int, height: int, options: CompositorOptions | None = None, *,
+                 ctx: moderngl.Context | None = None, segmenter=None, **overrides):
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}")
-        if inpaint not in FILL_METHODS:
-            raise ValueError(f"unknown inpaint method {inpaint!r} (known: {', '.join(FILL_METHODS)})")
-        if interpolation not in INTERPOLATIONS:
-            raise ValueError(f"unknown interpolation {interpolation!r} (known: {', '.join(INTERPOLATIONS)})")
-        if feather_px < 0 or dilate_px < 0:
-            raise ValueError("feather_px and dilate_px must be >= 0")
-        if not 0 <= outline_band <= 0.5:
-            raise ValueError(f"outline_band must be a share of the face's size in [0, 0.5], got {outline_band}")
+        try:  # a field given by name (Compositor(w, h, feather_px=2)) overrides ``options``
+            o = dataclasses.replace(options or CompositorOptions(), **overrides)
+        except TypeError as exc:
+            raise TypeError(f"Compositor: {exc} (its options: CompositorOptions' fields)") from None
+        check_options(o)
+        self.options = o
         self.width, self.height = width, height
-        self.inpaint = inpaint
-        self.feather_px, self.outline_band = float(feather_px), float(outline_band)
-        self.dilate_px = int(dilate_px)
-        self.telea_radius = float(telea_radius)
-        self.interpolation = interpolation
-        self.meshes = RenderMeshes(subdivision, max_fine_edge_px)
+        self.inpaint = o.inpaint
+        self.feather_px, self.outline_band = float(o.feather_px), float(o.outline_band)
+        self.dilate_px = int(o.dilate_px)
+        self.telea_radius = float(o.telea_radius)
+        self.interpolation = o.interpolation
+        self.meshes = RenderMeshes(o.subdivision, o.max_fine_edge_px)
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_headless_context()
-        self.maps = SourceMapRenderer(self.ctx, width, height, extras=bool(atlas) or bool(keyframes))
-        if atlas_every < 1:
-            raise ValueError(f"atlas_every must be >= 1, got {atlas_every}")
-        self.atlas_blend = bool(atlas_blend)
-        self.memory = AtlasMemory(self.ctx, atlas_size, width, height, atlas_every, atlas_thread) if atlas else None
+        self.maps = SourceMapRenderer(self.ctx, width, height, extras=bool(o.atlas) or bool(o.keyframes))
+        self.atlas_blend = bool(o.atlas_blend)
+        self.memory = AtlasMemory(self.ctx, o.atlas_size, width, height, o.atlas_every, o.atlas_thread) if o.atlas else None
         # keyframes need how well this frame sees each vertex: the atlas's, when it sees every frame
         # on this thread, or a rasteriser of their own
-        own = keyframes and not (self.memory is not None and self.memory.current)
+        own = o.keyframes and not (self.memory is not None and self.memory.current)
         self._quality_raster = AtlasRasterizer(self.ctx, 16, width, height) if own else None
-        self.views: dict | None = {} if keyframes else None   # face key -> KeyframeViews
+        self.views: dict | None = {} if o.keyframes else None   # face key -> KeyframeViews
         self.keyframe_used: int | None = None   # the frame index of the keyframe the last render blended in
         self.atlas_region: np.ndarray | None = None   # (h, w) float32 atlas weight of the last box
-        self.plate = BackgroundPlate(width, height, max_age=plate_max_age, register=plate_register) if plate else None
+        self.plate = BackgroundPlate(width, height, max_age=o.plate_max_age, register=o.plate_register) if o.plate else None
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
-        self._plate_learner = PlateLearner(self.plate, segmenter) if plate else None
+        self._plate_learner = PlateLearner(self.plate, segmenter) if o.plate else None
         self._mesh: RenderMesh | None = None   # the render mesh of the last frame
         self.timings: dict[str, float] = {}
         self.box: tuple[int, int, int, int] | None = None

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from .compositor import OUTLINE_BAND
+from .compositor_options import OUTLINE_BAND
 from .subdivision import MAX_FINE_EDGE_PX
 
 #: Frames with at least this many pixels (1280x720 and up) get the cheaper "auto" settings.

@@ -26,6 +26,7 @@ around the face moves with it).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 
@@ -36,10 +37,11 @@ from facesculpt.geometry.hand_regions import hand_region_mask
 from facesculpt.geometry.pose_offset import FACE_CAMERA_SMOOTHING_MAX_S, PoseOffset
 from facesculpt.msgs import Deformation, FaceModel, FaceState, FaceTexture, FrameDone, HandLandmarks, Image, InputEvent
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import ConfigurationError, Param
+from facesculpt.runtime.parameters import ConfigurationError, Param, option_params
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
 
-from .compositor import OUTLINE_BAND, Compositor
+from .compositor import Compositor
+from .compositor_options import OUTLINE_BAND, CompositorOptions
 from .correction_mode import CorrectionMode
 from .face_groups import FaceGroups
 from .frame_size_defaults import (
@@ -49,7 +51,6 @@ from .frame_size_defaults import (
     auto_outline_band,
     auto_subdivision,
 )
-from .inpaint import FILL_METHODS
 from .mouth_interior import paint_opened_mouth
 from .pairing import FramePairer
 from .person_segmentation import MissingNetworkError, PersonSegmenter
@@ -64,6 +65,10 @@ from .pose_limit import PoseLimiter, turn_within_limits
 from .subdivision import MAX_FINE_EDGE_PX
 from .texture_atlas import uv_layout
 
+#: The compositor's options in live use: the atlas learned every other frame, on a thread of its own
+#: (the frames between only read it), so that learning it costs the frame rate little.
+LIVE = CompositorOptions(atlas_every=2, atlas_thread=True)
+
 
 class RendererNode(Node):
     """Renders the deformed face into the video: window, video file and/or render/image."""
@@ -72,6 +77,8 @@ class RendererNode(Node):
     TOPICS = ("render/image", "input/events", "render/done", "face/texture", "camera/image", "face/state",
               "face/model", "face/deformation", "hands/landmarks")
     PARAMS = {
+        # the compositor's own options, declared once in CompositorOptions (LIVE: the live defaults)
+        **option_params(LIVE, ("inpaint", "feather_px", "dilate_px", "plate_max_age", "atlas_size", "atlas_every")),
         "window": Param(False, "open a window (shows the result, mouse drags become input/events)"),
         "pairing": Param("latest", "frames with face states: latest (the newest state) or sync (each frame's own)",
                          choices=("latest", "sync")),
@@ -84,10 +91,6 @@ class RendererNode(Node):
                                 range=(0.0, 60.0)),
         "max_state_age_s": Param(0.5, "latest: the oldest state (relative to the frame) still drawn, s",
                                  range=(0.0, 60.0)),
-        "inpaint": Param("drag", "fill of the background the deformed face uncovers where it was never seen: "
-                                     "drag (the background beside the face carried in by its motion), pushpull "
-                                     "(smooth), telea / ns (OpenCV inpainting), patch (background copied in from "
-                                     "nearby, seams corrected)", choices=FILL_METHODS),
         "mouth": Param("off", "paint: where an edit opens a mouth that is closed in the frame, paint a dark "
                               "interior with a soft teeth band instead of stretching the lips (face-mesh "
                               "model; on in facesculpt/launch/reenact.yaml); off: the lips stretch", choices=("off", "paint")),
@@ -99,10 +102,6 @@ class RendererNode(Node):
         "plate": Param("off", "background plate: the background seen behind the face in earlier frames (registered "
                               "when the camera moves; never the person: `facesculpt setup`'s person segmentation) "
                               "replaces the fill where known", choices=("on", "off")),
-        "plate_max_age": Param(150, "background plate: frames after which a pixel's estimate is no longer used",
-                               range=(1, 100000)),
-        "feather_px": Param(3.0, "soft edge inside the deformed outline, px", range=(0.0, 100.0)),
-        "dilate_px": Param(2, "growth of the region to inpaint, px", range=(0, 100)),
         "outline_band": Param("auto", f"how far past the fitted outline a shape edit's motion is carried, fading "
                                       f"out, as a share of the face's size (a real outline the fit lies inside moves "
                                       f"with the face), in [0, {MAX_OUTLINE_BAND}]; 0: not at all; auto: {OUTLINE_BAND} "
@@ -129,10 +128,6 @@ class RendererNode(Node):
         "atlas": Param("off", "texture memory of the face (UV atlas): learned over the frames; where the frame sees "
                               "the edited surface badly (stretched, hidden) its colours come from it; published on "
                               "face/texture", choices=("on", "off")),
-        "atlas_size": Param(256, "atlas texels a side", range=(32, 2048)),
-        "atlas_every": Param(2, "update the atlas every N frames (the frames between only read it; an update runs "
-                                "on a thread with a GL context of its own once the frame is drawn, skipped while the "
-                                "last one runs)", range=(1, 100)),
         "texture_size": Param(128, "face/texture: the atlas downscaled to this many texels a side", range=(16, 2048)),
         "texture_period_s": Param(1.0, "face/texture: published at most this often, s", range=(0.0, 3600.0)),
         "face_camera": Param(0.0, "turn each face this share of the way toward looking into the camera (0: off, "
@@ -328,14 +323,13 @@ class RendererNode(Node):
             ctx = self.window.ctx
         p = self.params
         subdivision, max_fine_edge_px = auto_subdivision(p.subdivision, width, height)
-        self.compositor = Compositor(width, height, ctx=ctx, inpaint=p.inpaint, feather_px=p.feather_px,
-                                     outline_band=auto_outline_band(p.outline_band, width, height),
-                                     dilate_px=p.dilate_px, atlas=p.atlas == "on", atlas_size=p.atlas_size,
-                                     atlas_every=p.atlas_every, atlas_thread=True,
-                                     plate=p.plate == "on", plate_max_age=p.plate_max_age, segmenter=self.segmenter,
-                                     interpolation=auto_interpolation(p.interpolation, width, height),
-                                     keyframes=p.keyframes == "on", subdivision=subdivision,
-                                     max_fine_edge_px=max_fine_edge_px)
+        options = dataclasses.replace(
+            LIVE, inpaint=p.inpaint, feather_px=p.feather_px, dilate_px=p.dilate_px, plate_max_age=p.plate_max_age,
+            atlas_size=p.atlas_size, atlas_every=p.atlas_every, atlas=p.atlas == "on", plate=p.plate == "on",
+            keyframes=p.keyframes == "on", outline_band=auto_outline_band(p.outline_band, width, height),
+            interpolation=auto_interpolation(p.interpolation, width, height), subdivision=subdivision,
+            max_fine_edge_px=max_fine_edge_px)
+        self.compositor = Compositor(width, height, options, ctx=ctx, segmenter=self.segmenter)
         return True
 
     def _render(self, frame_msg: Image, states: list[FaceState] | None) -> None:
