@@ -3,6 +3,7 @@ that carry them and the nodes that publish them (issue 48)."""
 
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
 
 import cv2
@@ -273,3 +274,37 @@ def test_process_gaze_exports_each_frames_gaze(data_dir, models_dir, tmp_path):
     yaw = [float(r["gaze_yaw_deg"]) for r in rows]
     assert all(-60 < y < 60 for y in yaw) and all(r["blink_right"] in ("0", "1") for r in rows)
     assert np.std(yaw) < 10  # one person holding a gaze over a third of a second: no jumps
+
+
+def test_a_fitter_process_publishes_gaze_for_landmarks_with_irises(graph, d0_faces, irises):
+    from facesculpt.runtime.node import Node
+    from facesculpt.runtime.qos import EVERY_MESSAGE
+
+    msgs = []
+    for i, (frame, points) in enumerate(d0_faces):
+        h, w = frame.shape[:2]
+        found, lids = irises.find(frame, points)
+        msgs.append(FaceLandmarks(stamp=1_000_000_000 + i * 40_000_000, seq=i, frame_id="camera",
+                                  points=np.asarray(points, np.float32)[None], scores=np.ones(1, np.float32),
+                                  rois=np.zeros((1, 5), np.float32), image_size=[w, h],
+                                  K=np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1.0]]),
+                                  irises=found[None], eye_lids=lids[None]))
+    proc = graph.spawn("run", "fitter", "model=facemesh", "neutral_frames=3")
+    client = Node(name="gaze_test_client")
+    gazes: list[FaceGaze] = []
+    pub = client.advertise("face/landmarks", FaceLandmarks)
+    client.subscribe("face/gaze", FaceGaze, gazes.append, qos=EVERY_MESSAGE)
+    client.start()
+    try:
+        deadline, k = time.monotonic() + 60, 0
+        while len(gazes) < 5 and time.monotonic() < deadline:
+            pub.publish(msgs[k % len(msgs)])
+            k += 1
+            client.spin_once(0.1)
+        assert len(gazes) >= 5, f"no face/gaze from the fitter process: {client.diagnostics()}"
+        g = gazes[-1]
+        assert g.stamp in {m.stamp for m in msgs} and np.isfinite(g.direction).all() and not g.closed.any()
+    finally:
+        client.close()
+        proc.terminate()
+        assert proc.wait(10) == 0
