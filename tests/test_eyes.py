@@ -259,6 +259,7 @@ def test_draw_gaze_draws_the_rays_and_marks_a_closed_eye():
     assert xs.max() - xs.min() > 40  # the ray heads to the image's right (positive x)
 
 
+@pytest.mark.slow
 def test_process_gaze_exports_each_frames_gaze(data_dir, models_dir, tmp_path):
     import csv
     import subprocess
@@ -276,6 +277,7 @@ def test_process_gaze_exports_each_frames_gaze(data_dir, models_dir, tmp_path):
     assert np.std(yaw) < 10  # one person holding a gaze over a third of a second: no jumps
 
 
+@pytest.mark.slow
 def test_a_fitter_process_publishes_gaze_for_landmarks_with_irises(graph, d0_faces, irises):
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVERY_MESSAGE
