@@ -182,9 +182,15 @@ class EyeballLearning:
         return self.frames >= self.learn_frames
 
     def iris_radius(self) -> float:
+        """The iris radius (mm) learned so far (fixed once learned)."""
         if not self.iris_radii:
             return IRIS_RADIUS_MM
-        return float(np.clip(np.median(self.iris_radii), *IRIS_RADIUS_RANGE_MM))
+        if self.learned and "rho" in self._levels:
+            return self._levels["rho"]
+        rho = float(np.clip(np.median(self.iris_radii), *IRIS_RADIUS_RANGE_MM))
+        if self.learned:
+            self._levels["rho"] = rho
+        return rho
 
     def openings_level(self, eye: int) -> float:
         """The eye's usual opening: the 90th percentile of its recent openings, brought up to date
@@ -286,8 +292,8 @@ def estimate_gaze(fit, lid_vertices, irises: np.ndarray, lids: np.ndarray, state
     confidences = np.zeros(2)
     forward_cam = R @ forward
     for e in (0, 1):
-        rho_px = _limbus_radius_px(irises[e], lids[e])
         if not state.learned and not closed.any():
+            rho_px = _limbus_radius_px(irises[e], lids[e])
             px_per_mm = s if ortho else float(K[0, 0]) / max(float(centres[e, 2]), 1e-6)
             state.iris_radii.append(rho_px / px_per_mm)
         if closed[e]:
