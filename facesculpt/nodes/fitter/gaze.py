@@ -8,10 +8,9 @@ head's forward axis (model +z, through the fitted rotation). Where the opening i
 sources, each for what it measures well:
 
 * across the face: the iris network's lids, each frame, their corners' midpoint back-projected
-  at the depth the fit gives the eye's corners, plus the offset from there to the lids' centroid
-  (model mm, at the depth of the lids' middle: the corners lie a few mm deeper in the face, which
-  shows as the head turns) averaged over the person's first ``learn_frames`` frames (the corners
-  hardly move as the eye turns; the centroid follows the lids);
+  at the depth the fit gives the eye, plus the offset from there to the lids' centroid (model
+  mm) averaged over the person's first ``learn_frames`` frames (the corners hardly move as the eye
+  turns; the centroid follows the lids);
 * up and down: this frame's face-mesh eye corners (the points the fit was made from, so not
   lagging behind a fast head as the smoothed fitted pose does), plus the offset in the head from
   them to the iris network's lids' centroid averaged over those frames (without the face mesh's
