@@ -235,17 +235,12 @@ def _back_project(px: np.ndarray, depth: float, K: np.ndarray | None) -> np.ndar
 
 def _openings(mv, lid_vertices, lids, R, t, s, K) -> tuple[np.ndarray, np.ndarray]:
     """Each eye's corners' midpoint (2, 3) camera space, where the iris network's lids (2, 16,
-    >=2) pixels put it at the depth the fit gives the eye's corner vertices (the first and the
-    middle of its lid vertices), and the offset (2, 3) model mm from it to the centroid of those
-    lids, at the depth of the lid vertices' centroid (the corners lie deeper in the face than the
-    lids' middle; K None: orthographic)."""
+    >=2) pixels put it at the depth the fit gives the eye's lid vertices, and the offset (2, 3)
+    model mm from it to the centroid of those lids (K None: orthographic)."""
     mids, offsets = np.empty((2, 3)), np.empty((2, 3))
     for e in (0, 1):
-        vertices = np.asarray(lid_vertices[e])
-        corners = vertices[[0, len(vertices) // 2]]
-        depth_mid = float((s * (R @ mv[corners].mean(axis=0)) + t)[2])
-        depth = float((s * (R @ mv[vertices].mean(axis=0)) + t)[2])
-        mids[e] = _back_project((lids[e, 0, :2] + lids[e, 8, :2]) / 2.0, depth_mid, K)
+        depth = float((s * (R @ mv[np.asarray(lid_vertices[e])].mean(axis=0)) + t)[2])
+        mids[e] = _back_project((lids[e, 0, :2] + lids[e, 8, :2]) / 2.0, depth, K)
         centroid = _back_project(lids[e, :, :2].mean(axis=0), depth, K)
         offsets[e] = R.T @ (centroid - mids[e]) / s
     return mids, offsets
