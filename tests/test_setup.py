@@ -58,7 +58,7 @@ def test_setup_writes_networks_triangles_and_a_manifest_of_hashes(fresh_home):
     assert manifest["mediapipe_version"] == "0.10.14"
     assert manifest["wheel_sha256"] == WHEEL_SHA256
     expected = {f"{name}.{ext}" for name in ("face_detector", "face_landmark", "palm_detector", "hand_landmark",
-                                            "person_segmentation")
+                                            "person_segmentation", "iris_landmark")
                 for ext in ("onnx", "tflite")} | {TRIANGLES_FILE}
     assert set(manifest["files"]) == expected
     for name, entry in manifest["files"].items():

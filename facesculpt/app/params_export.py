@@ -3,7 +3,8 @@
 One row per frame and fitted face: ``frame`` (index from 0), ``time_s``, ``face`` (the face key:
 0 for the largest face, else its number from the left minus 1), the pose columns
 (:data:`facesculpt.nodes.fitter.expression.POSE_NAMES`) and the expression components
-(:data:`~facesculpt.nodes.fitter.expression.NAMES`, docs/guide/expressions.md). A frame
+(:data:`~facesculpt.nodes.fitter.expression.NAMES`, docs/guide/expressions.md), and with ``gaze``
+the gaze columns (:data:`facesculpt.nodes.fitter.gaze.GAZE_NAMES`, docs/guide/eyes.md). A frame
 without a fitted face has one row with ``face`` and every value empty (CSV) or null (JSON). The
 file is written beside its target under a temporary name and renamed when complete.
 """
@@ -17,6 +18,7 @@ import os
 from pathlib import Path
 
 from facesculpt.nodes.fitter.expression import NAMES, POSE_NAMES, head_pose
+from facesculpt.nodes.fitter.gaze import GAZE_NAMES, gaze_values
 
 SUFFIXES = (".csv", ".json")
 COLUMNS = ("frame", "time_s", "face", *POSE_NAMES, *NAMES)
@@ -24,13 +26,14 @@ COLUMNS = ("frame", "time_s", "face", *POSE_NAMES, *NAMES)
 
 class ParamsExport:
     """Collects rows (:meth:`add`) and writes them (:meth:`write`) to ``path`` (.csv or .json;
-    ValueError in one sentence otherwise)."""
+    ValueError in one sentence otherwise); ``gaze``: with the gaze columns."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, gaze: bool = False):
         self.path = Path(path)
         if self.path.suffix.lower() not in SUFFIXES:
             raise ValueError(f"--export-params {path}: write a .csv or a .json file")
         self.rows: list[dict] = []
+        self.columns = COLUMNS + (GAZE_NAMES if gaze else ())
 
     def add(self, frame: int, time_s: float, fits: dict) -> None:
         """The rows of one frame: ``fits`` face key -> FitResult (with ``expression``)."""
@@ -42,6 +45,9 @@ class ParamsExport:
             row.update(zip(POSE_NAMES, (round(float(v), 4) for v in head_pose(fit))))
             if fit.expression is not None:
                 row.update(zip(NAMES, (round(float(v), 4) for v in fit.expression)))
+            if getattr(fit, "gaze", None) is not None:
+                row.update(zip(GAZE_NAMES, (v if isinstance(v, int) else round(float(v), 4)
+                                            for v in gaze_values(fit.gaze))))
             self.rows.append(row)
 
     def write(self) -> Path:
@@ -57,12 +63,12 @@ class ParamsExport:
             with open(tmp, "w", newline="") as f:
                 if self.path.suffix.lower() == ".csv":
                     writer = csv.writer(f)
-                    writer.writerow(COLUMNS)
+                    writer.writerow(self.columns)
                     for row in self.rows:
-                        writer.writerow(["" if value(row, c) is None else value(row, c) for c in COLUMNS])
+                        writer.writerow(["" if value(row, c) is None else value(row, c) for c in self.columns])
                 else:
-                    json.dump({"columns": list(COLUMNS),
-                               "rows": [{c: value(row, c) for c in COLUMNS} for row in self.rows]}, f)
+                    json.dump({"columns": list(self.columns),
+                               "rows": [{c: value(row, c) for c in self.columns} for row in self.rows]}, f)
             os.replace(tmp, self.path)
         finally:
             tmp.unlink(missing_ok=True)

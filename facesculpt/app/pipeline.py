@@ -52,6 +52,7 @@ from facesculpt.nodes.fitter import (
     parse_faces,
 )
 from facesculpt.nodes.fitter.expression import face_expression
+from facesculpt.nodes.fitter.gaze import EyeballLearning, estimate_gaze, eye_lid_vertices
 from facesculpt.nodes.landmarks import LandmarkDetector
 from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
 from facesculpt.nodes.renderer.compositor_options import CompositorOptions
@@ -161,7 +162,10 @@ class Pipeline:
     :meth:`close` (or use ``with``) to free it. pose_limit: each frame draws only the share of its pose
     edit that what is known of the surface it reveals allows (issue 51,
     :mod:`facesculpt.nodes.renderer.pose_limit`; ``pose_limiter.lowest`` and ``.reduced`` say how
-    far and how often it was reduced); False: the whole edit always.
+    far and how often it was reduced); False: the whole edit always. gaze: run the iris network on
+    each found face's eyes (``FrameResult``'s timings "irises") and give each fit its gaze
+    (``fit.gaze``, :mod:`facesculpt.nodes.fitter.gaze`, each face's eyeballs learned over its first
+    frames; timings "gaze").
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, fit: FitterConfig | None = None,
@@ -172,7 +176,7 @@ class Pipeline:
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, expression: bool = True,
-                 pose_limit: bool = True, **deprecated):
+                 pose_limit: bool = True, gaze: bool = False, **deprecated):
         fit, render = options_of_old_names(fit or FitterConfig(), render or CompositorOptions(), deprecated)
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
@@ -200,6 +204,12 @@ class Pipeline:
 
             self.segmenter = PersonSegmenter(models_dir, threads)
         self.expression = bool(expression)
+        self.irises = None
+        if gaze:
+            from facesculpt.nodes.landmarks.irises import IrisDetector
+
+            self.irises = IrisDetector(models_dir or "", threads)
+        self.eyeballs: dict[int, EyeballLearning] = {}  # face key -> what is learned of its eyes
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()
@@ -257,6 +267,7 @@ class Pipeline:
         self.track_ids_seen.update(f.track_id for f in found)
         if not found:
             return {}
+        eyes = self._find_irises(frame_bgr, found, timings)
         t0 = time.perf_counter()
         fits = {}
         for face in self.faces.fit([f.points for f in found], [f.score for f in found],
@@ -266,11 +277,26 @@ class Pipeline:
                 fitter = self.faces.fitters[face.key]
                 if self.expression:
                     fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
+                if eyes:
+                    t1 = time.perf_counter()
+                    learning = self.eyeballs.setdefault(face.key, EyeballLearning())
+                    fit.gaze = estimate_gaze(fit, eye_lid_vertices(fitter.model), *eyes[face.index], learning,
+                                             found[face.index].points)
+                    timings["gaze"] = timings.get("gaze", 0.0) + (time.perf_counter() - t1) * 1e3
                 fits[face.key] = fit
                 self.fitted_per_face[face.key] = self.fitted_per_face.get(face.key, 0) + 1
-        timings["fit"] = (time.perf_counter() - t0) * 1e3
+        timings["fit"] = (time.perf_counter() - t0) * 1e3 - timings.get("gaze", 0.0)
         self.fitted_frames += bool(fits)
         return fits
+
+    def _find_irises(self, frame_bgr: np.ndarray, found: list, timings: dict) -> list | None:
+        """Each found face's (irises (2, 5, 3), lids (2, 16, 3)) pixels, None without ``gaze``."""
+        if self.irises is None:
+            return None
+        t0 = time.perf_counter()
+        eyes = [self.irises.find(frame_bgr, f.points) for f in found]
+        timings["irises"] = (time.perf_counter() - t0) * 1e3
+        return eyes
 
     def fit_frame(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None):
         """:meth:`fit_faces`, the first fitted face only: its :class:`FitResult` or None."""

@@ -289,12 +289,12 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     args = copy.copy(args)
     args.input, args.output = input_path, output_spec
     refuse_output_over_input(args.input, args.output)  # before anything is opened
-    export = None
+    export, gaze = None, bool(getattr(args, "gaze", False))
     if getattr(args, "export_params", ""):
         from facesculpt.app.params_export import ParamsExport
 
         refuse_output_over_input(args.input, args.export_params)
-        export = ParamsExport(args.export_params)
+        export = ParamsExport(args.export_params, gaze=gaze)
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
@@ -308,7 +308,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, **stage_options, **pose_options,
                         faces=selection, detector=detector, atlas=atlas, plate=getattr(args, "plate", "off"),
-                        expression=export is not None)
+                        expression=export is not None, gaze=gaze)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

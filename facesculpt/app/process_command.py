@@ -84,6 +84,9 @@ def register(sub) -> None:
     p.add_argument("--export-params", default="", metavar="FILE.csv|json",
                    help="also write each frame's head pose and expression parameters (docs/guide/expressions.md); "
                         "in a batch, beside each output video with this suffix")
+    p.add_argument("--gaze", action="store_true",
+                   help="find the irises and estimate each face's gaze (docs/guide/eyes.md); --export-params then "
+                        "writes the gaze columns too")
     p.add_argument("--codec", default=None, metavar="NAME",
                    help="video encoder (default by suffix: libx264 (H.264) for .mp4/.mov/.m4v/.mkv, mjpeg for .avi; "
                         "others: libx265, mpeg4, ffv1, ...)")

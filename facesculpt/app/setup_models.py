@@ -1,8 +1,9 @@
 """`facesculpt setup`: fetch the face, hand and person networks once and convert them to ONNX.
 
 The networks are the face detector (short range), the 468-point face mesh, the palm detector
-(full), the 21-point hand landmark network (full) and the selfie (person) segmentation (general,
-256x256) that the ``mediapipe==0.10.14`` wheel on
+(full), the 21-point hand landmark network (full), the selfie (person) segmentation (general,
+256x256) and the iris landmark network (5 iris points and 71 eye-contour points on a 64x64 eye
+crop, given a free batch axis so both eyes run at once) that the ``mediapipe==0.10.14`` wheel on
 PyPI ships as .tflite files (Apache-2.0). Setup downloads that
 exact wheel with ``pip download --no-deps`` (fixed python version and platform, so any
 interpreter fetches the same file), checks its sha256, extracts the networks and the mesh
@@ -13,6 +14,7 @@ tessellation (read as data), converts the networks with the project's own conver
     face_detector.onnx, face_landmark.onnx    the converted face networks (run by onnxruntime)
     palm_detector.onnx, hand_landmark.onnx    the converted hand networks
     person_segmentation.onnx                   the converted person segmentation (the plate's mask)
+    iris_landmark.onnx                         the converted iris network (irises and gaze)
     *.tflite (same names)                      the originals (reference for tests/benchmarks)
     facemesh_triangles.npy                     (T, 3) int32 triangles of the 468-point mesh
     manifest.json                              versions and the sha256 of every file
@@ -59,6 +61,7 @@ NETWORKS = {
     "palm_detector": "mediapipe/modules/palm_detection/palm_detection_full.tflite",
     "hand_landmark": "mediapipe/modules/hand_landmark/hand_landmark_full.tflite",
     "person_segmentation": "mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite",
+    "iris_landmark": "mediapipe/modules/iris_landmark/iris_landmark.tflite",
 }
 CONNECTIONS_MEMBER = "mediapipe/python/solutions/face_mesh_connections.py"
 TRIANGLES_FILE = "facemesh_triangles.npy"
@@ -168,7 +171,8 @@ def _verify_onnx(data: bytes, name: str) -> None:
     options = ort.SessionOptions()
     options.intra_op_num_threads = 1
     session = ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
-    feeds = {i.name: np.zeros(i.shape, np.float32) for i in session.get_inputs()}
+    feeds = {i.name: np.zeros([d if isinstance(d, int) else 1 for d in i.shape], np.float32)
+             for i in session.get_inputs()}
     outputs = session.run(None, feeds)
     if not all(np.isfinite(o).all() for o in outputs):
         raise SetupError(f"the converted {name} network gives non-finite outputs: please report this")
@@ -217,6 +221,10 @@ def run_setup(home: Path | None = None, wheel: Path | None = None, force: bool =
     for name, tflite in members.items():
         t0 = time.perf_counter()
         model = convert_tflite(tflite, name=name)
+        if name == "iris_landmark":  # both eyes in one run
+            from facesculpt.nodes.landmarks.irises import free_batch_axis
+
+            free_batch_axis(model)
         data = model.SerializeToString()
         _verify_onnx(data, name)
         log.info("converted %s: %d ONNX nodes (%.1f s)", NETWORKS[name].rsplit("/", 1)[-1],

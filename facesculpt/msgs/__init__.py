@@ -10,6 +10,7 @@ from .types import (
     Deformation,
     Diagnostics,
     FaceExpression,
+    FaceGaze,
     FaceLandmarks,
     FaceModel,
     FaceState,
@@ -22,7 +23,7 @@ from .types import (
 
 __all__ = [
     "REGISTRY", "DecodeError", "Message", "decode", "encode", "summarize",
-    "Image", "FaceExpression", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
+    "Image", "FaceExpression", "FaceGaze", "FaceLandmarks", "FaceModel", "FaceState", "InputEvent", "Deformation", "Diagnostics", "FrameDone",
     "HandLandmarks", "FaceTexture", "CodedKey", "CodedBasis", "CodedFrame",
     "INPUT_KINDS", "INPUT_COMMANDS",
 ]

@@ -68,6 +68,9 @@ class FaceLandmarks(Message):
     rois:   (F, 5) float32 crop of each face: cx, cy, w, h (pixels), angle (radians).
     track_ids: (F,) int32 the same number for the same tracked face across frames (optional:
     absent means 0, 1, ...).  image_size: [W, H] of the source frame.  K: (3, 3) float64 its intrinsics.
+    irises: (F, 2, 5, 3) float32 each face's irises (the centre, then four limbus points; x, y
+    pixels, z relative depth), eye 0 the person's right; eye_lids: (F, 2, 16, 3) float32 the lids
+    (docs/guide/eyes.md); both optional, sent by the landmarks node with ``irises=true``.
     """
 
     TYPE = "FaceLandmarks"
@@ -75,6 +78,8 @@ class FaceLandmarks(Message):
     scores: np.ndarray = array("f4", "F")
     rois: np.ndarray = array("f4", "F", 5)
     track_ids: np.ndarray = array("i4", "F", optional=True)
+    irises: np.ndarray = array("f4", "F", 2, 5, 3, optional=True)
+    eye_lids: np.ndarray = array("f4", "F", 2, 16, 3, optional=True)
     image_size: list = field(default_factory=lambda: [0, 0])
     K: np.ndarray = array("f8", 3, 3)
 
@@ -285,6 +290,39 @@ class FaceExpression(Message):
     pose: np.ndarray = array("f8", 6)
     names: list = field(default_factory=list)
     values: np.ndarray = array("f4", "E")
+
+
+@register
+@dataclass
+class FaceGaze(Message):
+    """One fitted face's gaze, on `face/gaze` (docs/guide/eyes.md). Camera space, mm, OpenCV axes.
+
+    face_id: as FaceState.face_id.  centres (2, 3) float32: the eyeballs' centres, eye 0 the
+    person's right.  directions (2, 3) float32: each eye's unit gaze (NaN while it is closed).
+    eye_angles (2, 2) float32: each eye's yaw, pitch (degrees).  confidences (2,) float32 0..1.
+    closed (2,) uint8: 1 while the eye is closed (a blink, flagged from the lids).  openings (2,)
+    float32: lid opening / eye width.  origin (3,), direction (3,) float32: the combined ray
+    (direction NaN when both eyes are closed).  angles (4,) float32: its yaw, pitch in camera
+    space, then in the head (degrees; yaw toward the image's right, pitch up).  vergence_deg (NaN
+    unless both are open), fixation (3,) float32 (NaN unless the rays converge), confidence, and
+    learned: the eyeballs are learned.
+    """
+
+    TYPE = "FaceGaze"
+    face_id: int = 0
+    centres: np.ndarray = array("f4", 2, 3)
+    directions: np.ndarray = array("f4", 2, 3)
+    eye_angles: np.ndarray = array("f4", 2, 2)
+    confidences: np.ndarray = array("f4", 2)
+    closed: np.ndarray = array("u1", 2)
+    openings: np.ndarray = array("f4", 2)
+    origin: np.ndarray = array("f4", 3)
+    direction: np.ndarray = array("f4", 3)
+    angles: np.ndarray = array("f4", 4)
+    vergence_deg: float = float("nan")
+    fixation: np.ndarray = array("f4", 3)
+    confidence: float = 0.0
+    learned: bool = False
 
 
 @register

@@ -1,4 +1,5 @@
-"""The fitter node: ``face/landmarks`` -> ``face/state`` and ``face/expression``, and ``face/model`` (latched).
+"""The fitter node: ``face/landmarks`` -> ``face/state``, ``face/expression`` and ``face/gaze``, and ``face/model``
+(latched).
 With ``refine=appearance`` it also takes ``camera/image``: each fit is refined on its frame's
 pixels (:mod:`.appearance_refiner`, issue 20); a fit whose frame did not arrive is not refined.
 With ``depth=on`` it keeps ``camera/image``'s depth images by stamp and refines each fit on its
@@ -15,6 +16,8 @@ frames; sparse: the accumulated identity) — published when it changes, at most
 any other refusal: an empty state for that frame (0 vertices: the renderer's "no face", so a
 renderer pairing frames with states never waits for it), a counter in diagnostics, never an
 exception. ``face/expression`` is computed and sent only while something subscribes to it.
+``face/gaze`` (:mod:`.gaze`) is sent for every fitted face whose landmarks carry irises (the
+landmarks node's ``irises=true``); each face's eyeballs are learned over its first frames.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from functools import partial
 
 import numpy as np
 
-from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState, Image, InputEvent
+from facesculpt.msgs import FaceExpression, FaceGaze, FaceLandmarks, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param, Renamed, option_params
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
@@ -37,6 +40,7 @@ from .faces import FaceFitters, parse_faces
 from .fit_camera import FitCamera
 from .fitter import Fitter
 from .fitter_factory import make_fitter
+from .gaze import EyeballLearning, Gaze, estimate_gaze, eye_lid_vertices
 from .model import MorphableModel
 from .model_loading import load_model
 from .result import FitError
@@ -56,7 +60,7 @@ class FitterNode(Node):
     """Fits the face model to face/landmarks: publishes face/state, face/expression and face/model."""
 
     NAME = "fitter"
-    TOPICS = ("face/state", "face/model", "face/expression", "face/landmarks", "input/events", "camera/image")
+    TOPICS = ("face/state", "face/model", "face/expression", "face/gaze", "face/landmarks", "input/events", "camera/image")
     PARAMS = {
         "model": Param("facemesh", "\"facemesh\" (built in), or a .npz model file (facesculpt model import-eos)"),
         # the fitter's own options, declared once in FitterConfig
@@ -80,6 +84,8 @@ class FitterNode(Node):
         self.state_pub = self.advertise("face/state", FaceState)
         self.model_pub = self.advertise("face/model", FaceModel, qos=LATCHED)
         self.expression_pub = self.advertise("face/expression", FaceExpression)
+        self.gaze_pub = self.advertise("face/gaze", FaceGaze)
+        self.eyeballs: dict[int, EyeballLearning] = {}  # face key -> what is learned of its eyes
         self.subscribe("face/landmarks", FaceLandmarks, self.on_landmarks)
         self.subscribe("input/events", InputEvent, self.on_event, qos=EVENTS)
         self.frames: OrderedDict[int, np.ndarray] = OrderedDict()   # stamp -> camera frame (refine)
@@ -151,6 +157,25 @@ class FitterNode(Node):
             change = neutral[f.model.landmark_vertices] - published[f.model.landmark_vertices]
             return float(np.linalg.norm(change, axis=1).max()), threshold, done
         return float(np.abs(neutral - published).max()), threshold, done
+
+    def publish_gaze(self, msg: FaceLandmarks, fitted: list) -> None:
+        """``face/gaze`` of each fitted face from its landmarks' irises and lids."""
+        if np.shape(msg.irises)[0] != np.shape(msg.points)[0] or np.shape(msg.eye_lids)[0] != np.shape(msg.points)[0]:
+            self.count("bad_irises")
+            return
+        for f in fitted:
+            fitter = self.faces.fitters[f.key]
+            try:
+                lid_vertices = eye_lid_vertices(fitter.model)
+            except ValueError as exc:
+                self.count("no_gaze")
+                self.last_error = str(exc)
+                return
+            with self.stage("gaze"):
+                learning = self.eyeballs.setdefault(f.key, EyeballLearning())
+                gaze = estimate_gaze(f.outcome.fit, lid_vertices, msg.irises[f.index], msg.eye_lids[f.index], learning,
+                                     msg.points[f.index] if np.shape(msg.points)[1] == 468 else None)
+            self.gaze_pub.publish(gaze_message(gaze, msg.stamp, msg.frame_id, f.key))
 
     def maybe_publish_model(self, stamp: int, now_s: float) -> None:
         """Publish the learned neutrals when one moved by more than 0.5 mm somewhere, at most every
@@ -364,5 +389,19 @@ class FitterNode(Node):
             self.expression_pub.publish(FaceExpression(
                 stamp=msg.stamp, frame_id=msg.frame_id, face_id=f.key, pose=head_pose(result), names=list(NAMES),
                 values=values))
+        if fitted and msg.irises is not None and msg.eye_lids is not None:
+            self.publish_gaze(msg, fitted)
         if fitted:
             self.maybe_publish_model(msg.stamp, msg.stamp * 1e-9)
+
+
+def gaze_message(gaze: Gaze, stamp: int, frame_id: str, face_id: int) -> FaceGaze:
+    """The ``face/gaze`` message of one face's :class:`~.gaze.Gaze`."""
+    f4 = lambda a: np.asarray(a, np.float32)  # noqa: E731
+    return FaceGaze(stamp=stamp, frame_id=frame_id, face_id=int(face_id), centres=f4(gaze.centres),
+                    directions=f4(gaze.directions), eye_angles=f4(gaze.eye_angles), confidences=f4(gaze.confidences),
+                    closed=np.asarray(gaze.closed, np.uint8), openings=f4(gaze.openings), origin=f4(gaze.origin),
+                    direction=f4(gaze.direction),
+                    angles=f4([gaze.yaw_deg, gaze.pitch_deg, gaze.head_yaw_deg, gaze.head_pitch_deg]),
+                    vergence_deg=float(gaze.vergence_deg), fixation=f4(gaze.fixation),
+                    confidence=float(gaze.confidence), learned=bool(gaze.learned))

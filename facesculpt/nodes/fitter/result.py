@@ -32,7 +32,8 @@ class FitResult:
     pose edit a caller applies to this frame (the in-process pipeline): (its
     :class:`facesculpt.geometry.pose_offset.PoseOffset`, the head's pivot (3,) model mm), None: none;
     landmark_fit: the fit this one was refined from by appearance (its pose not yet smoothed), what
-    the landmarks alone say; None when not refined."""
+    the landmarks alone say; None when not refined; gaze: the face's :class:`~.gaze.Gaze` when the
+    caller estimated it (the in-process pipeline with ``gaze=True``)."""
 
     vertices: np.ndarray
     projected: np.ndarray
@@ -51,6 +52,7 @@ class FitResult:
     correspondence_ids: list[str] = field(default_factory=list, repr=False)
     pose_edit: tuple | None = field(default=None, repr=False)
     landmark_fit: FitResult | None = field(default=None, repr=False)
+    gaze: object | None = field(default=None, repr=False)
 
     @property
     def yaw_pitch_roll(self) -> tuple[float, float, float]:

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from facesculpt.geometry.halving import frame_intrinsics, halve, halvings
+from facesculpt.geometry.halving import frame_intrinsics, halve, halvings, to_frame_pixels
 from facesculpt.msgs import FaceLandmarks, Image
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import Param, option_params
 
 from .detector import FACE_ALIASES, FACE_OPTIONS, NUM_POINTS, LandmarkDetector
+from .irises import IRIS_OPTIONS, IrisDetector
 from .working_resolution import ANALYSIS_PIXELS, to_full_resolution
 
 # The detector's options the node declares as parameters (their defaults, ranges and help: FACE_OPTIONS).
@@ -33,6 +34,7 @@ class LandmarksNode(Node):
     TOPICS = ("face/landmarks",)
     PARAMS = {
         **option_params(FACE_OPTIONS, DETECTOR_PARAMS, FACE_ALIASES),
+        **option_params(IRIS_OPTIONS, ("irises",)),
         "image_topic": Param("camera/image", "the frames to track: camera/image, or camera/analysis (a halved "
                                              "copy the camera sends with analysis_pixels set)", topic=True),
         "max_pixels": Param(ANALYSIS_PIXELS, "track a larger frame on a copy halved until it holds at most this "
@@ -44,6 +46,7 @@ class LandmarksNode(Node):
         p = self.params
         self.detector = LandmarkDetector(**{name: getattr(p, name) for name in DETECTOR_PARAMS})
         self.pub = self.advertise("face/landmarks", FaceLandmarks)
+        self.irises = IrisDetector(p.models_dir, p.threads) if p.irises else None
         self.scale = None  # (this node's halvings, the camera's): a change restarts tracking
         self.subscribe(p.image_topic, Image, self.on_image)
         self.log.info("face networks loaded (threads=%d, max_faces=%d)", p.threads, p.max_faces)
@@ -71,12 +74,30 @@ class LandmarksNode(Node):
                 self.count("detector_runs")
         if not faces:
             self.count("no_face")
+        eyes = None
+        if self.irises is not None and faces:
+            with self.stage("irises"):
+                eyes = [self._eyes(image, f.points, int(msg.halvings)) for f in faces]
         self.pub.publish(FaceLandmarks(
             stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id,
             points=np.stack([f.points for f in faces]) if faces else np.zeros((0, NUM_POINTS, 3), np.float32),
             scores=np.array([f.score for f in faces], np.float32),
             rois=np.stack([f.roi for f in faces]).astype(np.float32) if faces else np.zeros((0, 5), np.float32),
-            track_ids=np.array([f.track_id for f in faces], np.int32), image_size=size, K=K))
+            track_ids=np.array([f.track_id for f in faces], np.int32), image_size=size, K=K,
+            irises=np.stack([e[0] for e in eyes]) if eyes else None,
+            eye_lids=np.stack([e[1] for e in eyes]) if eyes else None))
+
+    def _eyes(self, image: np.ndarray, points: np.ndarray, halved: int) -> tuple[np.ndarray, np.ndarray]:
+        """One face's irises and lids in the frame's pixels, found on the image received (a copy
+        the camera halved ``halved`` times: the points carried there and back)."""
+        scale = float(2 ** halved)
+        here = points.copy()
+        here[:, :2] = (points[:, :2] + 0.5) / scale - 0.5
+        irises, lids = self.irises.find(image, here)
+        for a in (irises, lids):
+            a[..., :2] = to_frame_pixels(a[..., :2], halved)
+            a[..., 2] *= scale
+        return irises, lids
 
 
 def _usable(msg: Image) -> bool:
