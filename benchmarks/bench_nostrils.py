@@ -9,7 +9,7 @@ facemesh, the neutral learned on the first frames as ``process`` does, then ever
 once per preset and strength:
 
 - ``tip``: the tip alone moved 6 mm down and 6 mm out (``nose_longer`` before issue 51);
-- ``shipped``: ``nose_longer`` as shipped (the lower nose, tip, columella and nostrils, moved as one).
+- ``shipped``: ``nose_longer`` as shipped (the tip, and the columella and nostrils with it, the upper lip held).
 
 Per frame:
 
@@ -59,8 +59,9 @@ def read_video(name: str, n: int) -> tuple[list[np.ndarray], float]:
 
 
 def tip_only(preset: dict) -> dict:
-    """``preset`` with only its first edit's nose-tip handle (the preset before issue 51)."""
+    """``preset`` with only its first edit's nose-tip handle and no pins (the preset before issue 51)."""
     doc = copy.deepcopy(preset)
+    doc["static"] = []
     doc["edits"] = [dict(doc["edits"][0], handles=[h for h in doc["edits"][0]["handles"]
                                                     if h.get("landmark") == "nose_tip"])]
     return doc
