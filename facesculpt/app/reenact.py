@@ -18,6 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.nodes.fitter.config import FitterConfig
+
 
 def register(sub) -> None:
     p = sub.add_parser("reenact", help="animate a source face with a driving video's expression (avatar)",
@@ -82,7 +84,7 @@ def reenact_file(args) -> tuple[int, str]:
     fps = driving.native_fps
     total = min(driving.frame_count or 0, args.max_frames or 10**9) or None
     output = open_output(args.output, fps, args.codec, args.crf, None)
-    pipe = Pipeline("facemesh", fov_deg=args.fov, neutral_frames=args.neutral_frames)
+    pipe = Pipeline("facemesh", fov_deg=args.fov, fit=FitterConfig(neutral_frames=args.neutral_frames))
     reenactor, with_face = None, 0
     try:
         with _Stop() as stop:
