@@ -2,7 +2,7 @@
 edit region, per frame, on the shared real videos, with the shipped preset and with the tip alone
 (the preset before issue 51) in the same run.
 
-    python benchmarks/bench_nostrils.py [--videos d0,d3,d12] [--frames 90] [--strengths 1,2] [--crops DIR]
+    python -m benchmarks.bench_nostrils [--videos d0,d3,d12] [--frames 90] [--strengths 1,2] [--crops DIR]
 
 Each video's first ``--frames`` frames go through the offline pipeline (``facesculpt process``'s:
 facemesh, the neutral learned on the first frames as ``process`` does, then every frame edited),

@@ -1,7 +1,7 @@
 """A contact sheet of the shipped presets (issue 51): every shipped preset at each strength on every
 shared video, input | output crops around the face at three frames each, one JPEG per video.
 
-    python benchmarks/contact_sheet.py [--out docs/results/images] [--videos d0,d3,d12,s18]
+    python -m benchmarks.contact_sheet [--out docs/results/images] [--videos d0,d3,d12,s18]
         [--strengths 1,2] [--frames 90] [--turned d3] [--height 170]
 
 Each video's first ``--frames`` frames go through the offline pipeline (``facesculpt process``'s:
