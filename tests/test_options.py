@@ -14,6 +14,9 @@ import pytest
 from facesculpt.app.pipeline_options import OLD_NAMES, options_of_old_names
 from facesculpt.cli import build_parser
 from facesculpt.geometry.detector_options import DetectorOptions
+from facesculpt.nodes.deformer.deformer_options import DeformerOptions
+from facesculpt.nodes.deformer.edits import Edit, EditStack
+from facesculpt.nodes.deformer.node import DeformerNode
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.node import FITTER_PARAMS, FitterNode
 from facesculpt.nodes.fitter.result import FitError
@@ -26,13 +29,14 @@ from facesculpt.nodes.renderer.node import LIVE, RendererNode
 from facesculpt.options import check_options, described_fields, option_problem
 from facesculpt.runtime.parameters import Renamed, declared, resolve_params
 
-OPTIONS_CLASSES = (DetectorOptions, FitterConfig, CompositorOptions)
+OPTIONS_CLASSES = (DetectorOptions, FitterConfig, CompositorOptions, DeformerOptions)
 # node -> (the options instance its defaults come from, aliases: node name -> field)
 NODE_OPTIONS = {
     LandmarksNode: (FACE_OPTIONS, FACE_ALIASES),
     HandsNode: (HAND_OPTIONS, HAND_ALIASES),
     FitterNode: (FitterConfig(), {}),
     RendererNode: (LIVE, {}),
+    DeformerNode: (DeformerOptions(), {}),
 }
 
 
@@ -159,3 +163,12 @@ def test_the_pipelines_old_keywords_map_to_the_options_and_warn():
         f.name for f in dataclasses.fields(CompositorOptions)}
     with pytest.raises(TypeError, match="unexpected keyword"):
         options_of_old_names(FitterConfig(), CompositorOptions(), {"feather": 1})
+
+
+def test_the_edit_stacks_defaults_are_the_deformers_options():
+    import inspect
+
+    options, signature = DeformerOptions(), inspect.signature(EditStack)
+    for name in ("roi_radius", "roi_metric", "grip", "min_solve_vertices"):
+        assert signature.parameters[name].default == getattr(options, name), name
+    assert (Edit().roi_radius, Edit().roi_metric) == (options.roi_radius, options.roi_metric)

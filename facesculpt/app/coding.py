@@ -61,7 +61,8 @@ class Analysis:
     triangles: np.ndarray
 
 
-def analyse(frames, fps: float, neutral_frames: int = 30, fov_deg: float = 60.0, progress=None) -> Analysis:
+def analyse(frames, fps: float, neutral_frames: int = FitterConfig.neutral_frames, fov_deg: float = 60.0,
+            progress=None) -> Analysis:
     """Fit every frame of a video; ValueError without a face. ``frames``: a list of (H, W, 3)
     uint8 BGR, or a callable returning a fresh iterator over them (called twice: the neutral's
     pass over the first frames, then every frame), so a long video is never held in memory;

@@ -13,6 +13,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from facesculpt.app.option_arguments import add_option_argument
+from facesculpt.nodes.fitter.config import FitterConfig
+
 
 def register(sub) -> None:
     p = sub.add_parser("encode", help="code a talking-head video as a keyframe plus pose and expression per frame",
@@ -28,8 +31,8 @@ def register(sub) -> None:
     # The default is facesculpt.coding.fsc.KEY_QUALITY, not imported here (it pulls in scipy at every start).
     p.add_argument("--key-quality", type=int, default=None, metavar="Q",
                    help="keyframe WebP quality, 1 to 100 (default 70)")
-    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
-                   help="frames the person's neutral face is learned from (default 30)")
+    add_option_argument(p, FitterConfig(), "neutral_frames", "--neutral-frames", metavar="N",
+                        extra_help="the person's neutral face is learned from them")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="code only the first N frames (0: all)")
     p.add_argument("--fov", type=float, default=60.0, metavar="DEG", help="assumed horizontal field of view")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

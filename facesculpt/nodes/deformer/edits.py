@@ -27,6 +27,7 @@ import numpy as np
 
 from .anchors import METRICS, distances_from, edge_length_graph, roi_within_radius
 from .arap import ArapDeformer
+from .deformer_options import GRIP, GRIP_RANGE, SETTLE_TOLERANCE, DeformerOptions
 from .errors import DeformerError
 from .landmark_warp import face_size, frame_rotation, landmark_positions, nearest_vertices, warp_points
 from .preset_format import ORIGIN_KEYS, PRESET_FORMAT, PRESET_VERSION, read_preset_file, scale_preset
@@ -37,15 +38,7 @@ __all__ = [
     "PRESET_VERSION", "Edit", "EditStack", "topology_signature",
 ]
 
-# A handle grips the skin within this share of its edit's ROI radius (same metric), which moves
-# with it rigidly. 0, the default, is the paper's single-vertex handle: ARAP pulling one vertex of
-# a dense mesh makes a cusp (the vertex moves, its neighbours lag), yet that is the deformation the
-# paper describes, and a grip makes another, larger nose or chin (docs/results/paper-arap.md).
-GRIP = 0.0
-GRIP_RANGE = (0.0, 0.5)
-# An edit has settled when no vertex moves by more than this share of the mesh's bounding-box
-# diagonal in an iteration (the deformer node's default ``tolerance``, which its idle rounds reach).
-SETTLE_TOLERANCE = 1e-5
+DEFAULTS = DeformerOptions()
 SETTLE_ITERATIONS = 2000  # the most iterations :meth:`EditStack.settle` takes to get there
 
 
@@ -56,8 +49,8 @@ class Edit:
     ``base`` is the displacement the edit started from (its grips move relative to it)."""
 
     offsets: dict[int, np.ndarray] = field(default_factory=dict)
-    roi_radius: float = 40.0
-    roi_metric: str = "geodesic"
+    roi_radius: float = DEFAULTS.roi_radius
+    roi_metric: str = DEFAULTS.roi_metric
     roi: np.ndarray | None = None
     base: np.ndarray | None = None  # (Vf, 3) mm, the solve mesh's displacement when the edit began
 
@@ -88,8 +81,8 @@ class EditStack:
         triangles: np.ndarray,
         landmark_names=(),
         landmark_vertices=(),
-        roi_radius: float = 40.0,
-        roi_metric: str = "geodesic",
+        roi_radius: float = DEFAULTS.roi_radius,
+        roi_metric: str = DEFAULTS.roi_metric,
         grip: float = GRIP,
         min_solve_vertices: int = MIN_SOLVE_VERTICES,
         **deformer_options,

@@ -23,6 +23,7 @@ without an ARAP solve.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -30,14 +31,13 @@ import numpy as np
 from facesculpt.geometry.axes_velocity import DEADZONE, DEADZONE_RANGE, SPEED_MM_S, SPEED_MM_S_RANGE
 from facesculpt.msgs import Deformation, FaceModel, FaceState, InputEvent
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import ConfigurationError, Param
+from facesculpt.runtime.parameters import ConfigurationError, Param, option_params
 from facesculpt.runtime.qos import EVENTS, LATCHED
 
-from .edits import GRIP, GRIP_RANGE, SETTLE_TOLERANCE
+from .deformer_options import DeformerOptions
 from .errors import DeformerError
 from .face_editor import FaceEditor
 from .preset_format import STRENGTH_RANGE, find_preset, read_preset_file, scale_preset
-from .solve_mesh import MIN_SOLVE_VERTICES, MIN_SOLVE_VERTICES_RANGE
 
 MAX_PENDING_WITHOUT_MODEL = 10000
 MAX_FACES = 16  # editors kept; the face edited longest ago is dropped first
@@ -46,26 +46,18 @@ POINTER_KINDS = ("drag", "release", "depth", "move")
 SELECTED_KINDS = ("depth", "move", "axes", "pose")
 
 
+#: The :class:`DeformerOptions` fields the node takes as parameters (all of them).
+DEFORMER_PARAMS = tuple(f.name for f in dataclasses.fields(DeformerOptions))
+
+
 class DeformerNode(Node):
     """Turns input/events (drags of points of the face) into face/deformation (ARAP)."""
 
     NAME = "deformer"
     TOPICS = ("face/deformation", "face/model", "face/state", "input/events")
     PARAMS = {
-        "roi_radius": Param(40.0, "default ROI of a new handle, mm on the neutral mesh", range=(0.1, 1000.0)),
-        "roi_metric": Param("geodesic", "distance the ROI radius is measured in",
-                            choices=("geodesic", "euclidean")),
-        "grip": Param(GRIP, "share of a handle's ROI radius around it that moves rigidly with it (0: the "
-                            "handle vertex alone, as in the paper)", range=GRIP_RANGE),
-        "min_solve_vertices": Param(MIN_SOLVE_VERTICES, "a model mesh with fewer vertices is solved on its refinement "
-                                                        "with at least as many, its holes closed (0: always on the "
-                                                        "model's own mesh)", range=MIN_SOLVE_VERTICES_RANGE),
-        "iterations": Param(4, "ARAP local/global iterations per solve (Anderson-accelerated)", range=(1, 100)),
-        "tolerance": Param(SETTLE_TOLERANCE, "stop early below this per-iteration motion, x bounding-box diagonal (0: never)",
-                           range=(0.0, 1.0)),
-        "acceleration": Param("anderson", "how a solve converges: anderson (accelerated) or none (plain local/global)",
-                              choices=("anderson", "none")),
-        "clamp_weights": Param(True, "clamp obtuse-angle cotangents at 0"),
+        # the deformer's own options, declared once in DeformerOptions
+        **option_params(DeformerOptions(), DEFORMER_PARAMS),
         "round_s": Param(0.005, "how often queued events are applied and solved, s", range=(0.001, 1.0)),
         "solve_share": Param(0.3, "share of one core the solves may take: after a solve of t seconds the "
                                   "next round waits t x (1/share - 1), at most 0.1 s (1: no wait)",
