@@ -23,25 +23,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from benchmarks.bench_nostrils import read_video
+
 JPEG_QUALITY = 80
-
-
-def read_video(name: str, n: int) -> tuple[list[np.ndarray], float]:
-    """The first ``n`` frames of the shared video ``name`` (BGR) and its fps."""
-    from facesculpt.paths import shared_data_dir
-
-    data = shared_data_dir()
-    if data is None:
-        raise SystemExit("shared data not found: set FACESCULPT_DATA")
-    cap, out = cv2.VideoCapture(str(data / "video" / f"{name}.mp4")), []
-    while len(out) < n:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        out.append(frame)
-    fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
-    cap.release()
-    return out, fps
 
 
 def run(frames: list[np.ndarray], fps: float, preset: dict | None, calibration: int = 30):
