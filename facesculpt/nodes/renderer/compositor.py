@@ -58,7 +58,7 @@ from .drag_fill import drag_fill, smooth_drag
 from .gl_context import create_headless_context
 from .inpaint import dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
-from .motion_extension import carry_past_outline, extend_motion, head_box, head_region, outline_weight
+from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
 from .sinc_sampling import Upsampled, upsampled_around
@@ -161,7 +161,6 @@ class Compositor:
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
         self._plate_learner = PlateLearner(self.plate, segmenter) if o.plate else None
         self._mesh: RenderMesh | None = None   # the render mesh of the last frame
-        self._own_map = None   # (h, w) float32: the share of the face's own source map a pose edit's pixel kept
         self.timings: dict[str, float] = {}
         self.box: tuple[int, int, int, int] | None = None
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None  # last box's
@@ -342,7 +341,7 @@ class Compositor:
         :func:`.motion_extension.carry_past_outline`)."""
         offsets, orig_mask = self.maps.read(box)
         face = covered_pixels(offsets)
-        dragged, self._own_map = None, None
+        dragged = None
         if head_motion:
             both = np.concatenate([projected, dst_px])
             if head_motion == "body":  # the head's extension on the head's own box, the body's motion below it
@@ -353,9 +352,8 @@ class Compositor:
                 offsets = carry_to_body(offsets, face, box[:2], dst_px, self._neck)
             else:
                 # a pose edit: the face's outline feathered into the head's extension as an edit's soft edge
-                region, feather = head_region(offsets.shape[:2], box[:2], both), self.feather_width(projected)
-                offsets = extend_motion(offsets, region, feather)
-                self._own_map = outline_weight(face, feather)   # where the keyframes may replace the frame
+                region = head_region(offsets.shape[:2], box[:2], both)
+                offsets = extend_motion(offsets, region, self.feather_width(projected))
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
@@ -453,10 +451,9 @@ class Compositor:
         the keyframe choice of :meth:`_update_memory`)."""
         self._blend_atlas(warped, block, offsets, changed, box, has_uv)
         fine, draw_tris, n_moving, chosen = draw
-        if chosen is not None:   # not in the outline's feather: the frame's feathered map alone there
-            weight = changed if self._own_map is None else changed & (self._own_map >= 1.0)
+        if chosen is not None:
             self.keyframe_used = blend_keyframe(warped, self.maps, self._mesh.S, fine, draw_tris, n_moving, box, block,
-                                                weight, chosen, self.interpolation)
+                                                changed, chosen, self.interpolation)
 
     def _extras(self, fine: np.ndarray) -> np.ndarray | None:
         """The source map's per-vertex extras: (Vf, 4) float32 (u, v, input frontality, 0) from the

@@ -90,16 +90,6 @@ def _fade_out(u: np.ndarray) -> np.ndarray:
     return 1.0 - u * u * (3.0 - 2.0 * u)
 
 
-def outline_weight(covered: np.ndarray, feather_px: float) -> np.ndarray:
-    """(h, w) float32: how much of the face's own source map a pixel of ``covered`` (h, w) bool
-    keeps under :func:`extend_motion`'s feather of ``feather_px`` pixels: 0 at the outline rising
-    by smoothstep to 1 that far inside (1 everywhere for 0), 0 outside."""
-    if feather_px <= 0:
-        return covered.astype(np.float32)
-    depth = cv2.distanceTransform(covered.view(np.uint8), cv2.DIST_L2, 3)
-    return (1.0 - _fade_out(np.clip(depth / feather_px, 0.0, 1.0))).astype(np.float32) * covered
-
-
 def extend_motion(offsets: np.ndarray, head: np.ndarray, feather_px: float = 0.0) -> np.ndarray:
     """The source map ``offsets`` (h, w, 2) float32 with the face's motion carried over the
     ``head`` (h, w) uint8 0/1 region (:func:`head_region`): its uncovered pixels get the
@@ -115,10 +105,10 @@ def extend_motion(offsets: np.ndarray, head: np.ndarray, feather_px: float = 0.0
     covered = offsets[..., 0] < 0.5 * UNCOVERED
     if not covered.any():
         return offsets.copy()
-    seeds, keep = covered, None
+    seeds, depth = covered, None
     if feather_px > 0:
-        keep = outline_weight(covered, feather_px)
-        core = keep >= 1.0
+        depth = cv2.distanceTransform(covered.view(np.uint8), cv2.DIST_L2, 3)
+        core = depth > feather_px
         seeds = core if core.any() else covered
     h, w = covered.shape
     small = (max(1, -(-w // FIELD_STEP)), max(1, -(-h // FIELD_STEP)))
@@ -137,9 +127,9 @@ def extend_motion(offsets: np.ndarray, head: np.ndarray, feather_px: float = 0.0
     fade = _fade_out(u)                          # 1 at the face, 0 at the border
     field = cv2.resize(pull_push(mean, weight) * fade[..., None], (w, h), interpolation=cv2.INTER_LINEAR)
     out = cv2.copyTo(field, ((head != 0) & ~covered).view(np.uint8), offsets.copy())
-    if keep is not None:
+    if depth is not None:
         band = covered & ~seeds
-        a = keep[band][:, None]   # 0 at the outline, 1 inside
+        a = (1.0 - _fade_out(np.clip(depth[band] / feather_px, 0.0, 1.0)))[:, None]   # 0 at the outline, 1 inside
         out[band] = a * offsets[band] + (1.0 - a) * field[band]
     return out
 
