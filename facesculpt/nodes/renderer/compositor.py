@@ -351,9 +351,7 @@ class Compositor:
                 offsets[part] = extend_motion(offsets[part], head_region(offsets[part].shape[:2], (x0, y0), both))
                 offsets = carry_to_body(offsets, face, box[:2], dst_px, self._neck)
             else:
-                # a pose edit: the face's outline feathered into the head's extension as an edit's soft edge
-                region = head_region(offsets.shape[:2], box[:2], both)
-                offsets = extend_motion(offsets, region, self.feather_width(projected))
+                offsets = extend_motion(offsets, head_region(offsets.shape[:2], box[:2], both))
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)

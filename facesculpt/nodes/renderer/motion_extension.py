@@ -90,48 +90,32 @@ def _fade_out(u: np.ndarray) -> np.ndarray:
     return 1.0 - u * u * (3.0 - 2.0 * u)
 
 
-def extend_motion(offsets: np.ndarray, head: np.ndarray, feather_px: float = 0.0) -> np.ndarray:
+def extend_motion(offsets: np.ndarray, head: np.ndarray) -> np.ndarray:
     """The source map ``offsets`` (h, w, 2) float32 with the face's motion carried over the
     ``head`` (h, w) uint8 0/1 region (:func:`head_region`): its uncovered pixels get the
     interpolated offsets of the face (:func:`pull_push` on a grid ``FIELD_STEP`` times coarser: the
     motion of a turned head is smooth), faded from full at the face's outline to zero at the
-    region's border. ``feather_px`` (pixels, 0: none): the face's outline is feathered as wide as an
-    edit's soft edge: the field is interpolated from the face deeper inside than that, and the
-    covered pixels within that width of the outline blend from it (at the outline) to their own
-    offsets (smoothstep), so the outline's own offsets (a turned head's far silhouette, where the
-    mesh folds away from the camera) neither jump against the field nor are stretched over it.
-    Other covered pixels are unchanged, pixels outside both stay UNCOVERED. Returns a new
-    (h, w, 2) float32 array."""
+    region's border. Covered pixels are unchanged, pixels outside both stay UNCOVERED. Returns a
+    new (h, w, 2) float32 array."""
     covered = offsets[..., 0] < 0.5 * UNCOVERED
     if not covered.any():
         return offsets.copy()
-    seeds, depth = covered, None
-    if feather_px > 0:
-        depth = cv2.distanceTransform(covered.view(np.uint8), cv2.DIST_L2, 3)
-        core = depth > feather_px
-        seeds = core if core.any() else covered
     h, w = covered.shape
     small = (max(1, -(-w // FIELD_STEP)), max(1, -(-h // FIELD_STEP)))
-    weight = cv2.resize(seeds.astype(np.float32), small, interpolation=cv2.INTER_AREA)
+    weight = cv2.resize(covered.astype(np.float32), small, interpolation=cv2.INTER_AREA)
     # (cv2.copyTo with a one-channel mask: numpy's broadcast where takes ten times as long)
-    summed = cv2.resize(cv2.copyTo(offsets, seeds.view(np.uint8), np.zeros_like(offsets)), small,
+    summed = cv2.resize(cv2.copyTo(offsets, covered.view(np.uint8), np.zeros_like(offsets)), small,
                         interpolation=cv2.INTER_AREA)
-    mean = summed / np.maximum(weight, 1e-6)[..., None]   # each cell: the mean offset of its seed pixels
+    mean = summed / np.maximum(weight, 1e-6)[..., None]   # each cell: the mean offset of its covered pixels
     # The fade is smooth too: distances and smoothstep on the grid, one resampling of the faded field.
     step = float(max(w, h)) / float(max(small))
-    face = cv2.resize(covered.astype(np.float32), small, interpolation=cv2.INTER_AREA)
-    to_face = cv2.distanceTransform((face < 0.5).view(np.uint8), cv2.DIST_L2, 3) * step
+    to_face = cv2.distanceTransform((weight < 0.5).view(np.uint8), cv2.DIST_L2, 3) * step
     to_edge = cv2.distanceTransform(cv2.resize(head, small, interpolation=cv2.INTER_NEAREST), cv2.DIST_L2, 3)
     to_edge = np.maximum(to_edge - 1.0, 0.0) * step  # zero a cell inside: resampled, it is zero at the border
     u = to_face / np.maximum(to_face + to_edge, 1e-6)
     fade = _fade_out(u)                          # 1 at the face, 0 at the border
     field = cv2.resize(pull_push(mean, weight) * fade[..., None], (w, h), interpolation=cv2.INTER_LINEAR)
-    out = cv2.copyTo(field, ((head != 0) & ~covered).view(np.uint8), offsets.copy())
-    if depth is not None:
-        band = covered & ~seeds
-        a = (1.0 - _fade_out(np.clip(depth[band] / feather_px, 0.0, 1.0)))[:, None]   # 0 at the outline, 1 inside
-        out[band] = a * offsets[band] + (1.0 - a) * field[band]
-    return out
+    return cv2.copyTo(field, ((head != 0) & ~covered).view(np.uint8), offsets.copy())
 
 
 def carry_past_outline(offsets: np.ndarray, outline: np.ndarray, reach_px: float,
