@@ -5,11 +5,13 @@ preset before) lightened it by a fifth or more (benchmarks/bench_nostrils.py's m
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from benchmarks.bench_nostrils import read_video, run, tip_only
 from facesculpt.app.pipeline import read_preset
 
 
+@pytest.mark.slow
 def test_nose_longer_keeps_the_nostrils_dark_where_the_tip_alone_lightened_them(data_dir):
     frames, fps = read_video("d0", 12)
     shipped = read_preset("nose_longer")
