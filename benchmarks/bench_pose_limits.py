@@ -30,27 +30,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from benchmarks.bench_nostrils import read_video
 from benchmarks.realism.metrics import gradient_magnitude, seam_band
 
 SEAM_HALF_WIDTH_PX = 3
 ERODE_PX = 3
-
-
-def _frames(name: str, n: int):
-    from facesculpt.paths import shared_data_dir
-
-    data = shared_data_dir()
-    if data is None:
-        raise SystemExit("shared data not found: set FACESCULPT_DATA")
-    cap, out = cv2.VideoCapture(str(data / "video" / f"{name}.mp4")), []
-    while len(out) < n:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        out.append(frame)
-    fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
-    cap.release()
-    return out, fps
 
 
 def _turn_options(turn: str) -> dict:
@@ -99,7 +83,7 @@ def main() -> None:
     print("| video | turn | limit | seam (mean) | seam (worst frame) | background in the face (mean, max) | share drawn (mean, min) |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for name in args.videos.split(","):
-        frames, fps = _frames(name, args.frames)
+        frames, fps = read_video(name, args.frames)
         for turn in args.turns.split(","):
             outs = {}
             for limit in (False, True):

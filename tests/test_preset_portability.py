@@ -115,16 +115,18 @@ def test_a_handle_that_is_no_landmark_lands_on_the_same_point_of_the_other_model
 
 
 def handle_motion_percent(fit, stack: EditStack, preset: dict) -> list[float]:
-    """How far each handle of ``preset`` moves in the image, in % of the outer-eye-corner
-    distance there: the fitted vertex before and after the solved displacement (Eq. 5),
-    projected with the fitted pose."""
+    """How far each handle of ``preset`` named by a landmark moves in the image, in % of the
+    outer-eye-corner distance there: the fitted vertex before and after the solved displacement
+    (Eq. 5), projected with the fitted pose. (Handles placed by position shape the edit around
+    them, e.g. ``nose_longer``'s nostrils following the tip: they may move less.)"""
     stack.apply_preset(preset)
     merged = merge_deformation(fit.vertices, fit.R, fit.scale, stack.solve())
     iod = float(np.linalg.norm(np.subtract(*project(
         fit.vertices[[stack.landmark_vertex("left_eye_outer"), stack.landmark_vertex("right_eye_outer")]]
         .astype(np.float64), fit.K, fit.projection))))
     out = []
-    for v in sorted({v for e in stack.edits for v in e.offsets}):
+    named = {stack.landmark_vertex(h["landmark"]) for e in preset["edits"] for h in e["handles"] if "landmark" in h}
+    for v in sorted(named):
         before = project(fit.vertices[[v]].astype(np.float64), fit.K, fit.projection)[0]
         after = project(merged[[v]].astype(np.float64), fit.K, fit.projection)[0]
         out.append(100.0 * float(np.linalg.norm(after - before)) / iod)
