@@ -3,7 +3,9 @@
 One row per frame and fitted face: ``frame`` (index from 0), ``time_s``, ``face`` (the face key:
 0 for the largest face, else its number from the left minus 1), the pose columns
 (:data:`facesculpt.nodes.fitter.expression.POSE_NAMES`) and the expression components
-(:data:`~facesculpt.nodes.fitter.expression.NAMES`, docs/guide/expressions.md). A frame
+(:data:`~facesculpt.nodes.fitter.expression.NAMES`, docs/guide/expressions.md), then the
+expression recognised: ``expression`` (its label), ``expression_intensity`` (0..1) and
+``expression_phase`` (:mod:`facesculpt.nodes.fitter.expression_labels`). A frame
 without a fitted face has one row with ``face`` and every value empty (CSV) or null (JSON). The
 file is written beside its target under a temporary name and renamed when complete.
 """
@@ -19,7 +21,8 @@ from pathlib import Path
 from facesculpt.nodes.fitter.expression import NAMES, POSE_NAMES, head_pose
 
 SUFFIXES = (".csv", ".json")
-COLUMNS = ("frame", "time_s", "face", *POSE_NAMES, *NAMES)
+LABEL_COLUMNS = ("expression", "expression_intensity", "expression_phase")
+COLUMNS = ("frame", "time_s", "face", *POSE_NAMES, *NAMES, *LABEL_COLUMNS)
 
 
 class ParamsExport:
@@ -42,6 +45,9 @@ class ParamsExport:
             row.update(zip(POSE_NAMES, (round(float(v), 4) for v in head_pose(fit))))
             if fit.expression is not None:
                 row.update(zip(NAMES, (round(float(v), 4) for v in fit.expression)))
+            label = getattr(fit, "expression_label", None)
+            if label is not None:
+                row.update(zip(LABEL_COLUMNS, (label.label, round(float(label.intensity), 4), label.phase)))
             self.rows.append(row)
 
     def write(self) -> Path:

@@ -49,7 +49,8 @@ from facesculpt.nodes.fitter import (
     max_faces_for,
     parse_faces,
 )
-from facesculpt.nodes.fitter.expression import face_expression
+from facesculpt.nodes.fitter.expression import NAMES, face_expression
+from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions, ExpressionRecogniser
 from facesculpt.nodes.landmarks import LandmarkDetector
 from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
 
@@ -153,8 +154,10 @@ class Pipeline:
     is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never; outline_band: how far
     past the fitted outline an edit's motion is carried (share of the face's size; None: the
     compositor's ``OUTLINE_BAND``); expression: give each fit its expression parameters
-    (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`; False: None, and their cost
-    saved); rotation_prior_px: a sparse model's fit holds its pitch toward that of the landmark
+    (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`) and the expression recognised
+    from them (``fit.expression_label``, :mod:`facesculpt.nodes.fitter.expression_labels`, with
+    ``expression_labels`` options, an :class:`ExpressionLabelOptions`); False: None, and their cost
+    saved; rotation_prior_px: a sparse model's fit holds its pitch toward that of the landmark
     network's own 3D points with this weight (px per radian; 0: off;
     :mod:`facesculpt.nodes.fitter.detector_rotation`). The GL context is made here; call
     :meth:`close` (or use ``with``) to free it. pose_limit: each frame draws only the share of its pose
@@ -172,7 +175,8 @@ class Pipeline:
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
                  outline_band: float | None = None, expression: bool = True,
-                 rotation_prior_px: float = FitterConfig.rotation_prior_px, pose_limit: bool = True):
+                 rotation_prior_px: float = FitterConfig.rotation_prior_px, pose_limit: bool = True,
+                 expression_labels: ExpressionLabelOptions | None = None):
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -202,6 +206,8 @@ class Pipeline:
 
             self.compositor_options["segmenter"] = PersonSegmenter(models_dir, threads)
         self.expression = bool(expression)
+        self.label_options = expression_labels or ExpressionLabelOptions(baseline_frames=self.neutral_frames)
+        self.recognisers: dict[int, ExpressionRecogniser] = {}  # face key -> its expressions recognised
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()
@@ -267,6 +273,9 @@ class Pipeline:
                 fitter = self.faces.fitters[face.key]
                 if self.expression:
                     fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
+                    recogniser = self.recognisers.setdefault(face.key, ExpressionRecogniser(self.label_options))
+                    fit.expression_label = recogniser.update(stamp_s, fit.expression, NAMES, fit.beta,
+                                                             fitter.model.expression_names)
                 fits[face.key] = fit
                 self.fitted_per_face[face.key] = self.fitted_per_face.get(face.key, 0) + 1
         timings["fit"] = (time.perf_counter() - t0) * 1e3

@@ -91,7 +91,7 @@ class ExpressionLabelOptions:
                                        "resting face each later frame is compared with (labelled neutral)",
                                    unit="frames", range=(0, 100000))
     window_s: float = _option(0.2, "expressions recognised: the parameters are averaged over this window, and the "
-                                   "phase (onset, apex, offset) is their change across it", unit="s",
+                                   "phase (onset, apex, offset) is their change across it, s",
                               range=(0.0, 5.0))
     neutral_below: float = _option(0.25, "expressions recognised: a best score under this is neutral (score 1: "
                                          "every prototype action unit clearly marked)", range=(0.0, 1.0))

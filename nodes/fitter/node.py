@@ -14,7 +14,8 @@ frames; sparse: the accumulated identity) — published when it changes, at most
 ``model_period_s`` seconds while it is still being learned. No face, too few valid landmarks or
 any other refusal: an empty state for that frame (0 vertices: the renderer's "no face", so a
 renderer pairing frames with states never waits for it), a counter in diagnostics, never an
-exception. ``face/expression`` is computed and sent only while something subscribes to it.
+exception. ``face/expression`` is computed and sent only while something subscribes to it; it
+carries the expression recognised too (:mod:`.expression_labels`, ``labels_*`` params).
 """
 
 from __future__ import annotations
@@ -26,13 +27,14 @@ import numpy as np
 
 from facesculpt.msgs import FaceExpression, FaceLandmarks, FaceModel, FaceState, Image, InputEvent
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import ConfigurationError, Param
+from facesculpt.runtime.parameters import ConfigurationError, Param, option_params
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED
 
 from .config import FitterConfig
 from .corrections import LandmarkCorrections, fit_id, ibug68_points
 from .depth_fitting import DepthImage
 from .expression import NAMES, face_expression, head_pose
+from .expression_labels import ExpressionLabelOptions, ExpressionRecogniser, has_expression_blendshapes
 from .faces import FaceFitters, parse_faces
 from .fit_camera import FitCamera
 from .fitter import Fitter, make_fitter
@@ -43,6 +45,10 @@ from .result import FitError
 def valid_intrinsics(K) -> bool:
     K = np.asarray(K, np.float64)
     return K.shape == (3, 3) and bool(np.isfinite(K).all()) and K[0, 0] > 0 and K[1, 1] > 0 and abs(K[2, 2] - 1) < 1e-6
+
+
+_LABEL_FIELDS = ("window_s", "neutral_below", "switch_margin", "source")
+_LABEL_PARAMS = tuple(f"labels_{k}" for k in _LABEL_FIELDS)
 
 
 class FitterNode(Node):
@@ -82,6 +88,7 @@ class FitterNode(Node):
         "depth": Param("off", "on: refine each fit on its frame's aligned depth image (camera/image of an RGB-D "
                               "camera, docs/guide/depth-cameras.md; perspective only); off: no depth",
                        choices=("off", "on")),
+        **option_params(ExpressionLabelOptions(), _LABEL_PARAMS, {f"labels_{k}": k for k in _LABEL_FIELDS}),
     }
     #: Frames kept for the landmarks that have not arrived yet (refine=appearance).
     FRAMES_KEPT = 8
@@ -101,6 +108,10 @@ class FitterNode(Node):
         self.corrections: dict[int, LandmarkCorrections] = {}  # face key -> its landmark corrections
         self.last_fits: dict = {}  # face key -> its last FitResult
         self.last_points: dict = {}  # face key -> its detected points (468, 3) px in that frame
+        self.recognisers: dict[int, ExpressionRecogniser] = {}  # face key -> its expressions recognised
+        self.label_options = ExpressionLabelOptions(
+            baseline_frames=self.params.neutral_frames,
+            **{k: getattr(self.params, f"labels_{k}") for k in _LABEL_FIELDS})
         self.model: MorphableModel | None = None
         self.faces: FaceFitters | None = None
         self.camera_key = None
@@ -117,6 +128,9 @@ class FitterNode(Node):
             self.model = load_model(self.params.model)
         except Exception as exc:  # missing setup files, bad .npz: running on would fit nothing
             raise ConfigurationError(f"fitter: cannot load model {self.params.model!r}: {exc}") from None
+        if self.params.labels_source == "blendshapes" and not has_expression_blendshapes(self.model.expression_names):
+            raise ConfigurationError(f"fitter: labels_source=blendshapes needs a model with blendshapes named for the "
+                                     f"six basic expressions, and {self.params.model!r} has none")
         self.publish_model(self.model.mean, stamp=0)
 
     @property
@@ -376,8 +390,13 @@ class FitterNode(Node):
             fitter = self.faces.fitters[f.key]
             with self.stage("expression"):
                 values = face_expression(result, fitter.model, fitter.neutral, msg.points[f.index])
+            with self.stage("expression_label"):
+                recogniser = self.recognisers.setdefault(f.key, ExpressionRecogniser(self.label_options))
+                label = recogniser.update(msg.stamp * 1e-9, values, NAMES, result.beta,
+                                          fitter.model.expression_names)
             self.expression_pub.publish(FaceExpression(
                 stamp=msg.stamp, frame_id=msg.frame_id, face_id=f.key, pose=head_pose(result), names=list(NAMES),
-                values=values))
+                values=values, label=label.label, intensity=label.intensity, phase=label.phase,
+                label_scores=label.scores))
         if fitted:
             self.maybe_publish_model(msg.stamp, msg.stamp * 1e-9)
