@@ -173,6 +173,76 @@ def write_strip(path: str, strip: list, records: list[dict], shown: dict) -> Non
     cv2.imwrite(path, np.vstack(rows))
 
 
+VIDEOS = ("d0.mp4", "d3.mp4", "d12.mp4")
+
+
+def real_videos(data, args) -> tuple[list, dict]:
+    """Each shared video through both models' fits and the recogniser (default options): tiles
+    of frames sampled evenly after the neutral frames with both labels, and the CPU times
+    (process_time, s) of the analysis (landmarks + fit), the fit's share of it, the expression
+    parameters and the recogniser, summed over the frames."""
+    import cv2
+
+    from facesculpt.app.pipeline import Pipeline
+    from facesculpt.nodes.fitter.expression import face_expression
+
+    tiles, cpu = [], {"analysis": 0.0, "fit": 0.0, "parameters": 0.0, "recognise": 0.0, "frames": 0}
+    for video in VIDEOS:
+        cap = cv2.VideoCapture(str(data / "video" / video))
+        fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
+        frames = []
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            frames.append(frame)
+        cap.release()
+        sample = set(np.linspace(args.neutral_frames + 5, len(frames) - 1, args.per_video).astype(int).tolist())
+        labels = {}
+        for m in ("facemesh", "sfm"):
+            recogniser = ExpressionRecogniser(baseline_frames=args.neutral_frames)
+            with Pipeline(m, neutral_frames=args.neutral_frames, expression=False) as pipe:
+                for i, frame in enumerate(frames):
+                    timings = {}
+                    t0 = time.process_time()
+                    fit = pipe.fit_frame(frame, i / fps, timings)
+                    t1 = time.process_time()
+                    if fit is None:
+                        labels[(m, i)] = "no face"
+                        continue
+                    values = face_expression(fit, pipe.fitter.model, pipe.fitter.neutral,
+                                             pipe.detector.results()[0].points)
+                    t2 = time.process_time()
+                    lab = recogniser.update(i / fps, values, NAMES, fit.beta, pipe.model.expression_names)
+                    t3 = time.process_time()
+                    share = timings["fit"] / max(timings["fit"] + timings["landmarks"], 1e-9)
+                    cpu["analysis"] += t1 - t0
+                    cpu["fit"] += (t1 - t0) * share
+                    cpu["parameters"] += t2 - t1
+                    cpu["recognise"] += t3 - t2
+                    cpu["frames"] += 1
+                    labels[(m, i)] = lab.label if lab.label == "neutral" else f"{lab.label} {100 * lab.intensity:.0f}%"
+        for i in sorted(sample):
+            tile = cv2.resize(frames[i], (240, 240), interpolation=cv2.INTER_AREA)
+            for j, text in enumerate((f"{video} #{i}", f"mesh {labels[('facemesh', i)]}", f"sfm {labels[('sfm', i)]}")):
+                cv2.putText(tile, text, (4, 16 + 16 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
+                cv2.putText(tile, text, (4, 16 + 16 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                            cv2.LINE_AA)
+            tiles.append(tile)
+        print(f"{video}: {len(frames)} frames; labels (face mesh): "
+              + ", ".join(f"{k} {v}" for k, v in _counts([labels[("facemesh", i)] for i in range(len(frames))
+                                                          if ("facemesh", i) in labels]).items()), flush=True)
+    return tiles, cpu
+
+
+def _counts(labels: list[str]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for lab in labels:
+        key = lab.split(" ")[0]
+        out[key] = out.get(key, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--identities", type=int, default=3, help="random identities (scene seeds 11, 12, ...)")
@@ -180,6 +250,10 @@ def main() -> None:
     p.add_argument("--low", type=float, default=0.3, help="least blendshape intensity (the most is 1)")
     p.add_argument("--strip", default="", metavar="FILE.png", help="write a contact sheet of the held frames")
     p.add_argument("--save", default="", metavar="FILE.pkl", help="keep the fitted parameters of every frame")
+    p.add_argument("--real", default="", metavar="FILE.png",
+                   help="instead: the shared real videos' contact sheet (frames with both models' labels) and "
+                        "the recogniser's CPU time against the fit's")
+    p.add_argument("--per-video", type=int, default=8, help="--real: frames shown per video")
     args = p.parse_args()
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
@@ -190,6 +264,18 @@ def main() -> None:
     data = shared_data_dir()
     if data is None:
         raise SystemExit("shared data not found: set FACESCULPT_DATA")
+    if args.real:
+        import cv2
+
+        tiles, cpu = real_videos(data, args)
+        cv2.imwrite(args.real, np.vstack([np.hstack(tiles[k:k + args.per_video])
+                                          for k in range(0, len(tiles), args.per_video)]))
+        n = cpu["frames"]
+        print(f"CPU per fitted frame (both models, {n} frames): analysis {1e3 * cpu['analysis'] / n:.1f} ms "
+              f"(fit's share {1e3 * cpu['fit'] / n:.1f} ms), expression parameters {1e3 * cpu['parameters'] / n:.2f} ms, "
+              f"recogniser {1e3 * cpu['recognise'] / n:.3f} ms: recogniser / fit = {cpu['recognise'] / cpu['fit']:.4f}, "
+              f"recogniser / analysis = {cpu['recognise'] / cpu['analysis']:.4f}")
+        return
     model = load_model("sfm")
     detectors = {m: LandmarkDetector() for m in ("sfm", "facemesh")}
     records, strip = [], []

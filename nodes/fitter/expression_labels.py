@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 from collections import deque
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -116,24 +117,48 @@ class ExpressionLabel:
     phase: str
 
 
+_UNITS = tuple(ACTION_UNITS)
+
+
+@lru_cache(maxsize=8)
+def _unit_matrix(names: tuple[str, ...]) -> np.ndarray:
+    """(U, E) activation of each action unit per unit of each component named in ``names``."""
+    index = {n: i for i, n in enumerate(names)}
+    out = np.zeros((len(_UNITS), len(names)))
+    for u, (_, terms, full) in enumerate(ACTION_UNITS.values()):
+        for k, c in terms.items():
+            if k in index:
+                out[u, index[k]] += c / full
+    return out
+
+
+def _prototype_matrix() -> np.ndarray:
+    """(6, U) each expression's score per unit of each (clipped) activation."""
+    out = np.zeros((len(EXPRESSIONS), len(_UNITS)))
+    for i, e in enumerate(EXPRESSIONS):
+        units, against = PROTOTYPES[e]
+        for u in units:
+            out[i, _UNITS.index(u)] += 1.0 / len(units)
+        for u in against:
+            out[i, _UNITS.index(u)] -= 0.5 / len(against)
+    return out
+
+
+_SCORES = _prototype_matrix()
+
+
 def action_units(values: np.ndarray, names) -> dict[str, float]:
     """Activation of each unit of :data:`ACTION_UNITS` (0 = not at all, 1 = clearly marked; may
     exceed 1 or be negative before clipping) from expression parameters ``values`` (E,) named
     ``names``; a component that is missing or NaN counts as 0."""
-    index = {str(n): i for i, n in enumerate(names)}
-    v = np.nan_to_num(np.asarray(values, np.float64), nan=0.0)
-    return {au: sum(c * v[index[k]] for k, c in terms.items() if k in index) / full
-            for au, (_, terms, full) in ACTION_UNITS.items()}
+    a = _unit_matrix(tuple(str(n) for n in names)) @ np.nan_to_num(np.asarray(values, np.float64), nan=0.0)
+    return dict(zip(_UNITS, a.tolist()))
 
 
 def facs_scores(values: np.ndarray, names) -> np.ndarray:
     """(6,) float64 the score of each of :data:`EXPRESSIONS` from the FACS table (module docstring)."""
-    a = {k: float(np.clip(x, 0.0, 1.0)) for k, x in action_units(values, names).items()}
-    out = np.zeros(len(EXPRESSIONS))
-    for i, e in enumerate(EXPRESSIONS):
-        units, against = PROTOTYPES[e]
-        out[i] = np.mean([a[u] for u in units]) - 0.5 * (np.mean([a[u] for u in against]) if against else 0.0)
-    return out
+    a = _unit_matrix(tuple(str(n) for n in names)) @ np.nan_to_num(np.asarray(values, np.float64), nan=0.0)
+    return _SCORES @ np.clip(a, 0.0, 1.0)
 
 
 def has_expression_blendshapes(expression_names) -> bool:
