@@ -61,9 +61,28 @@ def schedule(segs, neutral_frames: int):
     return out
 
 
-#: The recognisers scored: (name, model, source).
+#: The recognisers scored: (name, model, source). "exact": the true mesh's parameters and the
+#: true weights, no detector and no fit (what the recogniser reaches with exact parameters).
 RUNS = (("sfm, facs", "sfm", "facs"), ("sfm, blendshapes", "sfm", "blendshapes"), ("sfm, auto", "sfm", "auto"),
-        ("facemesh, facs", "facemesh", "facs"))
+        ("facemesh, facs", "facemesh", "facs"), ("exact parameters, facs", "exact", "facs"))
+
+
+def add_exact(records: list[dict], args, model, data) -> None:
+    """Give every record the true parameters of its frame (key "exact"): the expression
+    parameters of the true mesh against the true rest mesh, and the true weights as coefficients."""
+    from benchmarks.realism.scene import random_identity
+    from facesculpt.nodes.fitter.expression import expression_parameters, expression_points
+
+    basis = np.asarray(model.expression_basis, np.float64)
+    names, lv = model.landmark_names, model.landmark_vertices
+    for seed in sorted({r["seed"] for r in records}):
+        rest = np.asarray(random_identity(model, seed), np.float64).reshape(-1, 3)
+        rest_pts = expression_points(rest, False, names, lv)
+        plan = schedule(segments(np.random.default_rng(1000 + seed), args.low), args.neutral_frames)
+        mine = [r for r in records if r["seed"] == seed]
+        for r, (weights, *_rest) in zip(mine, plan):
+            pts = expression_points(rest + basis @ weights, False, names, lv)
+            r["exact"] = (expression_parameters(pts, rest_pts), weights)
 
 
 def camera_vertices(scene, V: np.ndarray, yaw: float, pitch: float) -> np.ndarray:
@@ -250,6 +269,7 @@ def main() -> None:
     p.add_argument("--low", type=float, default=0.3, help="least blendshape intensity (the most is 1)")
     p.add_argument("--strip", default="", metavar="FILE.png", help="write a contact sheet of the held frames")
     p.add_argument("--save", default="", metavar="FILE.pkl", help="keep the fitted parameters of every frame")
+    p.add_argument("--load", default="", metavar="FILE.pkl", help="score the frames a --save kept (no rendering)")
     p.add_argument("--real", default="", metavar="FILE.png",
                    help="instead: the shared real videos' contact sheet (frames with both models' labels) and "
                         "the recogniser's CPU time against the fit's")
@@ -277,10 +297,15 @@ def main() -> None:
               f"recogniser / analysis = {cpu['recognise'] / cpu['analysis']:.4f}")
         return
     model = load_model("sfm")
-    detectors = {m: LandmarkDetector() for m in ("sfm", "facemesh")}
+    detectors = {} if args.load else {m: LandmarkDetector() for m in ("sfm", "facemesh")}
     records, strip = [], []
     t0 = time.process_time()
-    for k in range(args.identities):
+    if args.load:
+        import pickle
+
+        with open(args.load, "rb") as f:
+            records = pickle.load(f)
+    for k in range(0 if args.load else args.identities):
         records += run_identity(data, 11 + k, args, detectors, model, strip)
         print(f"identity {k + 1} of {args.identities} done ({time.process_time() - t0:.0f} s CPU)", flush=True)
     if args.save:
@@ -288,7 +313,8 @@ def main() -> None:
 
         with open(args.save, "wb") as f:
             pickle.dump(records, f)
-    names = {"sfm": model.expression_names, "facemesh": []}
+    add_exact(records, args, model, data)
+    names = {"sfm": model.expression_names, "facemesh": [], "exact": model.expression_names}
     shown = report(records, names)
     if args.strip and strip:
         write_strip(args.strip, strip, records, shown)

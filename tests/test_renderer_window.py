@@ -377,6 +377,53 @@ def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tm
     assert graph.spin_until(feeder, lambda: shows(lambda s: _panel_size(s, frame)[0] <= rows_before + 3), 15.0)
 
 
+def test_the_expression_overlay_names_the_expression_above_the_face(display, graph, data_dir, tmp_path):
+    """renderer.overlay=expression in a real window: the face/expression label of the face is
+    written above it in the label's colour; overlay=info's panel is not drawn."""
+    from facesculpt.msgs import FaceExpression
+    from facesculpt.nodes.fitter import load_model
+    from facesculpt.nodes.renderer.overlay_layers import EXPRESSION_BGR, face_box
+    from facesculpt.runtime.node import Node
+
+    model = load_model("sfm")
+    pose = place_marked(model, "s18")
+    frame = read_frames(data_dir, "s18")[0]
+    title = f"facesculpt-expression-{os.getpid()}"
+    graph.env["DISPLAY"] = display
+    log = tmp_path / "renderer.txt"
+    with open(log, "w") as out:
+        graph.spawn("run", "renderer", "window=true", "overlay=expression", f"title={title}",
+                    stdout=out, stderr=subprocess.STDOUT)
+    feeder = graph.node(_scene_feeder(model, pose, frame))
+    feeder.publish_model()
+    sender = Node(name="expression_sender")
+    pub = sender.advertise("face/expression", FaceExpression)
+    graph.node(sender)
+
+    def send():
+        pub.publish(FaceExpression(stamp=time.time_ns(), label="happiness", intensity=0.8, phase="apex"))
+        return False
+
+    found = []
+    assert graph.spin_until(feeder, lambda: send() or found.append(_visible_window(display, title)) or found[-1],
+                            40.0), f"the renderer's window did not open: {log.read_text()}"
+    shots = WindowShots(display, found[-1])
+    x0, y0, x1, _ = face_box(pose.projected, frame.shape[1], frame.shape[0])
+    green = np.array(EXPRESSION_BGR["happiness"])
+
+    def labelled(shot):
+        above = shot[max(0, y0 - 60):y0, x0:x1 + 1].reshape(-1, 3).astype(int)
+        return (np.abs(above - green).max(axis=1) < 40).sum() >= 30
+
+    assert graph.spin_until(feeder, lambda: send() or shows_now(shots, labelled), 30.0), \
+        f"no expression label above the face: {log.read_text()}"
+    assert _panel_size(shots[-1], frame)[0] < 5  # no info panel asked for
+
+
+def shows_now(shots, predicate) -> bool:
+    return shots.shows(predicate)
+
+
 def _launch_window_graph(graph, display, tmp_path, title: str, **renderer_params):
     """`facesculpt launch` of camera (embedded photo, 15 fps) + renderer (window, marked
     respawn, ``renderer_params``), output to a log file; returns (launcher, log path, env) once

@@ -3,8 +3,8 @@
 Subscribes: camera/image (Image), face/state (FaceState), face/model (FaceModel,
 latched: the triangles), face/deformation (Deformation), hands/landmarks (HandLandmarks, when a
 hands node runs: the hands' region is composited back from the input, so nothing re-rendered
-covers a hand in front of the face), face/expression (FaceExpression, when the window's overlay
-names ``expression``). Publishes: render/image
+covers a hand in front of the face), the messages of the window's face layers (``overlay``, e.g.
+face/expression: FaceExpression for ``expression``). Publishes: render/image
 (Image, when ``publish``), input/events (InputEvent, from the window; in its landmark correction mode, L,
 left-drags become ``correct_landmark`` commands for the fitter: ``correction_mode.py``), diagnostics
 (stage times: pair, merge, camera, texture, draw, readback, inpaint, composite,
@@ -37,8 +37,8 @@ from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.hand_regions import hand_region_mask
 from facesculpt.geometry.pose_offset import FACE_CAMERA_SMOOTHING_MAX_S, PoseOffset
 from facesculpt.msgs import (
+    REGISTRY,
     Deformation,
-    FaceExpression,
     FaceModel,
     FaceState,
     FaceTexture,
@@ -85,7 +85,7 @@ class RendererNode(Node):
 
     NAME = "renderer"
     TOPICS = ("render/image", "input/events", "render/done", "face/texture", "camera/image", "face/state",
-              "face/model", "face/deformation", "hands/landmarks")
+              "face/model", "face/deformation", "hands/landmarks", *(t for t, _ in LAYER_TOPICS.values()))
     PARAMS = {
         "window": Param(False, "open a window (shows the result, mouse drags become input/events)"),
         "pairing": Param("latest", "frames with face states: latest (the newest state) or sync (each frame's own)",
@@ -187,9 +187,11 @@ class RendererNode(Node):
             raise ConfigurationError(f"renderer: {exc}") from None
         self._face_layers: dict[str, dict[int, object]] = {}   # layer -> face id -> its newest message
         self._face_boxes: list[tuple[int, tuple]] = []          # (face id, box px) of the faces drawn
-        if p.window and "expression" in self.overlays:
-            self.subscribe(LAYER_TOPICS["expression"], FaceExpression,
-                           lambda m: self._face_layers.setdefault("expression", {}).__setitem__(m.face_id, m))
+        for layer in sorted(self.overlays & set(FACE_DRAWERS)) if p.window else ():
+            topic, type_name = LAYER_TOPICS[layer]
+            if type_name in REGISTRY:  # a layer whose message does not exist yet draws nothing
+                self.subscribe(topic, REGISTRY[type_name],
+                               lambda m, k=layer: self._face_layers.setdefault(k, {}).__setitem__(m.face_id, m))
         qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))

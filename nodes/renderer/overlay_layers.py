@@ -71,6 +71,25 @@ def expression_text(label: str, intensity: float, phase: str = "") -> str:
     return label if label == "neutral" else f"{label} {100 * float(intensity):.0f} %"
 
 
+def _rimmed_text(image: np.ndarray, text: str, org: tuple[int, int], scale: float, colour) -> None:
+    """Draw ``text`` at ``org`` (baseline's left end, px) into ``image`` in place, in ``colour``
+    with a black rim: the letters' mask grown by OUTLINE_PX, as overlay.draw_text does (a thicker
+    putText would advance each letter further)."""
+    letters = np.zeros(image.shape[:2], np.uint8)
+    cv2.putText(letters, text, org, FONT, scale, 255, 1, cv2.LINE_AA)
+    size = 2 * OUTLINE_PX + 1
+    rim = cv2.dilate(letters, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+    ys, xs = np.nonzero(rim)
+    if not len(ys):
+        return
+    sl = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+    alpha = letters[sl].astype(np.float32)[..., None] / 255.0
+    keep = 1.0 - rim[sl].astype(np.float32)[..., None] / 255.0
+    patch = image[sl].astype(np.float32)
+    image[sl] = np.clip(patch * keep * (1.0 - alpha) + np.asarray(colour, np.float32) * alpha + 0.5, 0,
+                        255).astype(np.uint8)
+
+
 def draw_expression(image: np.ndarray, box, message) -> np.ndarray:
     """``image`` (H, W, 3) uint8 BGR with ``message``'s recognised expression (a FaceExpression's
     ``label``, ``intensity``) written above the face's ``box`` (below its top edge when there is
@@ -86,8 +105,7 @@ def draw_expression(image: np.ndarray, box, message) -> np.ndarray:
     x = int(np.clip((x0 + x1 - tw) / 2, 2, max(2, w - tw - 2)))
     y = y0 - 10 if y0 - 10 - th - 6 > 0 else min(h - base - 8, y0 + th + 4)
     colour = EXPRESSION_BGR.get(message.label, TEXT_BGR)
-    cv2.putText(out, text, (x, y), FONT, scale, (0, 0, 0), 1 + 2 * OUTLINE_PX + 1, cv2.LINE_AA)
-    cv2.putText(out, text, (x, y), FONT, scale, colour, 1, cv2.LINE_AA)
+    _rimmed_text(out, text, (x, y), scale, colour)
     if message.label != "neutral":
         bar = int(round(tw * float(np.clip(message.intensity, 0.0, 1.0))))
         cv2.rectangle(out, (x, y + base), (x + tw, y + base + 3), (0, 0, 0), -1)
@@ -97,5 +115,6 @@ def draw_expression(image: np.ndarray, box, message) -> np.ndarray:
 
 #: Face layer -> draw(image, box, message) -> image; a layer without one draws nothing.
 DRAWERS = {"expression": draw_expression}
-#: Face layer -> the topic its messages come on.
-TOPICS = {"expression": "face/expression", "gaze": "face/gaze"}
+#: Face layer -> (the topic its messages come on, their message type's name); the renderer
+#: subscribes to a layer asked for that has a drawer and whose type exists.
+TOPICS = {"expression": ("face/expression", "FaceExpression"), "gaze": ("face/gaze", "FaceGaze")}
