@@ -121,7 +121,7 @@ def run_identity(data, seed: int, args, detectors: dict, model, strip: list) -> 
             ok = fit is not None and fit.expression is not None
             rec[m] = (np.asarray(fit.expression), np.asarray(fit.beta)) if ok else None
         records.append(rec)
-        if j == RAMP + HOLD - 1 and len(strip) < 24:
+        if truth is not None and j == RAMP + HOLD - 1 and len(strip) < 24:
             strip.append((i, seed, frame, truth, float(weights.max())))
     for pipe in pipes.values():
         pipe.close()
@@ -171,6 +171,40 @@ def report(records: list[dict], names: dict, thresholds=(0.1, 0.15, 0.2, 0.25)) 
     return shown
 
 
+def captioned(tile: np.ndarray, lines) -> np.ndarray:
+    """``tile`` with ``lines`` of white text on a dark band along its top."""
+    import cv2
+
+    out = tile.copy()
+    band = 16 * len(lines) + 6
+    out[:band] = (out[:band] * 0.35).astype(np.uint8)
+    for j, text in enumerate(lines):
+        cv2.putText(out, text, (4, 15 + 16 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+def strip_frames(data, records: list[dict], args, model) -> list:
+    """The contact sheet's frames re-rendered (for ``--load``): each segment's last held frame."""
+    from benchmarks.realism.raster import render_textured
+    from benchmarks.realism.scene import make_scene
+
+    basis = np.asarray(model.expression_basis, np.float64)
+    out = []
+    for seed in sorted({r["seed"] for r in records}):
+        scene = make_scene(data, frames=1, seed=seed)
+        plan = schedule(segments(np.random.default_rng(1000 + seed), args.low), args.neutral_frames)
+        for i, (weights, yaw, pitch, truth, _, j) in enumerate(plan):
+            if truth is None or j != RAMP + HOLD - 1:
+                continue
+            shape = scene.rest.copy()
+            shape[:model.num_vertices] += basis @ weights
+            X = camera_vertices(scene, shape, yaw, pitch)
+            frame = np.clip(np.rint(render_textured(scene.K, X, scene.triangles, scene.texcoords, scene.alpha,
+                                                    scene.texture, scene.background)), 0, 255).astype(np.uint8)
+            out.append((i, seed, frame, truth, float(weights.max())))
+    return out
+
+
 def write_strip(path: str, strip: list, records: list[dict], shown: dict) -> None:
     """A contact sheet of each segment's last held frame with its truth and two runs' labels."""
     import cv2
@@ -181,11 +215,8 @@ def write_strip(path: str, strip: list, records: list[dict], shown: dict) -> Non
         k = index[(seed, i)]
         labels = {n: (shown[n][k].label if shown[n][k] else "none") for n in ("sfm, auto", "facemesh, facs")}
         tile = cv2.resize(frame[40:440, 120:520], (240, 240), interpolation=cv2.INTER_AREA)
-        for j, text in enumerate((f"truth {truth} {w:.2f}", f"sfm {labels['sfm, auto']}",
-                                  f"mesh {labels['facemesh, facs']}")):
-            cv2.putText(tile, text, (4, 16 + 16 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-            cv2.putText(tile, text, (4, 16 + 16 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
-        tiles.append(tile)
+        tiles.append(captioned(tile, (f"truth {truth} {w:.2f}", f"sfm {labels['sfm, auto']}",
+                                      f"mesh {labels['facemesh, facs']}")))
     while len(tiles) % 8:
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[k:k + 8]) for k in range(0, len(tiles), 8)]
@@ -243,11 +274,8 @@ def real_videos(data, args) -> tuple[list, dict]:
                     labels[(m, i)] = lab.label if lab.label == "neutral" else f"{lab.label} {100 * lab.intensity:.0f}%"
         for i in sorted(sample):
             tile = cv2.resize(frames[i], (240, 240), interpolation=cv2.INTER_AREA)
-            for j, text in enumerate((f"{video} #{i}", f"mesh {labels[('facemesh', i)]}", f"sfm {labels[('sfm', i)]}")):
-                cv2.putText(tile, text, (4, 16 + 16 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-                cv2.putText(tile, text, (4, 16 + 16 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
-                            cv2.LINE_AA)
-            tiles.append(tile)
+            tiles.append(captioned(tile, (f"{video} #{i}", f"mesh {labels[('facemesh', i)]}",
+                                          f"sfm {labels[('sfm', i)]}")))
         print(f"{video}: {len(frames)} frames; labels (face mesh): "
               + ", ".join(f"{k} {v}" for k, v in _counts([labels[("facemesh", i)] for i in range(len(frames))
                                                           if ("facemesh", i) in labels]).items()), flush=True)
@@ -316,6 +344,8 @@ def main() -> None:
     add_exact(records, args, model, data)
     names = {"sfm": model.expression_names, "facemesh": [], "exact": model.expression_names}
     shown = report(records, names)
+    if args.strip and args.load:
+        strip = strip_frames(data, records, args, model)
     if args.strip and strip:
         write_strip(args.strip, strip, records, shown)
 
