@@ -93,11 +93,22 @@ def camera_vertices(scene, V: np.ndarray, yaw: float, pitch: float) -> np.ndarra
     return (np.asarray(V, np.float64) - PIVOT) @ R.T + np.array([0.0, 6.0, DISTANCE_MM])
 
 
+def render(scene, basis: np.ndarray, weights: np.ndarray, yaw: float, pitch: float) -> np.ndarray:
+    """(H, W, 3) uint8 BGR: the scene's head with blendshape ``weights`` (6,) (``basis`` (V, 3, 6)
+    mm) at head ``yaw``, ``pitch`` (degrees), drawn by the benchmark's rasteriser."""
+    from benchmarks.realism.raster import render_textured
+
+    shape = scene.rest.copy()
+    shape[:basis.shape[0]] += basis @ weights
+    X = camera_vertices(scene, shape, yaw, pitch)
+    return np.clip(np.rint(render_textured(scene.K, X, scene.triangles, scene.texcoords, scene.alpha,
+                                           scene.texture, scene.background)), 0, 255).astype(np.uint8)
+
+
 def run_identity(data, seed: int, args, detectors: dict, model, strip: list) -> list[dict]:
     """Render one identity's sequence and fit it with both models: one record per frame (its time,
     truth or None when not scored, the true weight, and per model the expression parameters and
     coefficients, None when not fitted)."""
-    from benchmarks.realism.raster import render_textured
     from benchmarks.realism.scene import make_scene
     from facesculpt.app.pipeline import Pipeline
 
@@ -105,16 +116,11 @@ def run_identity(data, seed: int, args, detectors: dict, model, strip: list) -> 
     rng = np.random.default_rng(1000 + seed)
     plan = schedule(segments(rng, args.low), args.neutral_frames)
     basis = np.asarray(model.expression_basis, np.float64)
-    Vm = model.num_vertices
     # a new person: new fitters (they learn afresh), the detectors reused (reset by the pipeline)
     pipes = {m: Pipeline(m, neutral_frames=args.neutral_frames, detector=d) for m, d in detectors.items()}
     records = []
     for i, (weights, yaw, pitch, truth, _, j) in enumerate(plan):
-        shape = scene.rest.copy()
-        shape[:Vm] += basis @ weights
-        X = camera_vertices(scene, shape, yaw, pitch)
-        frame = np.clip(np.rint(render_textured(scene.K, X, scene.triangles, scene.texcoords, scene.alpha,
-                                                scene.texture, scene.background)), 0, 255).astype(np.uint8)
+        frame = render(scene, basis, weights, yaw, pitch)
         fits = {m: pipes[m].fit_frame(frame, i / 25.0) for m in pipes}
         rec = {"seed": seed, "t": i / 25.0, "truth": truth, "weight": float(weights.max())}
         for m, fit in fits.items():
@@ -185,7 +191,6 @@ def captioned(tile: np.ndarray, lines) -> np.ndarray:
 
 def strip_frames(data, records: list[dict], args, model) -> list:
     """The contact sheet's frames re-rendered (for ``--load``): each segment's last held frame."""
-    from benchmarks.realism.raster import render_textured
     from benchmarks.realism.scene import make_scene
 
     basis = np.asarray(model.expression_basis, np.float64)
@@ -196,11 +201,7 @@ def strip_frames(data, records: list[dict], args, model) -> list:
         for i, (weights, yaw, pitch, truth, _, j) in enumerate(plan):
             if truth is None or j != RAMP + HOLD - 1:
                 continue
-            shape = scene.rest.copy()
-            shape[:model.num_vertices] += basis @ weights
-            X = camera_vertices(scene, shape, yaw, pitch)
-            frame = np.clip(np.rint(render_textured(scene.K, X, scene.triangles, scene.texcoords, scene.alpha,
-                                                    scene.texture, scene.background)), 0, 255).astype(np.uint8)
+            frame = render(scene, basis, weights, yaw, pitch)
             out.append((i, seed, frame, truth, float(weights.max())))
     return out
 
