@@ -31,7 +31,7 @@ def coded(data_dir, models_dir, tmp_path_factory):
 
 
 def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
-    from facesculpt.msgs.fsc import LOG_SCALE_STEP, ROT_STEP, TRANS_STEP, read_stream
+    from facesculpt.coding.fsc import LOG_SCALE_STEP, ROT_STEP, TRANS_STEP, read_stream
 
     frames, fps, analysis, path, sizes = coded
     with pytest.raises(ValueError, match="needs the triangles"):
@@ -56,7 +56,7 @@ def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
 
 
 def test_per_frame_stream_is_within_the_target_bitrate(coded):
-    from facesculpt.msgs.fsc import record_bytes
+    from facesculpt.coding.fsc import record_bytes
 
     frames, fps, analysis, path, sizes = coded
     assert sizes["stream"] == FRAMES * record_bytes(12) == FRAMES * 27  # what a live link spends
@@ -117,7 +117,7 @@ def test_a_format_1_stream_still_decodes(coded, tmp_path):
     import zlib
 
     from facesculpt.app.coding import decode_file
-    from facesculpt.msgs.fsc import V1_ARRAYS, coefficient_steps, pack_records
+    from facesculpt.coding.fsc import V1_ARRAYS, coefficient_steps, pack_records
     from facesculpt.nodes.reenact.expression_basis import expression_basis, expression_coefficients
 
     frames, fps, analysis, path, sizes = coded
@@ -148,7 +148,7 @@ def test_a_format_1_stream_still_decodes(coded, tmp_path):
 
 def test_encode_help_states_the_formats_keyframe_quality():
     """The help text names the default without importing the stream format (scipy) at start-up."""
-    from facesculpt.msgs.fsc import KEY_QUALITY
+    from facesculpt.coding.fsc import KEY_QUALITY
 
     result = subprocess.run([sys.executable, "-m", "facesculpt.cli", "encode", "--help"], capture_output=True,
                             text=True, timeout=60)

@@ -1,4 +1,4 @@
-"""The decoder's body motion (issue 51, nodes/renderer/body_motion.py): the head's sway carried over
+"""The decoder's body motion (issue 51, facesculpt/nodes/renderer/body_motion.py): the head's sway carried over
 the neck and body below the jaw, on plain arrays and on a real coded video (d0)."""
 
 from __future__ import annotations

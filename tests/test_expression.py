@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.expression import NAMES, expression_parameters, expression_points
 
 REPO = Path(__file__).resolve().parent.parent
@@ -48,7 +49,7 @@ def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir)
 
     cap = cv2.VideoCapture(str(data_dir / "video" / "d3.mp4"))
     jaw, opening = [], []
-    with Pipeline(model, neutral_frames=30) as pipeline:
+    with Pipeline(model, fit=FitterConfig(neutral_frames=30)) as pipeline:
         for i in range(150):
             ok, frame = cap.read()
             if not ok:
@@ -89,7 +90,6 @@ def test_the_sfm_fit_of_exact_landmarks_recovers_the_true_expression(data_dir):
     (no detector) through the SFM fitter give expression parameters that follow the true ones."""
     if not (data_dir / "sfm").is_dir() or not (data_dir / "video" / "s18.mp4").is_file():
         pytest.skip("needs ../shared/data/sfm and video/s18.mp4")
-    sys.path.insert(0, str(REPO))
     from argparse import Namespace
 
     from benchmarks.bench_expression_synthetic import fit_sequence

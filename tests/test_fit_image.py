@@ -53,13 +53,9 @@ def test_train_appearance_writes_a_model_from_the_shared_photos_and_never_overwr
 
 
 def test_fit_image_brings_the_68_points_of_unseen_faces_closer(data_dir, models_dir):
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
     import cv2
-    from bench_fit_image import nme
 
+    from benchmarks.bench_fit_image import nme
     from facesculpt.app.appearance_training import frontal_samples, photo_fits
     from facesculpt.geometry.ibug68 import dlib_annotations
     from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter

@@ -6,20 +6,14 @@ colour one is handled through its own K and transform."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-from synthetic_faces import make_face
 
+from benchmarks.realism.raster import rasterise
+from benchmarks.synthetic_faces import make_face
 from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
 from facesculpt.nodes.fitter.depth_fitting import DepthImage
 from facesculpt.nodes.fitter.stage import fit_landmarks
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from realism.raster import rasterise  # noqa: E402
 
 SIZE = (640, 480)
 K = np.array([[554.0, 0, 319.5], [0, 554.0, 239.5], [0, 0, 1]])

@@ -1,5 +1,5 @@
 """The sparse fit's rotation prior from the landmark network's own 3D points
-(nodes/fitter/detector_rotation.py): the pose solve's prior term, the network's rotation in the
+(facesculpt/nodes/fitter/detector_rotation.py): the pose solve's prior term, the network's rotation in the
 model's head frame, and a nodding head whose detected landmarks lag its pitch, as the face-mesh
 network's do."""
 

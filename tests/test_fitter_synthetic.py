@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from eos_peer import EosPeer
-from synthetic_faces import (
+
+from benchmarks.eos_peer import EosPeer
+from benchmarks.synthetic_faces import (
     landmark_reprojection_error,
     make_face,
     similarity_aligned_error,
 )
-
 from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
 from facesculpt.nodes.fitter import outline as outline_corr
 from facesculpt.nodes.fitter.eos_import import sfm_files

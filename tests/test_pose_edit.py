@@ -79,8 +79,7 @@ def test_face_camera_turns_a_face_onto_the_ray_to_the_camera_and_smooths():
 def turned(data_dir):
     """Frame 0 of d0 with the SFM mean posed on it, rendered with the head turned 12° of yaw,
     with and without head_motion."""
-    from renderer_scene import place_marked, read_frames
-
+    from benchmarks.renderer_scene import place_marked, read_frames
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer import Compositor
 
@@ -224,8 +223,7 @@ def test_keyframe_views_keep_distinct_poses_and_choose_the_closest_better_view()
 def test_a_keyframe_is_sampled_at_its_own_pixels_and_blended_where_the_frame_sees_badly(data_dir):
     """A keyframe that is the frame itself seen from the rendered view changes nothing; one whose
     colours are shifted shows the shift on the turned face's sides, never elsewhere."""
-    from renderer_scene import place_marked, read_frames
-
+    from benchmarks.renderer_scene import place_marked, read_frames
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer import Compositor
     from facesculpt.nodes.renderer.keyframe_views import Keyframe, KeyframeViews

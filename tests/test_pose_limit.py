@@ -1,4 +1,4 @@
-"""New views that know their limits (issue 51, nodes/renderer/pose_limit.py): the share of a turn a
+"""New views that know their limits (issue 51, facesculpt/nodes/renderer/pose_limit.py): the share of a turn a
 frame takes falls as the turn reveals surface nobody saw, smoothly, and stored views raise it;
 `process` says so in one line."""
 

@@ -5,9 +5,9 @@ input's bit for bit), and ``face_camera`` turns a face that looks away toward th
 from __future__ import annotations
 
 import numpy as np
-from renderer_scene import place_marked, rasterize_region, read_frames
 from test_renderer_node import MS, Feeder
 
+from benchmarks.renderer_scene import place_marked, rasterize_region, read_frames
 from facesculpt.geometry.pose_offset import PoseOffset, apply_pose_offset, face_camera_offset, head_pivot
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image
 from facesculpt.nodes.renderer import Compositor

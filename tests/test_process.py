@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-PRESETS = REPO / "nodes" / "deformer" / "presets"
+PRESETS = REPO / "facesculpt" / "nodes" / "deformer" / "presets"
 NOSE_TIP, RIGHT_EYE_OUTER, LEFT_EYE_OUTER = 1, 33, 263  # face-mesh points
 
 

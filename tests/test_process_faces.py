@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from two_people import write_two_people
 
+from facesculpt.nodes.fitter.config import FitterConfig
+
 REPO = Path(__file__).resolve().parent.parent
 FRAMES = 12
 
@@ -79,7 +81,7 @@ def test_three_people_in_the_shared_photo(data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline, read_preset
 
     photo = cv2.imread(str(data_dir / "faces" / "2008_002506.jpg"))
-    with Pipeline("facemesh", faces="all", neutral_frames=1) as pipeline:
+    with Pipeline("facemesh", faces="all", fit=FitterConfig(neutral_frames=1)) as pipeline:
         pipeline.calibrate([photo], fps=1.0)
         pipeline.set_edits(read_preset("nose_longer"))
         result = pipeline.process(photo, 0.0)

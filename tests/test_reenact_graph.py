@@ -1,4 +1,4 @@
-"""The live reenact graph (launch/reenact.yaml) with two video cameras: a still photo of a closed
+"""The live reenact graph (facesculpt/launch/reenact.yaml) with two video cameras: a still photo of a closed
 mouth (d12's first frame) driven by d3 (its first second, then its wide-open mouth), headless into
 a video. Real processes, sockets and networks; the output is measured by the landmark network."""
 

@@ -25,7 +25,7 @@ VICTIMS = ["camera", "landmarks", "fitter", "deformer", "renderer"]
 
 
 def _chaos_launch(tmp_path, video) -> str:
-    demo = yaml.safe_load((REPO_ROOT / "launch" / "demo.yaml").read_text())
+    demo = yaml.safe_load((REPO_ROOT / "facesculpt" / "launch" / "demo.yaml").read_text())
     nodes = []
     for entry in demo["nodes"]:
         if entry["name"] == "script":

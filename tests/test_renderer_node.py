@@ -8,8 +8,8 @@ import time
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import issue_edit, place_marked, read_frames
 
+from benchmarks.renderer_scene import issue_edit, place_marked, read_frames
 from facesculpt.geometry import merge_deformation
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, FrameDone, Image
 from facesculpt.nodes.renderer import Compositor

@@ -16,7 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import place_marked, psnr, read_frames
+
+from benchmarks.renderer_scene import place_marked, psnr, read_frames
 
 TOOLS = ("Xvfb", "xdotool", "xdpyinfo")
 
