@@ -111,13 +111,15 @@ def run_identity(data, seed: int, args, detectors: dict, model, strip: list) -> 
     coefficients, None when not fitted)."""
     from benchmarks.realism.scene import make_scene
     from facesculpt.app.pipeline import Pipeline
+    from facesculpt.nodes.fitter.config import FitterConfig
 
     scene = make_scene(data, frames=1, seed=seed)
     rng = np.random.default_rng(1000 + seed)
     plan = schedule(segments(rng, args.low), args.neutral_frames)
     basis = np.asarray(model.expression_basis, np.float64)
     # a new person: new fitters (they learn afresh), the detectors reused (reset by the pipeline)
-    pipes = {m: Pipeline(m, neutral_frames=args.neutral_frames, detector=d) for m, d in detectors.items()}
+    fit = FitterConfig(neutral_frames=args.neutral_frames)
+    pipes = {m: Pipeline(m, fit=fit, detector=d) for m, d in detectors.items()}
     records = []
     for i, (weights, yaw, pitch, truth, _, j) in enumerate(plan):
         frame = render(scene, basis, weights, yaw, pitch)
@@ -235,6 +237,7 @@ def real_videos(data, args) -> tuple[list, dict]:
     import cv2
 
     from facesculpt.app.pipeline import Pipeline
+    from facesculpt.nodes.fitter.config import FitterConfig
     from facesculpt.nodes.fitter.expression import face_expression
 
     tiles, cpu = [], {"analysis": 0.0, "fit": 0.0, "parameters": 0.0, "recognise": 0.0, "frames": 0}
@@ -252,7 +255,7 @@ def real_videos(data, args) -> tuple[list, dict]:
         labels = {}
         for m in ("facemesh", "sfm"):
             recogniser = ExpressionRecogniser(baseline_frames=args.neutral_frames)
-            with Pipeline(m, neutral_frames=args.neutral_frames, expression=False) as pipe:
+            with Pipeline(m, fit=FitterConfig(neutral_frames=args.neutral_frames), expression=False) as pipe:
                 for i, frame in enumerate(frames):
                     timings = {}
                     t0 = time.process_time()
