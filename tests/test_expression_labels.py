@@ -149,17 +149,19 @@ def test_overlay_names_are_parsed_and_an_unknown_one_is_refused():
     assert "smile" in str(err.value) and "\n" not in str(err.value) and "gaze" in str(err.value)
 
 
-def test_the_renderer_node_stops_on_an_unknown_overlay(monkeypatch, tmp_path):
-    from facesculpt.nodes.renderer.node import RendererNode
-    from facesculpt.runtime.parameters import ConfigurationError
+def test_an_unknown_overlay_is_refused_before_the_renderer_starts(tmp_path):
+    import subprocess
+    import sys
 
-    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
-    node = RendererNode(params={"overlay": "expresion"})
-    try:
-        with pytest.raises(ConfigurationError, match="renderer: overlay expresion unknown"):
-            node.setup()
-    finally:
-        node.close()
+    from facesculpt.nodes.renderer.node import RendererNode
+    from facesculpt.runtime.parameters import ParameterError, resolve_params
+
+    with pytest.raises(ParameterError, match="renderer.overlay='info,expresion' names an unknown layer: expresion"):
+        resolve_params("renderer", RendererNode.PARAMS, {"overlay": "info,expresion"})
+    assert resolve_params("renderer", RendererNode.PARAMS, {"overlay": "gaze,expression"})["overlay"]
+    r = subprocess.run([sys.executable, "-m", "facesculpt.cli", "launch", "webcam", "renderer.overlay=smile",
+                        "--check"], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "names an unknown layer: smile" in r.stderr and len(r.stderr.splitlines()) == 1
 
 
 def test_the_expression_is_drawn_above_the_face():

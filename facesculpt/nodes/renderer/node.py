@@ -65,7 +65,7 @@ from .frame_size_defaults import (
 )
 from .mouth_interior import paint_opened_mouth
 from .overlay_layers import DRAWERS as FACE_DRAWERS
-from .overlay_layers import OVERLAY_DEFAULT, OVERLAY_HELP, face_box, parse_overlay
+from .overlay_layers import OVERLAY_DEFAULT, OVERLAY_HELP, face_box, overlay_problem, parse_overlay
 from .overlay_layers import TOPICS as LAYER_TOPICS
 from .pairing import FramePairer
 from .person_segmentation import MissingNetworkError, PersonSegmenter
@@ -129,7 +129,7 @@ class RendererNode(Node):
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),
-        "overlay": Param(OVERLAY_DEFAULT, OVERLAY_HELP),
+        "overlay": Param(OVERLAY_DEFAULT, OVERLAY_HELP, check=overlay_problem),
         "title": Param("facesculpt", "window title"),
         "close": Param("graph", "what Q, Escape or the window's close button stop: graph (every node; "
                                 "launch exits 0) or node (this renderer only; the launcher does not respawn it)",
@@ -176,10 +176,7 @@ class RendererNode(Node):
             self.segmenter = PersonSegmenter() if p.plate == "on" else None
         except (ValueError, MissingNetworkError) as exc:
             raise ConfigurationError(f"renderer: {exc}") from None
-        try:
-            self.overlays = parse_overlay(p.overlay)
-        except ValueError as exc:
-            raise ConfigurationError(f"renderer: {exc}") from None
+        self.overlays = parse_overlay(p.overlay)  # checked with the parameters (overlay_problem)
         self._face_layers: dict[str, dict[int, object]] = {}   # layer -> face id -> its newest message
         self._face_boxes: list[tuple[int, tuple]] = []          # (face id, box px) of the faces drawn
         for layer in sorted(self.overlays & set(FACE_DRAWERS)) if p.window else ():

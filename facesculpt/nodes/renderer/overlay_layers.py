@@ -49,9 +49,23 @@ def parse_overlay(value) -> frozenset[str]:
     names = [n.strip() for n in text.split(",") if n.strip()]
     unknown = [n for n in names if n not in OVERLAYS]
     if unknown:
-        raise ValueError(f"overlay {', '.join(unknown)} unknown: name any of {', '.join(OVERLAYS)}, "
-                         f"separated by commas")
+        raise ValueError(f"overlay {_unknown_text(unknown)}")
     return frozenset(names)
+
+
+def _unknown_text(unknown: list[str]) -> str:
+    return (f"names an unknown layer: {', '.join(unknown)} (the layers: {', '.join(OVERLAYS)}, "
+            f"as a comma list)")
+
+
+def overlay_problem(value) -> str:
+    """Why ``value`` is not an ``overlay`` (the end of a sentence, as a parameter's check says it);
+    "" when it is."""
+    try:
+        parse_overlay(value)
+    except ValueError as exc:
+        return str(exc).removeprefix("overlay ")
+    return ""
 
 
 def face_box(projected: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
