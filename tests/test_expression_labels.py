@@ -179,3 +179,11 @@ def test_the_expression_is_drawn_above_the_face():
     assert np.array_equal(DRAWERS["expression"](frame, box, FaceExpression()), frame)  # no label: nothing
     top = DRAWERS["expression"](frame, (120, 2, 200, 100), msg)  # no room above: drawn inside the top edge
     assert (top != frame).any(axis=2)[2:60].any()
+
+
+def test_labels_from_blendshapes_are_refused_for_a_model_without_them(models_dir):
+    from facesculpt.app.pipeline import Pipeline
+    from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions
+
+    with pytest.raises(ValueError, match="need a model whose blendshapes are named"):
+        Pipeline("facemesh", expression_labels=ExpressionLabelOptions(source="blendshapes"))

@@ -52,7 +52,11 @@ from facesculpt.nodes.fitter import (
     parse_faces,
 )
 from facesculpt.nodes.fitter.expression import NAMES, face_expression
-from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions, ExpressionRecogniser
+from facesculpt.nodes.fitter.expression_labels import (
+    ExpressionLabelOptions,
+    ExpressionRecogniser,
+    has_expression_blendshapes,
+)
 from facesculpt.nodes.landmarks import LandmarkDetector
 from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
 from facesculpt.nodes.renderer.compositor_options import CompositorOptions
@@ -206,6 +210,10 @@ class Pipeline:
         self.expression = bool(expression)
         self.label_options = expression_labels or ExpressionLabelOptions(baseline_frames=self.neutral_frames)
         self.recognisers: dict[int, ExpressionRecogniser] = {}  # face key -> its expressions recognised
+        if self.expression and self.label_options.source == "blendshapes" and not has_expression_blendshapes(
+                self.model.expression_names):
+            raise ValueError("expressions recognised from blendshapes need a model whose blendshapes are named for "
+                             "the six basic expressions (the Surrey Face Model's), and this one has none")
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()
