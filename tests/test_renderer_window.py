@@ -320,23 +320,30 @@ def _panel_size(shot: np.ndarray, frame: np.ndarray) -> tuple[int, int]:
     return int(rows.sum()), int(cols.sum())
 
 
+def _window_renderer(graph, display, data_dir, tmp_path, name: str, *params: str):
+    """A renderer with a window (``params`` added) in ``graph``, logging to a file, and the SFM
+    posed on s18's first frame to feed it: (model, pose, frame, window title, log path)."""
+    from facesculpt.nodes.fitter import load_model
+
+    model = load_model("sfm")
+    pose = place_marked(model, "s18")
+    frame = read_frames(data_dir, "s18")[0]
+    title = f"facesculpt-{name}-{os.getpid()}"
+    graph.env["DISPLAY"] = display
+    log = tmp_path / "renderer.txt"
+    with open(log, "w") as out:
+        graph.spawn("run", "renderer", "window=true", *params, f"title={title}", stdout=out, stderr=subprocess.STDOUT)
+    return model, pose, frame, title, log
+
+
 def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tmp_path):
     """The overlay in a real window: pinned vertices (Deformation.static) are drawn as yellow
     squares where the face shows them; S sends save_preset, the window says so at once, and
     when the deformer's diagnostics report the file (played here by the feeder) the renderer
     logs its absolute path and shows it for a few seconds."""
-    from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer.overlay import PIN_BGR
 
-    model = load_model("sfm")
-    pose = place_marked(model, "s18")
-    frame = read_frames(data_dir, "s18")[0]
-    title = f"facesculpt-pins-{os.getpid()}"
-    graph.env["DISPLAY"] = display
-    log = tmp_path / "renderer.txt"
-    with open(log, "w") as out:
-        graph.spawn("run", "renderer", "window=true", "overlay=true", f"title={title}",
-                    stdout=out, stderr=subprocess.STDOUT)
+    model, pose, frame, title, log = _window_renderer(graph, display, data_dir, tmp_path, "pins", "overlay=true")
     preset_dir = tmp_path / "presets-in-a-directory-with-a-long-name"  # the widest line of the overlay
     feeder = graph.node(_scene_feeder(model, pose, frame, preset_dir=preset_dir))
     feeder.publish_model()
@@ -382,19 +389,11 @@ def test_the_expression_overlay_names_the_expression_above_the_face(display, gra
     """renderer.overlay=expression in a real window: the face/expression label of the face is
     written above it in the label's colour; overlay=info's panel is not drawn."""
     from facesculpt.msgs import FaceExpression
-    from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer.overlay_layers import EXPRESSION_BGR, face_box
     from facesculpt.runtime.node import Node
 
-    model = load_model("sfm")
-    pose = place_marked(model, "s18")
-    frame = read_frames(data_dir, "s18")[0]
-    title = f"facesculpt-expression-{os.getpid()}"
-    graph.env["DISPLAY"] = display
-    log = tmp_path / "renderer.txt"
-    with open(log, "w") as out:
-        graph.spawn("run", "renderer", "window=true", "overlay=expression", f"title={title}",
-                    stdout=out, stderr=subprocess.STDOUT)
+    model, pose, frame, title, log = _window_renderer(graph, display, data_dir, tmp_path, "expression",
+                                                      "overlay=expression")
     feeder = graph.node(_scene_feeder(model, pose, frame))
     feeder.publish_model()
     sender = Node(name="expression_sender")
@@ -416,13 +415,9 @@ def test_the_expression_overlay_names_the_expression_above_the_face(display, gra
         above = shot[max(0, y0 - 60):y0, x0:x1 + 1].reshape(-1, 3).astype(int)
         return (np.abs(above - green).max(axis=1) < 40).sum() >= 30
 
-    assert graph.spin_until(feeder, lambda: send() or shows_now(shots, labelled), 30.0), \
+    assert graph.spin_until(feeder, lambda: send() or shots.shows(labelled), 30.0), \
         f"no expression label above the face: {log.read_text()}"
     assert _panel_size(shots[-1], frame)[0] < 5  # no info panel asked for
-
-
-def shows_now(shots, predicate) -> bool:
-    return shots.shows(predicate)
 
 
 def _launch_window_graph(graph, display, tmp_path, title: str, **renderer_params):
