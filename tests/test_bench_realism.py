@@ -44,6 +44,7 @@ def synth(data_dir, models_dir):
     return scene, seq
 
 
+@pytest.mark.slow
 def test_the_edited_render_differs_from_the_unedited_one_only_near_the_edit(synth):
     scene, seq = synth
     for i in range(3):
@@ -61,6 +62,7 @@ def test_the_edited_render_differs_from_the_unedited_one_only_near_the_edit(synt
         assert np.array_equal(seq.inputs[i][~near], scene.background[~near])
 
 
+@pytest.mark.slow
 def test_the_reference_rasteriser_antialiases_the_head_over_the_background(synth):
     scene, _ = synth
     X = scene.to_camera(scene.rest, 0)
@@ -156,6 +158,7 @@ def test_the_compositor_on_the_true_head_is_closer_to_the_truth_than_doing_nothi
                 assert score["true edit"] > max(score["liquify"] + 3, score["preset"]), (edit, i, score)
 
 
+@pytest.mark.slow
 def test_the_arap_truth_is_what_a_preset_stands_for(synth):
     """--truth-edit arap: the benchmark's own ARAP solver (gripping handles) moves each handle by
     exactly its offset and lands where the project's deformer settles the same preset with the same
@@ -177,6 +180,7 @@ def test_the_arap_truth_is_what_a_preset_stands_for(synth):
         assert np.array_equal(arap[n:], falloff[n:])   # the vertices closing the mouth keep the falloff
 
 
+@pytest.mark.slow
 def test_the_paper_truth_is_the_single_vertex_arap_solved_by_libigl(synth):
     """--truth-edit paper: libigl's ARAP with each handle a single vertex moves each handle by
     exactly its offset, nothing beyond the ROI, and lands where the project's deformer settles the

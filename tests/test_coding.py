@@ -30,6 +30,7 @@ def coded(data_dir, models_dir, tmp_path_factory):
     return frames, fps, analysis, path, sizes
 
 
+@pytest.mark.slow
 def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
     from facesculpt.coding.fsc import LOG_SCALE_STEP, ROT_STEP, TRANS_STEP, read_stream
 
@@ -65,6 +66,7 @@ def test_per_frame_stream_is_within_the_target_bitrate(coded):
     assert path.stat().st_size == sizes["total"]
 
 
+@pytest.mark.slow
 def test_decoded_face_resembles_the_input(coded):
     from facesculpt.app.coding import decode_file, face_region_quality
 
@@ -82,6 +84,7 @@ def test_decoded_face_resembles_the_input(coded):
     assert np.mean(psnr) > np.mean(shifted) + 3.0  # better than the input moved by 12 px
 
 
+@pytest.mark.slow
 def test_commands_round_trip(coded, tmp_path):
     frames, fps, analysis, path, sizes = coded
     run = [sys.executable, "-m", "facesculpt.cli"]
@@ -100,6 +103,7 @@ def test_commands_round_trip(coded, tmp_path):
     assert not (tmp_path / "x.mp4").exists()
 
 
+@pytest.mark.slow
 def test_encode_command_reports_the_bitrate(data_dir, models_dir, tmp_path):
     out = tmp_path / "d0.fsc"
     result = subprocess.run([sys.executable, "-m", "facesculpt.cli", "encode", str(data_dir / "video" / "d0.mp4"),

@@ -44,6 +44,7 @@ def d0_fits(data_dir, models_dir):
     return frames, fits, neutral, triangles
 
 
+@pytest.mark.slow
 def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
     from facesculpt.coding.fsc import (
         LOG_SCALE_STEP,
@@ -112,6 +113,7 @@ def test_a_coded_stream_header_that_is_garbage_is_refused_in_one_sentence():
         unpack_records(b"\x01" * 20, np.ones(12))
 
 
+@pytest.mark.slow
 def test_coding_graph_over_tcp_decodes_the_live_face(data_dir, models_dir, tmp_path):
     from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, FaceState, Image
     from facesculpt.runtime.node import Node

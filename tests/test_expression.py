@@ -43,6 +43,7 @@ def test_neutral_is_zero_and_components_answer_their_own_motion():
 
 
 @pytest.mark.parametrize("model", ["facemesh", "sfm"])
+@pytest.mark.slow
 def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.geometry import to_ibug68
@@ -65,6 +66,7 @@ def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir)
     assert np.corrcoef(jaw, opening)[0, 1] >= 0.9
 
 
+@pytest.mark.slow
 def test_process_exports_one_row_per_frame(data_dir, models_dir, tmp_path):
     out_csv, out_json = tmp_path / "p.csv", tmp_path / "p.json"
     for path in (out_csv, out_json):
@@ -85,6 +87,7 @@ def test_process_exports_one_row_per_frame(data_dir, models_dir, tmp_path):
     assert not list(tmp_path.glob(".*writing*"))
 
 
+@pytest.mark.slow
 def test_the_sfm_fit_of_exact_landmarks_recovers_the_true_expression(data_dir):
     """bench_expression_synthetic's exact-landmark run, short: the synthetic head's true iBUG points
     (no detector) through the SFM fitter give expression parameters that follow the true ones."""

@@ -173,6 +173,7 @@ def test_refinement_filters_landmark_noise_on_a_still_face(data_dir, models_dir)
     assert jitter["appearance"] < 0.5 * jitter[None]
 
 
+@pytest.mark.slow
 def test_the_refined_shape_reaches_the_learned_neutral(data_dir, models_dir):
     """SFM: the refinement's mean shape change is part of the neutral the deformer gets."""
     from facesculpt.app.pipeline import Pipeline
@@ -217,6 +218,7 @@ def test_the_applied_shape_follows_the_mean_of_the_samples_without_its_wobble():
     assert np.array_equal(refiner.shape_change, applied[-1])
 
 
+@pytest.mark.slow
 def test_the_refinement_brings_the_synthetic_heads_outline_and_shape_closer(data_dir, models_dir):
     """SFM on the realism benchmark's synthetic head (true pose and shape known): refined, the
     vertices at the head's outline land at least a fifth closer to the true ones than the landmark fit's, and the

@@ -59,6 +59,7 @@ def _frames(sfm, seed: int, n: int):
     return out
 
 
+@pytest.mark.slow
 def test_depth_brings_pose_and_shape_near_the_truth(sfm):
     frames = _frames(sfm, 3, 6)
     fitters = {name: make_fitter(sfm, FitterConfig(), SIZE, K) for name in ("colour", "depth")}
@@ -128,6 +129,7 @@ def test_points_at_follow_the_depth_cameras_transform():
     assert np.allclose(P[:2, 2], 805.0)   # the wall, seen from the colour camera 5 mm behind
 
 
+@pytest.mark.slow
 def test_the_fitter_node_fits_on_the_depth_of_the_landmarks_frame(sfm, monkeypatch, tmp_path):
     """The node with depth=on keeps camera/image's depth by stamp and fits each landmarks message
     on its frame's depth; with depth=off (the default) the same messages give the colour-only fit."""

@@ -150,6 +150,7 @@ def _yaws(frames: list, detector, model) -> list[float]:
     return out
 
 
+@pytest.mark.slow
 def test_process_pose_turns_a_real_head_by_about_the_angle_asked(data_dir, models_dir, tmp_path):
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.landmarks import LandmarkDetector
@@ -170,6 +171,7 @@ def test_process_pose_turns_a_real_head_by_about_the_angle_asked(data_dir, model
     assert all(np.array_equal(o[corner], inputs[i][corner]) for o, i in zip(outputs, (3, 7, 11)))
 
 
+@pytest.mark.slow
 def test_process_refuses_a_bad_pose_before_writing_anything(data_dir, tmp_path):
     for args, says in ((["--pose", "yaw=90"], "±45 degrees"), (["--face-camera", "2"], "0 to 1")):
         done = subprocess.run([sys.executable, "-m", "facesculpt.cli", "process", str(data_dir / "video" / "d0.mp4"),
@@ -179,6 +181,7 @@ def test_process_refuses_a_bad_pose_before_writing_anything(data_dir, tmp_path):
         assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_a_presets_pose_turns_the_head_in_process_as_pose_does(data_dir, models_dir, tmp_path):
     preset = tmp_path / "turn.json"
     preset.write_text('{"format": "facesculpt-deformer-preset", "version": 1, "units": "mm", "static": [], '

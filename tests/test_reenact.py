@@ -49,6 +49,7 @@ def mouth_and_lip_grey(detector, frame) -> tuple[float, float]:
     return float(inside), float(lip)
 
 
+@pytest.mark.slow
 def test_output_mouth_opens_when_the_drivers_does(data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.app.reenactment import Reenactor, fit_source, inner_lip_ids
@@ -83,6 +84,7 @@ def test_output_mouth_opens_when_the_drivers_does(data_dir, models_dir):
     assert inside < 0.6 * lip
 
 
+@pytest.mark.slow
 def test_command_writes_one_frame_per_driving_frame(data_dir, models_dir, tmp_path):
     video = data_dir / "video"
     out = tmp_path / "avatar.mp4"

@@ -238,6 +238,7 @@ def test_face_texture_message_round_trips_and_checks_its_shapes():
         decode([bytes(f) for f in encode(bad, "face/texture")])
 
 
+@pytest.mark.slow
 def test_the_renderer_node_publishes_the_latched_face_texture(graph, data_dir):
     from benchmarks.renderer_scene import place_marked, read_frames
     from facesculpt.msgs import FaceModel, FaceState, FaceTexture, Image

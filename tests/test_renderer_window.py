@@ -237,6 +237,7 @@ def _scene_feeder(model, pose, frame, preset_dir: Path | None = None):
     return Feeder()
 
 
+@pytest.mark.slow
 def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph, data_dir):
     """The graph: this test plays camera + fitter (real frame, posed SFM); the renderer (window)
     and the deformer run as real processes. A drag sent with xdotool on the nose reaches the
@@ -336,6 +337,7 @@ def _window_renderer(graph, display, data_dir, tmp_path, name: str, *params: str
     return model, pose, frame, title, log
 
 
+@pytest.mark.slow
 def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tmp_path):
     """The overlay in a real window: pinned vertices (Deformation.static) are drawn as yellow
     squares where the face shows them; S sends save_preset, the window says so at once, and
@@ -385,6 +387,7 @@ def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tm
     assert graph.spin_until(feeder, lambda: shows(lambda s: _panel_size(s, frame)[0] <= rows_before + 3), 15.0)
 
 
+@pytest.mark.slow
 def test_the_expression_overlay_names_the_expression_above_the_face(display, graph, data_dir, tmp_path):
     """renderer.overlay=expression in a real window: the face/expression label of the face is
     written above it in the label's colour; overlay=info's panel is not drawn."""
@@ -458,6 +461,7 @@ def _press_q_until(env, title: str, done, timeout: float = 30.0) -> None:
         time.sleep(0.5)
 
 
+@pytest.mark.slow
 def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
     """Q in the window ends the renderer with the stop-the-graph status; the launcher stops every
     node (the renderer is marked respawn, and does not come back) and exits 0."""
@@ -469,6 +473,7 @@ def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
     assert "[renderer] asked the graph to stop" in text and text.count("[renderer] running") == 1, text
 
 
+@pytest.mark.slow
 def test_q_with_close_node_stops_only_the_renderer(display, graph, tmp_path):
     """close: node in the launch file: Q ends the renderer alone, with EXIT_NODE_CLOSED, which the
     launcher does not respawn (it is marked respawn) nor count as a failure; the camera runs on
