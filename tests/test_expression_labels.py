@@ -149,16 +149,20 @@ def test_overlay_names_are_parsed_and_an_unknown_one_is_refused():
     assert "smile" in str(err.value) and "\n" not in str(err.value) and "gaze" in str(err.value)
 
 
-def test_an_unknown_overlay_is_refused_before_the_renderer_starts(tmp_path):
-    import subprocess
-    import sys
-
+def test_an_unknown_overlay_is_refused_with_the_parameters():
     from facesculpt.nodes.renderer.node import RendererNode
     from facesculpt.runtime.parameters import ParameterError, resolve_params
 
     with pytest.raises(ParameterError, match="renderer.overlay='info,expresion' names an unknown layer: expresion"):
         resolve_params("renderer", RendererNode.PARAMS, {"overlay": "info,expresion"})
     assert resolve_params("renderer", RendererNode.PARAMS, {"overlay": "gaze,expression"})["overlay"]
+
+
+@pytest.mark.slow
+def test_launch_check_refuses_an_unknown_overlay_in_one_sentence():
+    import subprocess
+    import sys
+
     r = subprocess.run([sys.executable, "-m", "facesculpt.cli", "launch", "webcam", "renderer.overlay=smile",
                         "--check"], capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "names an unknown layer: smile" in r.stderr and len(r.stderr.splitlines()) == 1
