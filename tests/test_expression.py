@@ -77,6 +77,9 @@ def test_process_exports_one_row_per_frame(data_dir, models_dir, tmp_path):
     rows = list(csv.DictReader(out_csv.open()))
     assert [int(r["frame"]) for r in rows] == list(range(12))
     assert {"yaw_deg", "tz_mm", *NAMES} <= set(rows[0])
+    assert {r["expression"] for r in rows} <= {"anger", "disgust", "fear", "happiness", "sadness", "surprise",
+                                                 "neutral"}
+    assert all(0.0 <= float(r["expression_intensity"]) <= 1.0 for r in rows)
     assert all(r["face"] == "0" and float(r["tz_mm"]) > 0 for r in rows)
     doc = json.loads(out_json.read_text())
     assert doc["columns"] == list(rows[0]) and len(doc["rows"]) == 12

@@ -269,6 +269,11 @@ def test_expression_parameters_go_out_only_while_someone_subscribes(graph, frame
         assert len(expressions) >= 5, "no face/expression once subscribed"
         e = expressions[-1]
         assert e.names == list(NAMES) and e.values.shape == (len(NAMES),) and np.isfinite(e.values).all()
+        from facesculpt.nodes.fitter.expression_labels import LABELS
+
+        # the expression recognised rides along (the first neutral_frames frames are its baseline)
+        assert e.label in LABELS and 0.0 <= e.intensity <= 1.0 and e.phase in ("onset", "apex", "offset")
+        assert e.label_scores.shape == (len(LABELS),)
         assert e.stamp in {m.stamp for m in frames}
     finally:
         client.close()

@@ -18,6 +18,7 @@ from facesculpt.nodes.deformer.deformer_options import DeformerOptions
 from facesculpt.nodes.deformer.edits import Edit, EditStack
 from facesculpt.nodes.deformer.node import DeformerNode
 from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions
 from facesculpt.nodes.fitter.node import FITTER_PARAMS, FitterNode
 from facesculpt.nodes.fitter.result import FitError
 from facesculpt.nodes.hands.detector import HAND_ALIASES, HAND_OPTIONS
@@ -29,7 +30,7 @@ from facesculpt.nodes.renderer.node import LIVE, RendererNode
 from facesculpt.options import check_options, described_fields, option_problem
 from facesculpt.runtime.parameters import Renamed, declared, resolve_params
 
-OPTIONS_CLASSES = (DetectorOptions, FitterConfig, CompositorOptions, DeformerOptions)
+OPTIONS_CLASSES = (DetectorOptions, FitterConfig, CompositorOptions, DeformerOptions, ExpressionLabelOptions)
 # node -> (the options instance its defaults come from, aliases: node name -> field)
 NODE_OPTIONS = {
     LandmarksNode: (FACE_OPTIONS, FACE_ALIASES),

@@ -321,24 +321,31 @@ def _panel_size(shot: np.ndarray, frame: np.ndarray) -> tuple[int, int]:
     return int(rows.sum()), int(cols.sum())
 
 
+def _window_renderer(graph, display, data_dir, tmp_path, name: str, *params: str):
+    """A renderer with a window (``params`` added) in ``graph``, logging to a file, and the SFM
+    posed on s18's first frame to feed it: (model, pose, frame, window title, log path)."""
+    from facesculpt.nodes.fitter import load_model
+
+    model = load_model("sfm")
+    pose = place_marked(model, "s18")
+    frame = read_frames(data_dir, "s18")[0]
+    title = f"facesculpt-{name}-{os.getpid()}"
+    graph.env["DISPLAY"] = display
+    log = tmp_path / "renderer.txt"
+    with open(log, "w") as out:
+        graph.spawn("run", "renderer", "window=true", *params, f"title={title}", stdout=out, stderr=subprocess.STDOUT)
+    return model, pose, frame, title, log
+
+
 @pytest.mark.slow
 def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tmp_path):
     """The overlay in a real window: pinned vertices (Deformation.static) are drawn as yellow
     squares where the face shows them; S sends save_preset, the window says so at once, and
     when the deformer's diagnostics report the file (played here by the feeder) the renderer
     logs its absolute path and shows it for a few seconds."""
-    from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer.overlay import PIN_BGR
 
-    model = load_model("sfm")
-    pose = place_marked(model, "s18")
-    frame = read_frames(data_dir, "s18")[0]
-    title = f"facesculpt-pins-{os.getpid()}"
-    graph.env["DISPLAY"] = display
-    log = tmp_path / "renderer.txt"
-    with open(log, "w") as out:
-        graph.spawn("run", "renderer", "window=true", "overlay=true", f"title={title}",
-                    stdout=out, stderr=subprocess.STDOUT)
+    model, pose, frame, title, log = _window_renderer(graph, display, data_dir, tmp_path, "pins", "overlay=true")
     preset_dir = tmp_path / "presets-in-a-directory-with-a-long-name"  # the widest line of the overlay
     feeder = graph.node(_scene_feeder(model, pose, frame, preset_dir=preset_dir))
     feeder.publish_model()
@@ -378,6 +385,42 @@ def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tm
     assert f"saved the preset as {feeder.saved_preset}" in text, text
     # A few seconds later the notice is gone again.
     assert graph.spin_until(feeder, lambda: shows(lambda s: _panel_size(s, frame)[0] <= rows_before + 3), 15.0)
+
+
+@pytest.mark.slow
+def test_the_expression_overlay_names_the_expression_above_the_face(display, graph, data_dir, tmp_path):
+    """renderer.overlay=expression in a real window: the face/expression label of the face is
+    written above it in the label's colour; overlay=info's panel is not drawn."""
+    from facesculpt.msgs import FaceExpression
+    from facesculpt.nodes.renderer.overlay_layers import EXPRESSION_BGR, face_box
+    from facesculpt.runtime.node import Node
+
+    model, pose, frame, title, log = _window_renderer(graph, display, data_dir, tmp_path, "expression",
+                                                      "overlay=expression")
+    feeder = graph.node(_scene_feeder(model, pose, frame))
+    feeder.publish_model()
+    sender = Node(name="expression_sender")
+    pub = sender.advertise("face/expression", FaceExpression)
+    graph.node(sender)
+
+    def send():
+        pub.publish(FaceExpression(stamp=time.time_ns(), label="happiness", intensity=0.8, phase="apex"))
+        return False
+
+    found = []
+    assert graph.spin_until(feeder, lambda: send() or found.append(_visible_window(display, title)) or found[-1],
+                            40.0), f"the renderer's window did not open: {log.read_text()}"
+    shots = WindowShots(display, found[-1])
+    x0, y0, x1, _ = face_box(pose.projected, frame.shape[1], frame.shape[0])
+    green = np.array(EXPRESSION_BGR["happiness"])
+
+    def labelled(shot):
+        above = shot[max(0, y0 - 60):y0, x0:x1 + 1].reshape(-1, 3).astype(int)
+        return (np.abs(above - green).max(axis=1) < 40).sum() >= 30
+
+    assert graph.spin_until(feeder, lambda: send() or shots.shows(labelled), 30.0), \
+        f"no expression label above the face: {log.read_text()}"
+    assert _panel_size(shots[-1], frame)[0] < 5  # no info panel asked for
 
 
 def _launch_window_graph(graph, display, tmp_path, title: str, **renderer_params):

@@ -3,7 +3,9 @@
 One row per frame and fitted face: ``frame`` (index from 0), ``time_s``, ``face`` (the face key:
 0 for the largest face, else its number from the left minus 1), the pose columns
 (:data:`facesculpt.nodes.fitter.expression.POSE_NAMES`) and the expression components
-(:data:`~facesculpt.nodes.fitter.expression.NAMES`, docs/guide/expressions.md), and with ``gaze``
+(:data:`~facesculpt.nodes.fitter.expression.NAMES`, docs/guide/expressions.md), then the
+expression recognised: ``expression`` (its label), ``expression_intensity`` (0..1) and
+``expression_phase`` (:mod:`facesculpt.nodes.fitter.expression_labels`), and with ``gaze``
 the gaze columns (:data:`facesculpt.nodes.fitter.gaze.GAZE_NAMES`, docs/guide/eyes.md). A frame
 without a fitted face has one row with ``face`` and every value empty (CSV) or null (JSON). The
 file is written beside its target under a temporary name and renamed when complete.
@@ -21,7 +23,8 @@ from facesculpt.nodes.fitter.expression import NAMES, POSE_NAMES, head_pose
 from facesculpt.nodes.fitter.gaze import GAZE_NAMES, gaze_values
 
 SUFFIXES = (".csv", ".json")
-COLUMNS = ("frame", "time_s", "face", *POSE_NAMES, *NAMES)
+LABEL_COLUMNS = ("expression", "expression_intensity", "expression_phase")
+COLUMNS = ("frame", "time_s", "face", *POSE_NAMES, *NAMES, *LABEL_COLUMNS)
 
 
 class ParamsExport:
@@ -45,6 +48,9 @@ class ParamsExport:
             row.update(zip(POSE_NAMES, (round(float(v), 4) for v in head_pose(fit))))
             if fit.expression is not None:
                 row.update(zip(NAMES, (round(float(v), 4) for v in fit.expression)))
+            label = getattr(fit, "expression_label", None)
+            if label is not None:
+                row.update(zip(LABEL_COLUMNS, (label.label, round(float(label.intensity), 4), label.phase)))
             if getattr(fit, "gaze", None) is not None:
                 row.update(zip(GAZE_NAMES, (v if isinstance(v, int) else round(float(v), 4)
                                             for v in gaze_values(fit.gaze))))

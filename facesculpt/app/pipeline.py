@@ -51,7 +51,12 @@ from facesculpt.nodes.fitter import (
     max_faces_for,
     parse_faces,
 )
-from facesculpt.nodes.fitter.expression import face_expression
+from facesculpt.nodes.fitter.expression import NAMES, face_expression
+from facesculpt.nodes.fitter.expression_labels import (
+    ExpressionLabelOptions,
+    ExpressionRecogniser,
+    has_expression_blendshapes,
+)
 from facesculpt.nodes.fitter.gaze import EyeballLearning, estimate_gaze, eye_lid_vertices
 from facesculpt.nodes.landmarks import LandmarkDetector
 from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
@@ -154,8 +159,11 @@ class Pipeline:
     surface from the closest one where it sees it better than the frame (image-based rendering,
     :mod:`facesculpt.nodes.renderer.keyframe_views`), "auto" (the default) does so when a pose edit
     is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never; expression: give
-    each fit its expression parameters (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`;
-    False: None, and their cost saved). The old keywords ``neutral_frames``, ``iterations``,
+    each fit its expression parameters (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`)
+    and the expression recognised from them (``fit.expression_label``,
+    :mod:`facesculpt.nodes.fitter.expression_labels`, with ``expression_labels``, an
+    :class:`ExpressionLabelOptions`; None: its defaults, the resting face over ``fit``'s
+    ``neutral_frames``); False: None, and their cost saved. The old keywords ``neutral_frames``, ``iterations``,
     ``rotation_prior_px``, ``refine``, ``inpaint``, ``feather_px``, ``dilate_px``, ``interpolation``
     and ``outline_band`` still work for one release, with a DeprecationWarning
     (:mod:`.pipeline_options`). The GL context is made here; call
@@ -176,7 +184,8 @@ class Pipeline:
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, expression: bool = True,
-                 pose_limit: bool = True, gaze: bool = False, **deprecated):
+                 pose_limit: bool = True, gaze: bool = False, expression_labels: ExpressionLabelOptions | None = None,
+                 **deprecated):
         fit, render = options_of_old_names(fit or FitterConfig(), render or CompositorOptions(), deprecated)
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
@@ -210,6 +219,12 @@ class Pipeline:
 
             self.irises = IrisDetector(models_dir or "", threads)
         self.eyeballs: dict[int, EyeballLearning] = {}  # face key -> what is learned of its eyes
+        self.label_options = expression_labels or ExpressionLabelOptions(baseline_frames=self.neutral_frames)
+        self.recognisers: dict[int, ExpressionRecogniser] = {}  # face key -> its expressions recognised
+        if self.expression and self.label_options.source == "blendshapes" and not has_expression_blendshapes(
+                self.model.expression_names):
+            raise ValueError("expressions recognised from blendshapes need a model whose blendshapes are named for "
+                             "the six basic expressions (the Surrey Face Model's), and this one has none")
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()
@@ -277,6 +292,9 @@ class Pipeline:
                 fitter = self.faces.fitters[face.key]
                 if self.expression:
                     fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
+                    recogniser = self.recognisers.setdefault(face.key, ExpressionRecogniser(self.label_options))
+                    fit.expression_label = recogniser.update(stamp_s, fit.expression, NAMES, fit.beta,
+                                                             fitter.model.expression_names)
                 if eyes:
                     t1 = time.perf_counter()
                     learning = self.eyeballs.setdefault(face.key, EyeballLearning())

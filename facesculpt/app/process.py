@@ -237,9 +237,11 @@ def _atlas_options(args) -> tuple[str, str]:
 
 
 def _stage_options(args) -> dict:
-    """The Pipeline's fitting and compositing options (``fit``, ``render``, ``fov_deg``) from the
+    """The Pipeline's fitting, compositing and expression-label options (``fit``, ``render``,
+    ``expression_labels``, ``fov_deg``) from the
     command line's flags (ValueError in one sentence on a bad value)."""
     from facesculpt.nodes.fitter.config import FitterConfig
+    from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions
     from facesculpt.nodes.renderer.compositor_options import CompositorOptions
 
     rotation_prior = args.rotation_prior
@@ -251,7 +253,9 @@ def _stage_options(args) -> dict:
     render = {"inpaint": getattr(args, "inpaint", "drag"), "interpolation": getattr(args, "interpolation", "sinc")}
     if getattr(args, "outline_band", None) is not None:
         render["outline_band"] = args.outline_band
-    return {"fov_deg": args.fov, "fit": fit, "render": CompositorOptions(**render)}
+    labels = ExpressionLabelOptions(baseline_frames=args.neutral_frames,
+                                    source=getattr(args, "expression_source", ExpressionLabelOptions.source))
+    return {"fov_deg": args.fov, "fit": fit, "render": CompositorOptions(**render), "expression_labels": labels}
 
 
 def _pose_options(args) -> dict:

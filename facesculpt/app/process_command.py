@@ -8,10 +8,11 @@ import sys
 from facesculpt.app.option_arguments import add_option_argument
 from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_SMOOTHING_S
 from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions
 from facesculpt.nodes.renderer.compositor_options import CompositorOptions
 
 #: The defaults of the flags that are fitter and compositor options (declared in those classes).
-FITTER, RENDER = FitterConfig(), CompositorOptions()
+FITTER, RENDER, LABELS = FitterConfig(), CompositorOptions(), ExpressionLabelOptions()
 
 
 def _add_fit_arguments(p) -> None:
@@ -82,8 +83,9 @@ def register(sub) -> None:
     _add_fit_arguments(p)
     p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
     p.add_argument("--export-params", default="", metavar="FILE.csv|json",
-                   help="also write each frame's head pose and expression parameters (docs/guide/expressions.md); "
-                        "in a batch, beside each output video with this suffix")
+                   help="also write each frame's head pose, expression parameters and the expression recognised "
+                        "(docs/guide/expressions.md); in a batch, beside each output video with this suffix")
+    add_option_argument(p, LABELS, "source", "--expression-source", extra_help="with --export-params")
     p.add_argument("--gaze", action="store_true",
                    help="find the irises and estimate each face's gaze (docs/guide/eyes.md); --export-params then "
                         "writes the gaze columns too")

@@ -283,6 +283,9 @@ class FaceExpression(Message):
     face_id: as FaceState.face_id.  pose: (6,) float64 yaw, pitch, roll (degrees) and the
     camera-space translation (mm).  names[i] names values[i] ((E,) float32; units in
     docs/guide/expressions.md: percent of the inter-ocular distance, eye closure 0..1).
+    The expression recognised (docs/guide/expressions.md; "" in messages of older senders):
+    label: anger, disgust, fear, happiness, sadness, surprise or neutral; intensity: 0..1;
+    phase: onset, apex or offset; label_scores: (7,) float32 0..1 in that label order, or None.
     """
 
     TYPE = "FaceExpression"
@@ -290,6 +293,10 @@ class FaceExpression(Message):
     pose: np.ndarray = array("f8", 6)
     names: list = field(default_factory=list)
     values: np.ndarray = array("f4", "E")
+    label: str = ""
+    intensity: float = 0.0
+    phase: str = ""
+    label_scores: np.ndarray | None = array("f4", 7, optional=True)
 
 
 @register

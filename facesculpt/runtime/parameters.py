@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any
@@ -55,13 +56,16 @@ class Param:
     (with its unit), and the values it may take: ``range=(lo, hi)`` inclusive for numbers
     (``None`` on a side: unbounded), or ``choices`` for a fixed set of values. ``topic=True``: the
     value names a topic the node uses (``""``: none), which a launch file may remap
-    (:mod:`facesculpt.runtime.topics`)."""
+    (:mod:`facesculpt.runtime.topics`). ``check``: a function of a value saying why it is not
+    allowed, as the end of a sentence ("" when it is), for values no range or choices describe
+    (a comma list of names)."""
 
     default: Any
     description: str = ""
     range: tuple | None = None
     choices: tuple | None = None
     topic: bool = False
+    check: Callable[[Any], str] | None = None
 
     def __post_init__(self):
         if self.range is not None and self.choices is not None:
@@ -94,6 +98,8 @@ class Param:
             return f"is not one of {', '.join(map(str, self.choices))}"
         if self.topic and value and topic_problem(value):
             return "is not a topic name (words of letters, digits, _ . - joined by /, as in camera/image)"
+        if self.check is not None:
+            return self.check(value)
         return ""
 
     def range_text(self) -> str:

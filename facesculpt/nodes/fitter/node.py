@@ -15,7 +15,8 @@ frames; sparse: the accumulated identity) — published when it changes, at most
 ``model_period_s`` seconds while it is still being learned. No face, too few valid landmarks or
 any other refusal: an empty state for that frame (0 vertices: the renderer's "no face", so a
 renderer pairing frames with states never waits for it), a counter in diagnostics, never an
-exception. ``face/expression`` is computed and sent only while something subscribes to it.
+exception. ``face/expression`` is computed and sent only while something subscribes to it; it
+carries the expression recognised too (:mod:`.expression_labels`, ``labels_*`` params).
 ``face/gaze`` (:mod:`.gaze`) is sent for every fitted face whose landmarks carry irises (the
 landmarks node's ``irises=true``); each face's eyeballs are learned over its first frames.
 """
@@ -36,6 +37,7 @@ from .config import FitterConfig
 from .corrections import LandmarkCorrections, fit_id, ibug68_points
 from .depth_fitting import DepthImage
 from .expression import NAMES, face_expression, head_pose
+from .expression_labels import ExpressionLabelOptions, ExpressionRecogniser, has_expression_blendshapes
 from .faces import FaceFitters, parse_faces
 from .fit_camera import FitCamera
 from .fitter import Fitter
@@ -54,6 +56,9 @@ def valid_intrinsics(K) -> bool:
 #: The :class:`FitterConfig` fields the node takes as parameters (the others keep their defaults).
 FITTER_PARAMS = ("iterations", "tracking_iterations", "projection", "shape_lambda", "expression_lambda", "outline",
                  "smoothing", "smooth_min_cutoff", "neutral_frames", "rotation_prior_px", "refine")
+#: The :class:`ExpressionLabelOptions` fields the node takes, each as ``labels_<field>``.
+_LABEL_FIELDS = ("window_s", "neutral_below", "switch_margin", "source")
+_LABEL_PARAMS = tuple(f"labels_{k}" for k in _LABEL_FIELDS)
 
 
 class FitterNode(Node):
@@ -76,6 +81,7 @@ class FitterNode(Node):
         "depth": Param("off", "on: refine each fit on its frame's aligned depth image (camera/image of an RGB-D "
                               "camera, docs/guide/depth-cameras.md; perspective only); off: no depth",
                        choices=("off", "on")),
+        **option_params(ExpressionLabelOptions(), _LABEL_PARAMS, {f"labels_{k}": k for k in _LABEL_FIELDS}),
     }
     #: Frames kept for the landmarks that have not arrived yet (refine=appearance).
     FRAMES_KEPT = 8
@@ -97,6 +103,10 @@ class FitterNode(Node):
         self.corrections: dict[int, LandmarkCorrections] = {}  # face key -> its landmark corrections
         self.last_fits: dict = {}  # face key -> its last FitResult
         self.last_points: dict = {}  # face key -> its detected points (468, 3) px in that frame
+        self.recognisers: dict[int, ExpressionRecogniser] = {}  # face key -> its expressions recognised
+        self.label_options = ExpressionLabelOptions(
+            baseline_frames=self.params.neutral_frames,
+            **{k: getattr(self.params, f"labels_{k}") for k in _LABEL_FIELDS})
         self.model: MorphableModel | None = None
         self.faces: FaceFitters | None = None
         self.camera_key = None
@@ -113,6 +123,9 @@ class FitterNode(Node):
             self.model = load_model(self.params.model)
         except Exception as exc:  # missing setup files, bad .npz: running on would fit nothing
             raise ConfigurationError(f"fitter: cannot load model {self.params.model!r}: {exc}") from None
+        if self.params.labels_source == "blendshapes" and not has_expression_blendshapes(self.model.expression_names):
+            raise ConfigurationError(f"fitter: labels_source=blendshapes needs a model with blendshapes named for the "
+                                     f"six basic expressions, and {self.params.model!r} has none")
         self.publish_model(self.model.mean, stamp=0)
 
     @property
@@ -386,9 +399,14 @@ class FitterNode(Node):
             fitter = self.faces.fitters[f.key]
             with self.stage("expression"):
                 values = face_expression(result, fitter.model, fitter.neutral, msg.points[f.index])
+            with self.stage("expression_label"):
+                recogniser = self.recognisers.setdefault(f.key, ExpressionRecogniser(self.label_options))
+                label = recogniser.update(msg.stamp * 1e-9, values, NAMES, result.beta,
+                                          fitter.model.expression_names)
             self.expression_pub.publish(FaceExpression(
                 stamp=msg.stamp, frame_id=msg.frame_id, face_id=f.key, pose=head_pose(result), names=list(NAMES),
-                values=values))
+                values=values, label=label.label, intensity=label.intensity, phase=label.phase,
+                label_scores=label.scores))
         if fitted and msg.irises is not None and msg.eye_lids is not None:
             self.publish_gaze(msg, fitted)
         if fitted:

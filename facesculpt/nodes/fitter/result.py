@@ -28,7 +28,9 @@ class FitResult:
     that took part; correspondences (sparse): the model points (vertex triples (L, 3) and
     barycentric weights (L, 3)) the landmarks were matched to, and correspondence_ids the
     landmark of each (L,); expression (E,) float32 the
-    expression parameters (:mod:`.expression`) when the caller computed them; pose_edit the
+    expression parameters (:mod:`.expression`) when the caller computed them; expression_label the
+    expression recognised from them (:class:`.expression_labels.ExpressionLabel`) when the caller
+    did so; pose_edit the
     pose edit a caller applies to this frame (the in-process pipeline): (its
     :class:`facesculpt.geometry.pose_offset.PoseOffset`, the head's pivot (3,) model mm), None: none;
     landmark_fit: the fit this one was refined from by appearance (its pose not yet smoothed), what
@@ -49,6 +51,7 @@ class FitResult:
     landmarks_used: int = 0
     correspondences: tuple[np.ndarray, np.ndarray] = field(default=None, repr=False)
     expression: np.ndarray | None = field(default=None, repr=False)
+    expression_label: object | None = field(default=None, repr=False)
     correspondence_ids: list[str] = field(default_factory=list, repr=False)
     pose_edit: tuple | None = field(default=None, repr=False)
     landmark_fit: FitResult | None = field(default=None, repr=False)

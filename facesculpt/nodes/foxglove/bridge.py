@@ -11,6 +11,9 @@ one whose sink is an MCAP file (``facesculpt bag export --foxglove``). Channels 
 * ``face/scene``: ``foxglove.SceneUpdate`` in the ``camera`` frame, per face the fitted mesh
   (``fitted/ID``), the deformed mesh (``deformed/ID``, paper Eq. 5) and the handles (spheres on
   the deformed mesh);
+* ``face/expression``: JSON, per face and frame the expression recognised (label, intensity,
+  phase, scores), the head pose and the expression parameters (:func:`convert.expression_json`),
+  for a plot or a table panel;
 * ``diagnostics``: JSON, one object per node report (node, pid, values) for a table panel.
 """
 
@@ -27,7 +30,7 @@ from foxglove.channels import (
 from foxglove.messages import SceneUpdate
 
 from facesculpt.geometry import merge_deformation
-from facesculpt.msgs import Deformation, Diagnostics, FaceLandmarks, FaceModel, FaceState, Image
+from facesculpt.msgs import Deformation, Diagnostics, FaceExpression, FaceLandmarks, FaceModel, FaceState, Image
 
 from . import convert
 
@@ -59,6 +62,8 @@ class FoxgloveBridge:
         self.landmarks = ImageAnnotationsChannel("face/landmarks", **kw)
         self.scene = SceneUpdateChannel("face/scene", **kw)
         self.diagnostics = foxglove.Channel("diagnostics", schema=DIAGNOSTICS_SCHEMA, message_encoding="json", **kw)
+        self.expression = foxglove.Channel("face/expression", schema=convert.EXPRESSION_SCHEMA,
+                                           message_encoding="json", **kw)
         self.jpeg_quality = int(jpeg_quality)
         self.units_to_m = float(units_to_m)
         self.handle_diameter_m = float(handle_diameter_m)
@@ -90,6 +95,9 @@ class FoxgloveBridge:
         elif isinstance(msg, FaceState):
             if not self._log_scene(msg, t):
                 return False
+        elif isinstance(msg, FaceExpression):
+            if self.expression.has_sinks():
+                self.expression.log(convert.expression_json(msg), log_time=t)
         elif isinstance(msg, Diagnostics):
             self.diagnostics.log({"node": msg.node, "pid": msg.pid, "stamp": msg.stamp, "values": msg.values},
                                  log_time=t)
@@ -124,5 +132,6 @@ class FoxgloveBridge:
         return True
 
     def close(self) -> None:
-        for channel in (*self.images.values(), self.calibration, self.landmarks, self.scene, self.diagnostics):
+        for channel in (*self.images.values(), self.calibration, self.landmarks, self.scene, self.diagnostics,
+                        self.expression):
             channel.close()

@@ -36,6 +36,32 @@ from foxglove.messages import (
 
 from facesculpt.msgs import INPUT_KINDS, InputEvent
 
+#: JSON schema of the ``face/expression`` channel (:func:`expression_json`).
+EXPRESSION_SCHEMA = {
+    "type": "object", "title": "facesculpt.FaceExpression",
+    "properties": {"stamp": {"type": "integer"}, "face_id": {"type": "integer"}, "label": {"type": "string"},
+                   "intensity": {"type": "number"}, "phase": {"type": "string"}, "scores": {"type": "object"},
+                   "pose": {"type": "object"}, "values": {"type": "object"}},
+}
+_POSE_KEYS = ("yaw_deg", "pitch_deg", "roll_deg", "tx_mm", "ty_mm", "tz_mm")
+_LABELS = ("anger", "disgust", "fear", "happiness", "sadness", "surprise", "neutral")
+
+
+def _finite(v) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def expression_json(msg) -> dict:
+    """A ``FaceExpression`` as the ``face/expression`` channel's JSON object: the label recognised,
+    its intensity and phase, the scores by label, the pose and the parameters by name (NaN: null)."""
+    scores = {} if msg.label_scores is None else {k: _finite(v) for k, v in zip(_LABELS, msg.label_scores)}
+    return {"stamp": int(msg.stamp), "face_id": int(msg.face_id), "label": msg.label,
+            "intensity": _finite(msg.intensity), "phase": msg.phase, "scores": scores,
+            "pose": {k: _finite(v) for k, v in zip(_POSE_KEYS, msg.pose)},
+            "values": {str(k): _finite(v) for k, v in zip(msg.names, msg.values)}}
+
+
 IDENTITY = Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
 
 

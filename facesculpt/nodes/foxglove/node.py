@@ -4,7 +4,7 @@ Serves the running graph live over the Foxglove WebSocket protocol (``foxglove-s
 subprotocol ``foxglove.websocket.v1``): open ``ws://127.0.0.1:8765`` in Foxglove (app or
 browser, "Open connection", Foxglove WebSocket). The channels are those of
 :mod:`.bridge` (images, camera calibration, landmark points, a 3D scene of the fitted and
-deformed meshes and the handles, diagnostics as JSON). A client may publish JSON objects on
+deformed meshes and the handles, the expression recognised and diagnostics as JSON). A client may publish JSON objects on
 ``input/events`` (Foxglove's publish panel; client-publish capability): each one becomes an
 ``InputEvent`` (:func:`.convert.input_event_from_json`) published into the graph with the
 reliable, queued profile, as from any input node. One that is not a valid event is dropped,
@@ -21,7 +21,16 @@ from __future__ import annotations
 import collections
 import threading
 
-from facesculpt.msgs import Deformation, Diagnostics, FaceLandmarks, FaceModel, FaceState, Image, InputEvent
+from facesculpt.msgs import (
+    Deformation,
+    Diagnostics,
+    FaceExpression,
+    FaceLandmarks,
+    FaceModel,
+    FaceState,
+    Image,
+    InputEvent,
+)
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
@@ -66,7 +75,7 @@ class FoxgloveNode(Node):
 
     NAME = "foxglove"
     TOPICS = ("input/events", "camera/image", "render/image", "face/landmarks", "face/state", "face/model",
-              "face/deformation")
+              "face/deformation", "face/expression")
     PARAMS = {
         "port": Param(8765, "TCP port of the Foxglove WebSocket server (0: any free port)", range=(0, 65535)),
         "host": Param("127.0.0.1", "address the server binds; not loopback needs FACESCULPT_INSECURE=1"),
@@ -105,6 +114,8 @@ class FoxgloveNode(Node):
         self.subscribe("face/state", FaceState, lambda m: self._show("face/state", m), qos=EVERY_MESSAGE)
         self.subscribe("face/model", FaceModel, lambda m: self._show("face/model", m), qos=LATCHED)
         self.subscribe("face/deformation", Deformation, lambda m: self._show("face/deformation", m), qos=LATCHED)
+        self.subscribe("face/expression", FaceExpression, lambda m: self._show("face/expression", m),
+                       qos=EVERY_MESSAGE)
         self.subscribe("diagnostics", Diagnostics, lambda m: self._show("diagnostics", m), qos=EVERY_MESSAGE)
         self.timer(0.01, self._drain_input)
 

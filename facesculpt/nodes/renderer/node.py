@@ -3,7 +3,8 @@
 Subscribes: camera/image (Image), face/state (FaceState), face/model (FaceModel,
 latched: the triangles), face/deformation (Deformation), hands/landmarks (HandLandmarks, when a
 hands node runs: the hands' region is composited back from the input, so nothing re-rendered
-covers a hand in front of the face). Publishes: render/image
+covers a hand in front of the face), the messages of the window's face layers (``overlay``, e.g.
+face/expression: FaceExpression for ``expression``). Publishes: render/image
 (Image, when ``publish``), input/events (InputEvent, from the window; in its landmark correction mode, L,
 left-drags become ``correct_landmark`` commands for the fitter: ``correction_mode.py``), diagnostics
 (stage times: pair, merge, camera, texture, draw, readback, inpaint, composite,
@@ -13,7 +14,8 @@ Params: window (open a glfw window), pairing ("latest" | "sync"), buffer (frames
 for sync), sync_timeout_s, max_state_age_s, inpaint ("pushpull" | "telea" | "ns" | "patch" | "drag"), plate
 ("on" | "off": the background plate, ``background_plate.py``), plate_max_age,
 feather_px, dilate_px, outline_band, subdivision, output (video path), fps (of the video file), publish, overlay
-(fps, stage times, handles, ROI, pins and key help in the window), title, close (what closing
+(the window's layers, ``overlay_layers.py``: info (fps, stage times, handles, ROI, pins and key help),
+expression (the recognised expression above each face, from face/expression), gaze), title, close (what closing
 the window stops: "graph" | "node"), hands (keep the hands in front), hands_max_age_s,
 pinch_markers (a marker at each pinch of the pinch node's input/events, ``pinch_markers.py``),
 atlas ("on" | "off": the face's texture memory, ``texture_atlas.py``), atlas_size, atlas_every,
@@ -35,7 +37,17 @@ import numpy as np
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.hand_regions import hand_region_mask
 from facesculpt.geometry.pose_offset import FACE_CAMERA_SMOOTHING_MAX_S, PoseOffset
-from facesculpt.msgs import Deformation, FaceModel, FaceState, FaceTexture, FrameDone, HandLandmarks, Image, InputEvent
+from facesculpt.msgs import (
+    REGISTRY,
+    Deformation,
+    FaceModel,
+    FaceState,
+    FaceTexture,
+    FrameDone,
+    HandLandmarks,
+    Image,
+    InputEvent,
+)
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import ConfigurationError, Param, option_params
 from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE, LATCHED, SENSOR_DATA
@@ -52,6 +64,9 @@ from .frame_size_defaults import (
     auto_subdivision,
 )
 from .mouth_interior import paint_opened_mouth
+from .overlay_layers import DRAWERS as FACE_DRAWERS
+from .overlay_layers import OVERLAY_DEFAULT, OVERLAY_HELP, face_box, overlay_problem, parse_overlay
+from .overlay_layers import TOPICS as LAYER_TOPICS
 from .pairing import FramePairer
 from .person_segmentation import MissingNetworkError, PersonSegmenter
 from .pinch_markers import PinchMarkers, draw_pinch_markers
@@ -75,7 +90,7 @@ class RendererNode(Node):
 
     NAME = "renderer"
     TOPICS = ("render/image", "input/events", "render/done", "face/texture", "camera/image", "face/state",
-              "face/model", "face/deformation", "hands/landmarks")
+              "face/model", "face/deformation", "hands/landmarks", *(t for t, _ in LAYER_TOPICS.values()))
     PARAMS = {
         # the compositor's own options, declared once in CompositorOptions (LIVE: the live defaults)
         **option_params(LIVE, ("inpaint", "feather_px", "dilate_px", "plate_max_age", "atlas_size", "atlas_every")),
@@ -114,7 +129,7 @@ class RendererNode(Node):
         "output": Param("", "video file to write (\"\": none)"),
         "fps": Param(30.0, "frame rate of the video file, frames/s", range=(1.0, 1000.0)),
         "publish": Param(True, "publish render/image"),
-        "overlay": Param(True, "draw fps, stage times, handles, ROI, pins and the key help in the window"),
+        "overlay": Param(OVERLAY_DEFAULT, OVERLAY_HELP, check=overlay_problem),
         "title": Param("facesculpt", "window title"),
         "close": Param("graph", "what Q, Escape or the window's close button stop: graph (every node; "
                                 "launch exits 0) or node (this renderer only; the launcher does not respawn it)",
@@ -161,6 +176,15 @@ class RendererNode(Node):
             self.segmenter = PersonSegmenter() if p.plate == "on" else None
         except (ValueError, MissingNetworkError) as exc:
             raise ConfigurationError(f"renderer: {exc}") from None
+        self.overlays = parse_overlay(p.overlay)  # checked with the parameters (overlay_problem)
+        self._face_layers: dict[str, dict[int, object]] = {}   # layer -> face id -> its newest message
+        self._face_boxes: list[tuple[int, tuple]] = []          # (face id, box px) of the faces drawn
+        self._frame_K = None   # the drawn frame's intrinsics (the gaze layer projects with them)
+        for layer in sorted(self.overlays & set(FACE_DRAWERS)) if p.window else ():
+            topic, type_name = LAYER_TOPICS[layer]
+            if type_name in REGISTRY:  # a layer whose message does not exist yet draws nothing
+                self.subscribe(topic, REGISTRY[type_name],
+                               lambda m, k=layer: self._face_layers.setdefault(k, {}).__setitem__(m.face_id, m))
         qos = EVERY_MESSAGE if p.pairing == "sync" else SENSOR_DATA  # sync must see every frame and state to pair them
         self.pairer = FramePairer(p.pairing, capacity=p.buffer, timeout_ns=int(p.sync_timeout_s * 1e9),
                                   max_age_ns=int(p.max_state_age_s * 1e9))
@@ -343,6 +367,8 @@ class RendererNode(Node):
         drawn = False
         handles_px = roi_px = None
         self._overlay_px = None
+        self._face_boxes = []
+        self._frame_K = frame_msg.K
         if not states:
             self.count("no_face")
         keep = self._keep_mask(frame_msg.stamp, w, h) if states else None
@@ -362,6 +388,7 @@ class RendererNode(Node):
             if self.params.mouth == "paint" and self.compositor.deformed_px is not None:
                 out = paint_opened_mouth(out, state.projected, self.compositor.deformed_px, keep)
             drawn = True
+            self._face_boxes.append((state.face_id, face_box(state.projected, w, h)))
             for name, ms in self.compositor.timings.items():
                 if name != "total":
                     self.stage_times.setdefault(name, []).append(ms)
@@ -433,7 +460,8 @@ class RendererNode(Node):
         now = time.monotonic()
         self._shown_at = [t for t in self._shown_at if now - t < 1.0] + [now]
         lines = []
-        if self.params.overlay:
+        info = "info" in self.overlays
+        if info:
             t = self.compositor.timings
             lines = [f"{len(self._shown_at)} fps  render {t.get('total', 0.0):.1f} ms",
                      "  ".join(f"{k} {v:.1f}" for k, v in t.items() if k != "total")]
@@ -448,7 +476,12 @@ class RendererNode(Node):
                 lines.append(self._notice[0])
             else:
                 self._notice = None
-        if self.params.overlay:
+        for layer, draw in FACE_DRAWERS.items():
+            messages = self._face_layers.get(layer, {})
+            for face_id, box in self._face_boxes if layer in self.overlays else ():
+                if face_id in messages:
+                    out = draw(out, box, messages[face_id], self._frame_K)
+        if info:
             out = draw_overlay(out, lines, handles_px, roi_px, self._pins_px(handles_px),
                                help_lines=[keys_help(self.params.close, correcting)])
         elif lines:
