@@ -191,3 +191,17 @@ def test_labels_from_blendshapes_are_refused_for_a_model_without_them(models_dir
 
     with pytest.raises(ValueError, match="need a model whose blendshapes are named"):
         Pipeline("facemesh", expression_labels=ExpressionLabelOptions(source="blendshapes"))
+
+
+def test_the_gaze_layer_draws_the_rays_through_the_frames_intrinsics():
+    from facesculpt.msgs import FaceGaze
+    from facesculpt.nodes.renderer.overlay_layers import DRAWERS
+
+    frame = np.zeros((240, 320, 3), np.uint8)
+    K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    msg = FaceGaze(centres=np.array([[-30, 0, 500], [30, 0, 500]], np.float32),
+                   directions=np.array([[0.5, 0, -0.866], [0.5, 0, -0.866]], np.float32),
+                   closed=np.zeros(2, np.uint8))
+    drawn = DRAWERS["gaze"](frame, (100, 50, 220, 200), msg, K)
+    assert (drawn != frame).any()
+    assert np.array_equal(DRAWERS["gaze"](frame, (100, 50, 220, 200), msg, None), frame)  # no K: nothing
