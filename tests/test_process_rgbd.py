@@ -32,7 +32,6 @@ def recording(data_dir, models_dir, tmp_path_factory):
     """(folder of colour + depth PNGs with camera.json, bag of the same frames, K, [(colour, depth)])."""
     from benchmarks.realism.depth import rgbd_frame
     from benchmarks.realism.scene import make_scene
-
     from facesculpt.msgs import Image
     from facesculpt.runtime.bag import BagWriter
 
