@@ -239,22 +239,31 @@ def save_atlas_crops(seq: Sequences, edit: str, without: list, with_atlas: list,
     cv2.imwrite(str(path), side_by_side(panels, boxes))
 
 
+def _run_once_more(args, seqs, source, folder: Path, preset, m, key: str, timings, **options) -> tuple[list, dict]:
+    """``process`` of ``source`` with model ``m`` once more (``options``: run_process's): (the frames, {})
+    or ([], truth -> {"error": why}); its time under ``timings[key]``."""
+    try:
+        got, took = run_process(source, folder, preset, m, neutral_frames=args.neutral_frames, **options)
+    except RuntimeError as exc:
+        print(exc, file=sys.stderr)
+        return [], {t: {"error": str(exc)} for t in seqs}
+    timings[key] = took
+    if len(got) < args.frames:
+        return [], {t: {"error": f"process wrote {len(got)} of {args.frames} frames"} for t in seqs}
+    return got, {}
+
+
 def run_with_atlas(args, data, seqs, video, preset, e, m, frames, scored, truth_shifts, rows, out, timings,
                    oracle: dict) -> dict:
     """Edit ``e`` with model ``m`` once more with ``process --atlas on``: its scores per truth (and
     the crops against ``frames``, the run without the atlas, and the first truth); ``oracle``:
     run_process's landmark oracle, if any."""
     folder = out / "frames" / f"synthetic_{e}_{m}_atlas"
-    try:
-        got, took = run_process(video, folder, preset, m, neutral_frames=args.neutral_frames,
-                                pythonpath=args.pythonpath, data=data, extra_args=(*args.process_args, "--atlas", "on"),
-                                **oracle)
-    except RuntimeError as exc:
-        print(exc, file=sys.stderr)
-        return {t: {"error": str(exc)} for t in seqs}
-    timings[f"process_{e}_{m}_atlas_s"] = took
-    if len(got) < args.frames:
-        return {t: {"error": f"process wrote {len(got)} of {args.frames} frames"} for t in seqs}
+    got, failed = _run_once_more(args, seqs, video, folder, preset, m, f"process_{e}_{m}_atlas_s", timings,
+                                 pythonpath=args.pythonpath, data=data,
+                                 extra_args=(*args.process_args, "--atlas", "on"), **oracle)
+    if failed:
+        return failed
     first = next(iter(seqs))
     save_atlas_crops(seqs[first], e, frames, got, rows, out / f"crops_atlas_{e}_{m}.png")
     if not args.keep_frames:
@@ -266,15 +275,10 @@ def run_with_depth(args, data, seqs, rgbd, preset, e, m, scored, truth_shifts, l
     """Edit ``e`` with model ``m`` on the RGB-D recording ``rgbd`` of the same input (each fit refined
     on its depth): its scores per truth, and its crops (``crops_EDIT_MODEL_depth.png``)."""
     folder = out / "frames" / f"synthetic_{e}_{m}_depth"
-    try:
-        got, took = run_process(rgbd, folder, preset, m, neutral_frames=args.neutral_frames, data=data,
-                                extra_args=args.process_args)
-    except RuntimeError as exc:
-        print(exc, file=sys.stderr)
-        return {t: {"error": str(exc)} for t in seqs}
-    timings[f"process_{e}_{m}_depth_s"] = took
-    if len(got) < args.frames:
-        return {t: {"error": f"process wrote {len(got)} of {args.frames} frames"} for t in seqs}
+    got, failed = _run_once_more(args, seqs, rgbd, folder, preset, m, f"process_{e}_{m}_depth_s", timings, data=data,
+                                 extra_args=args.process_args)
+    if failed:
+        return failed
     for t, seq in seqs.items():
         save_crops(seq, e, f"result ({m} + depth)", got, liq[t], rows,
                    out / crops_name(e, m + "_depth", t, args.truth_edit))
