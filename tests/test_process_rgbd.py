@@ -75,8 +75,8 @@ def test_a_folder_gives_the_edited_video_and_depth(recording, tmp_path):
 
 
 def test_a_bag_gives_an_rgbd_bag_of_the_edited_frames(recording, tmp_path):
+    from facesculpt.nodes.camera.bag_source import BagImageSource
     from facesculpt.nodes.camera.rgbd_sources import RGBDFrame
-    from facesculpt.nodes.camera.sources import BagImageSource
 
     _, bag, K, frames = recording
     edited = tmp_path / "edited.mcap"

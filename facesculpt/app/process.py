@@ -27,37 +27,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.app.image_sequence import LOSSLESS_SUFFIXES, ImageSequenceOutput  # noqa: F401 (process's names)
 from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_SMOOTHING_S
-
-LOSSLESS_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
-
-
-class ImageSequenceOutput:
-    """Writes frames as numbered lossless images: ``pattern % index`` with index from 0."""
-
-    def __init__(self, pattern: str):
-        try:
-            first = pattern % 0
-        except (TypeError, ValueError):
-            raise ValueError(f"output pattern {pattern!r} must hold one integer field such as %05d") from None
-        if first == pattern % 1:
-            raise ValueError(f"output pattern {pattern!r} gives every frame the same name")
-        if Path(first).suffix.lower() not in LOSSLESS_SUFFIXES:
-            raise ValueError(f"output pattern {pattern!r}: image sequences are written losslessly, as "
-                             f"{', '.join(LOSSLESS_SUFFIXES)}")
-        self.pattern = pattern
-        self.path = pattern
-        self.frames = 0
-
-    def write(self, frame_bgr: np.ndarray) -> None:
-        path = Path(self.pattern % self.frames)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), frame_bgr):
-            raise RuntimeError(f"cannot write {path}")
-        self.frames += 1
-
-    def close(self) -> None:
-        pass
 
 
 def open_output(spec: str, fps: float, codec: str | None = None, crf: int = 18, audio_from: str | None = None,

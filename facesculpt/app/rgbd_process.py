@@ -56,9 +56,9 @@ class RGBDInput:
     One sentence (ValueError) when the recording cannot be read or holds no depth."""
 
     def __init__(self, spec: str, fov_deg: float = 60.0):
+        from facesculpt.nodes.camera.bag_source import BagImageSource
         from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
         from facesculpt.nodes.camera.rgbd_sources import RGBDFolderSource
-        from facesculpt.nodes.camera.sources import BagImageSource
 
         path = input_file(spec)
         if not Path(path).exists():
@@ -132,7 +132,7 @@ class DepthImages:
     16-bit; refuses a pattern whose names exist already (a user's files are never overwritten)."""
 
     def __init__(self, pattern: str):
-        from facesculpt.app.process import ImageSequenceOutput
+        from facesculpt.app.image_sequence import ImageSequenceOutput
 
         self.images = ImageSequenceOutput(pattern)  # checks the pattern's field
         if Path(pattern % 0).suffix.lower() not in DEPTH_SUFFIXES:
