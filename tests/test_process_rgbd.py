@@ -53,6 +53,7 @@ def _changes(before: np.ndarray, after: np.ndarray) -> np.ndarray:
     return after.astype(np.float64) - before.astype(np.float64)
 
 
+@pytest.mark.slow  # a process run, or the recording's rendering (about 3 s each here)
 def test_a_folder_gives_the_edited_video_and_depth(recording, tmp_path):
     folder, _, _, frames = recording
     pattern = tmp_path / "depth" / "%05d.png"
@@ -74,6 +75,7 @@ def test_a_folder_gives_the_edited_video_and_depth(recording, tmp_path):
     assert edited_frames >= FRAMES - 1
 
 
+@pytest.mark.slow  # a process run, or the recording's rendering (about 3 s each here)
 def test_a_bag_gives_an_rgbd_bag_of_the_edited_frames(recording, tmp_path):
     from facesculpt.nodes.camera.bag_source import BagImageSource
     from facesculpt.nodes.camera.rgbd_sources import RGBDFrame
@@ -92,6 +94,7 @@ def test_a_bag_gives_an_rgbd_bag_of_the_edited_frames(recording, tmp_path):
     assert not list(tmp_path.glob(".*writing*"))  # the staged file was renamed into place
 
 
+@pytest.mark.slow  # a process run, or the recording's rendering (about 3 s each here)
 def test_bad_depth_requests_are_one_sentence_and_touch_nothing(recording, tmp_path, data_dir):
     folder, bag, _, _ = recording
     r = process(data_dir / "video" / "d12.mp4", "-o", tmp_path / "o.mp4", "--depth-out", tmp_path / "d.mcap")
@@ -153,6 +156,7 @@ def test_edited_depth_moves_the_face_keeps_the_rest():
 
 
 # -- edits see depth: the pick ray meets the surface the depth image measured ----------------------
+@pytest.mark.slow  # a process run, or the recording's rendering (about 3 s each here)
 def test_the_pick_point_lies_on_the_measured_depth(recording):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.nodes.deformer.picking import pick_vertex
