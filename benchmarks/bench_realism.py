@@ -34,6 +34,9 @@ seamless the re-rendered region is on real videos.
    which shows surface the turned head hides or foreshortens) run a second time with
    ``process --atlas on`` (the face's texture memory): the row "MODEL + atlas", and crops
    ``crops_atlas_EDIT_MODEL.png`` (input | without the atlas | with it | ground truth).
+   Issue 49: ``--depth`` runs every model once more on an RGB-D recording of the same input (a
+   folder of the same colour frames beside the depth a structured-light camera measures of them,
+   ``realism/depth.py``), so each fit is refined on the depth: the row "MODEL + depth".
 4. Real videos (../shared/data/video/d3.mp4, d12.mp4; no ground truth): sharpness of the
    re-rendered region (where the result differs from the input) against the input's, and the
    seam against the input's gradients on the same band.
@@ -73,6 +76,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from benchmarks.realism.depth import write_rgbd_input
 from benchmarks.realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, write_preset
 from benchmarks.realism.landmark_oracle import MODULE as LANDMARK_ORACLE
 from benchmarks.realism.landmark_oracle import process_environment, true_landmarks, write_true_landmarks
@@ -101,6 +105,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--neutral-frames", type=int, default=30, help="process --neutral-frames; scoring starts after them")
     p.add_argument("--atlas-edits", default=",".join(ATLAS_EDITS),
                    help=f"edits also run with process --atlas on (default {','.join(ATLAS_EDITS)}; '' for none)")
+    p.add_argument("--depth", action="store_true",
+                   help="also run every model on an RGB-D recording of the input (rows 'MODEL + depth', issue 49)")
     p.add_argument("--process-args", default="", type=str.split, metavar="ARGS",
                    help="more options for every process run, e.g. '--inpaint drag' (compare settings on one truth)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
@@ -230,24 +236,49 @@ def save_atlas_crops(seq: Sequences, edit: str, without: list, with_atlas: list,
     cv2.imwrite(str(path), side_by_side(panels, boxes))
 
 
+def _run_once_more(args, seqs, source, folder: Path, preset, m, key: str, timings, **options) -> tuple[list, dict]:
+    """``process`` of ``source`` with model ``m`` once more (``options``: run_process's): (the frames, {})
+    or ([], truth -> {"error": why}); its time under ``timings[key]``."""
+    try:
+        got, took = run_process(source, folder, preset, m, neutral_frames=args.neutral_frames, **options)
+    except RuntimeError as exc:
+        print(exc, file=sys.stderr)
+        return [], {t: {"error": str(exc)} for t in seqs}
+    timings[key] = took
+    if len(got) < args.frames:
+        return [], {t: {"error": f"process wrote {len(got)} of {args.frames} frames"} for t in seqs}
+    return got, {}
+
+
 def run_with_atlas(args, data, seqs, video, preset, e, m, frames, scored, truth_shifts, rows, out, timings,
                    oracle: dict) -> dict:
     """Edit ``e`` with model ``m`` once more with ``process --atlas on``: its scores per truth (and
     the crops against ``frames``, the run without the atlas, and the first truth); ``oracle``:
     run_process's landmark oracle, if any."""
     folder = out / "frames" / f"synthetic_{e}_{m}_atlas"
-    try:
-        got, took = run_process(video, folder, preset, m, neutral_frames=args.neutral_frames,
-                                pythonpath=args.pythonpath, data=data, extra_args=(*args.process_args, "--atlas", "on"),
-                                **oracle)
-    except RuntimeError as exc:
-        print(exc, file=sys.stderr)
-        return {t: {"error": str(exc)} for t in seqs}
-    timings[f"process_{e}_{m}_atlas_s"] = took
-    if len(got) < args.frames:
-        return {t: {"error": f"process wrote {len(got)} of {args.frames} frames"} for t in seqs}
+    got, failed = _run_once_more(args, seqs, video, folder, preset, m, f"process_{e}_{m}_atlas_s", timings,
+                                 pythonpath=args.pythonpath, data=data,
+                                 extra_args=(*args.process_args, "--atlas", "on"), **oracle)
+    if failed:
+        return failed
     first = next(iter(seqs))
     save_atlas_crops(seqs[first], e, frames, got, rows, out / f"crops_atlas_{e}_{m}.png")
+    if not args.keep_frames:
+        shutil.rmtree(folder)
+    return {t: score_sequence(seq, e, got, scored, truth_shifts[t]) for t, seq in seqs.items()}
+
+
+def run_with_depth(args, data, seqs, rgbd, preset, e, m, scored, truth_shifts, liq, rows, out, timings) -> dict:
+    """Edit ``e`` with model ``m`` on the RGB-D recording ``rgbd`` of the same input (each fit refined
+    on its depth): its scores per truth, and its crops (``crops_EDIT_MODEL_depth.png``)."""
+    folder = out / "frames" / f"synthetic_{e}_{m}_depth"
+    got, failed = _run_once_more(args, seqs, rgbd, folder, preset, m, f"process_{e}_{m}_depth_s", timings, data=data,
+                                 extra_args=args.process_args)
+    if failed:
+        return failed
+    for t, seq in seqs.items():
+        save_crops(seq, e, f"result ({m} + depth)", got, liq[t], rows,
+                   out / crops_name(e, m + "_depth", t, args.truth_edit))
     if not args.keep_frames:
         shutil.rmtree(folder)
     return {t: score_sequence(seq, e, got, scored, truth_shifts[t]) for t, seq in seqs.items()}
@@ -268,6 +299,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
     first = seqs[args.truth_edit[0]]
     render_s = time.perf_counter() - t0
     video = write_lossless(first.inputs, out / "synthetic.mkv")
+    rgbd = write_rgbd_input(scene, first.inputs, out / "synthetic_rgbd") if args.depth else None
     (out / "presets").mkdir(exist_ok=True)
     model_rest = scene.rest[: scene.model_vertices]
     presets = {sp.name: write_preset(sp, model_rest, scene.landmarks, scene.model_triangles, out / "presets")
@@ -315,6 +347,10 @@ def synthetic(args, data: Path, out: Path) -> dict:
                 results[t][e][row] = score_sequence(seq, e, frames, scored, truth_shifts[t])
                 save_crops(seq, e, f"result ({row})", frames, liq[t], rows,
                            out / crops_name(e, m + (label and "_" + label), t, args.truth_edit))
+            if rgbd is not None and not label:
+                for t, got in run_with_depth(args, data, seqs, rgbd, presets[e], e, m, scored, truth_shifts, liq,
+                                             rows, out, timings).items():
+                    results[t][e][f"{m} + depth"] = got
             if e in args.atlas_edits and not label:
                 for t, got in run_with_atlas(args, data, seqs, video, presets[e], e, m, frames, scored, truth_shifts,
                                              rows, out, timings, oracle).items():

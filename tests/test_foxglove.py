@@ -223,6 +223,47 @@ def test_bag_export_writes_foxglove_schemas(graph, tmp_path):
                                         "values": {"rate_hz": 10.0}}
 
 
+def test_bag_export_shows_an_rgbd_frames_depth_as_a_point_cloud_beside_the_mesh(graph, tmp_path):
+    """The depth of an RGB-D frame (a depth camera 20 mm beside the colour one, with its own K) as
+    a well-formed foxglove.PointCloud in the meshes' frame: the points where the depth measured
+    something, in metres, coloured from the colour frame."""
+    bag, out = tmp_path / "rgbd.mcap", tmp_path / "foxglove.mcap"
+    K = np.array([[300, 0, 159.5], [0, 300, 119.5], [0, 0, 1]], np.float64)
+    depth_K = np.array([[200, 0, 79.5], [0, 200, 59.5], [0, 0, 1]], np.float64)
+    T = np.eye(4)
+    T[0, 3] = -20.0
+    depth = np.full((120, 160), 500, np.uint16)
+    depth[:, 80:] = 800          # a step: the right half farther
+    depth[10:20, 10:20] = 0      # a hole: no points there
+    colour = np.zeros((240, 320, 3), np.uint8)
+    colour[:, :, 2] = 200        # red (BGR)
+    t0 = 1_700_000_000_000_000_000
+    with BagWriter(bag) as w:
+        w.write(t0, "camera/image", Image(stamp=t0, image=colour, K=K, depth=depth, depth_K=depth_K,
+                                          depth_to_color=T).to_frames())
+    res = graph.run("bag", "export", "--foxglove", str(bag), "-o", str(out))
+    assert res.returncode == 0, res.stderr
+    with open(out, "rb") as f:
+        reader = make_reader(f)
+        clouds = [(schema, proto_class(schema.name, schema.data).FromString(message.data))
+                  for schema, channel, message in reader.iter_messages() if channel.topic == "camera/points"]
+    (schema, cloud), = clouds
+    assert schema.name == "foxglove.PointCloud" and cloud.frame_id == "camera"
+    fields = {f.name: (f.offset, f.type) for f in cloud.fields}
+    assert [fields[n][0] for n in ("x", "y", "z", "red", "green", "blue", "alpha")] == [0, 4, 8, 12, 13, 14, 15]
+    step = 2   # the bridge's default: every second row and column
+    n = (depth[::step, ::step] > 0).sum()
+    assert cloud.point_stride == 16 and len(cloud.data) == 16 * n
+    packed = np.frombuffer(cloud.data, np.dtype([("xyz", "<f4", 3), ("rgba", "u1", 4)]))
+    xyz = packed["xyz"].astype(np.float64)
+    assert np.allclose(np.unique(np.round(xyz[:, 2], 4)), [0.5, 0.8])            # mm -> m, the two depths
+    near = xyz[:, 2] < 0.6
+    # the depth camera's principal ray is 20 mm to the left of the colour camera's
+    left_edge = xyz[near][:, 0] / xyz[near][:, 2]
+    assert np.isclose(left_edge.min(), (0 - 79.5) / 200 - 0.020 / 0.5, atol=1e-4)
+    assert (packed["rgba"][near] == [200, 0, 0, 255]).all()                       # red, from the colour frame
+
+
 def test_the_shipped_launch_files_start_foxglove_only_when_enabled():
     from facesculpt.paths import launch_file
     from facesculpt.runtime.launcher import load_launch

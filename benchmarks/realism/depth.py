@@ -119,3 +119,20 @@ def rgbd_frame(scene: Scene, i: int, rng: np.random.Generator) -> tuple[np.ndarr
     truth = true_depth(scene, i)
     grey = cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY).astype(np.float64)
     return colour, structured_light(truth, grey, float(scene.K[0, 0]), rng), truth
+
+
+def write_rgbd_input(scene: Scene, colours: list, folder, seed: int = 0, fps: float = 25.0):
+    """The input ``colours`` (the sequence's frames, (H, W, 3) uint8 BGR) as an RGB-D recording
+    ``process`` reads: beside each frame the depth the structured-light camera measures of it
+    (:func:`structured_light` of :func:`true_depth`), in a folder of colour + 16-bit depth PNGs
+    with the scene's K (pixel centres at integers, as the project's)."""
+    from facesculpt.nodes.camera.rgbd_sources import write_rgbd_folder
+
+    K = scene.K.copy()
+    K[:2, 2] -= 0.5
+    pairs = []
+    for i, colour in enumerate(colours):
+        grey = cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY).astype(np.float64)
+        depth = structured_light(true_depth(scene, i), grey, float(scene.K[0, 0]), np.random.default_rng((seed, i)))
+        pairs.append((colour, depth))
+    return write_rgbd_folder(folder, pairs, K=K, fps=fps)

@@ -28,10 +28,15 @@ _DETECTORS: dict = {}
 
 
 def is_batch(args) -> bool:
-    """Several inputs, a folder or glob among them, -o naming a folder, or batch options given."""
+    """Several inputs, a folder (not an RGB-D recording) or glob among them, -o naming a folder, or batch
+    options given."""
     if len(args.input) > 1 or args.cluster or args.workers:
         return True
     only = args.input[0]
+    from facesculpt.app.rgbd_process import is_rgbd_input
+
+    if is_rgbd_input(only):  # a folder of colour + depth images is one recording
+        return args.output.endswith(os.sep) or Path(args.output).is_dir()
     return Path(only).is_dir() or glob.has_magic(only) or args.output.endswith(os.sep) or Path(args.output).is_dir()
 
 

@@ -34,18 +34,19 @@ def free_port() -> int:
 
 def launch_spec(source: str, model: str, camera_fps: float, size: tuple[int, int] = SIZE,
                 resize: str = "stretch", pace: int = 2, refine: str | None = None,
-                memory: str = "off") -> dict:
+                memory: str = "off", depth: str = "off") -> dict:
     """The launch file of the measured graph; the camera delivers ``size`` (px: :func:`bench_size`,
     stretched, or ``--size``, filled), with ``pace`` frames in flight (0: every frame it reads);
     ``refine``: the fitter's (None: off); ``memory`` "on": the renderer's background plate and
-    texture atlas on (issue 16)."""
+    texture atlas on (issue 16); ``depth`` "on": the fitter refines each fit on the frame's depth image
+    (an RGB-D source, issue 49)."""
     return {"nodes": [
         {"name": "camera", "node": "camera", "required": True,
          "params": {"source": source, "width": size[0], "height": size[1], "resize": resize,
                     "fps": camera_fps, "loop": True, "pace_by": "render/done" if pace else "",
                     "pace_in_flight": max(1, pace)}},
         {"name": "landmarks", "node": "landmarks"},
-        {"name": "fitter", "node": "fitter", "params": {"model": model, "refine": refine or "off"}},
+        {"name": "fitter", "node": "fitter", "params": {"model": model, "refine": refine or "off", "depth": depth}},
         {"name": "deformer", "node": "deformer"},
         {"name": "renderer", "node": "renderer",
          "params": {"pairing": "sync", "publish": True, "plate": memory, "atlas": memory}},
@@ -168,13 +169,13 @@ def _keep_diagnostics(msg, diagnostics: dict, camera_sent: list) -> None:
 def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float, window_s: float,
                   warmup_s: float, size: tuple[int, int] = SIZE, start_timeout_s: float = 90.0,
                   resize: str = "stretch", scenario: bool = False, pace: int = 2, refine: str | None = None,
-                  memory: str = "off") -> dict:
+                  memory: str = "off", depth: str = "off") -> dict:
     """Frames out per second, end-to-end latency (p50/p95/p99), the longest stall (the longest gap
     between two output frames) and the camera frames that never came out, of the graph as
     separate processes. ``scenario``: the window starts with the first frames out and holds the
     user's actions of :class:`~facesculpt.app.bench_scenario.BenchScenario` (else it starts
     ``warmup_s`` after the edit is in place and nothing is sent during it); ``refine``: the
-    fitter's (None: off); ``memory``: the renderer's plate and atlas (:func:`launch_spec`)."""
+    fitter's (None: off); ``memory``: the renderer's plate and atlas; ``depth``: the fitter's (:func:`launch_spec`)."""
     from facesculpt.msgs import Deformation, Diagnostics, Image, InputEvent
     from facesculpt.runtime.node import Node
     from facesculpt.runtime.qos import EVENTS, EVERY_MESSAGE
@@ -182,7 +183,8 @@ def measure_graph(source: str, model: str, preset_file: Path, camera_fps: float,
     workdir = Path(tempfile.mkdtemp(prefix="fs-bench-"))
     address = f"tcp://127.0.0.1:{free_port()}"
     log_path = workdir / "launch.log"
-    proc, log = _launch(workdir, address, launch_spec(source, model, camera_fps, size, resize, pace, refine, memory))
+    spec = launch_spec(source, model, camera_fps, size, resize, pace, refine, memory, depth)
+    proc, log = _launch(workdir, address, spec)
     listener = None
     try:
         arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns)

@@ -120,6 +120,6 @@ def cmd_decode(args) -> int:
         raise
     finally:
         decoder.close()
-    _finish(output, completed=True)
+    _finish(True, output)
     print(f"wrote {output.frames} frames to {output.path!s}", file=sys.stderr)
     return 0

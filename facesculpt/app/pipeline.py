@@ -122,13 +122,16 @@ class FrameResult:
     refused); fits: face key -> :class:`FitResult` of every fitted face (the key is 0 for
     ``faces="largest"``, else the face's track id); timings_ms: stage -> ms for the stages that
     ran (:data:`STAGES`, summed over faces); render_ms: the compositor's own stages (camera,
-    texture, draw, readback, masks, inpaint, composite)."""
+    texture, draw, readback, masks, inpaint, composite); deformed: face key -> (V, 3) camera-space
+    mm, each edited face's mesh as drawn (the edit merged in, a pose edit's turn included), for the
+    edited depth (:mod:`facesculpt.nodes.renderer.edited_depth`)."""
 
     image: np.ndarray
     fit: object | None
     timings_ms: dict[str, float] = field(default_factory=dict)
     render_ms: dict[str, float] = field(default_factory=dict)
     fits: dict = field(default_factory=dict)
+    deformed: dict = field(default_factory=dict)
 
 
 class Pipeline:
@@ -173,7 +176,10 @@ class Pipeline:
     far and how often it was reduced); False: the whole edit always. gaze: run the iris network on
     each found face's eyes (``FrameResult``'s timings "irises") and give each fit its gaze
     (``fit.gaze``, :mod:`facesculpt.nodes.fitter.gaze`, each face's eyeballs learned over its first
-    frames; timings "gaze").
+    frames; timings "gaze"). K: the colour camera's (3, 3)
+    intrinsics at the frame's size, px (an RGB-D recording's own); None: a pinhole of ``fov_deg``.
+    Frames may come with an aligned depth image (:class:`~facesculpt.nodes.fitter.depth_fitting.DepthImage`):
+    each fit is then refined on it (issue 49, :mod:`facesculpt.nodes.fitter.depth_fitting`).
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, fit: FitterConfig | None = None,
@@ -185,7 +191,7 @@ class Pipeline:
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
                  face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, expression: bool = True,
                  pose_limit: bool = True, gaze: bool = False, expression_labels: ExpressionLabelOptions | None = None,
-                 **deprecated):
+                 K: np.ndarray | None = None, **deprecated):
         fit, render = options_of_old_names(fit or FitterConfig(), render or CompositorOptions(), deprecated)
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
@@ -236,7 +242,7 @@ class Pipeline:
         self.faces: FaceFitters | None = None
         self.compositor = None
         self.size: tuple[int, int] | None = None
-        self.K: np.ndarray | None = None
+        self.K: np.ndarray | None = None if K is None else np.asarray(K, np.float64).reshape(3, 3)
         self.presets: list[tuple[int | None, dict]] = []  # (face key or None: every face, preset)
         self.displacements: dict[int, np.ndarray | None] = {}  # face key -> (V, 3) mm, solved once per face
         self.fitted_frames = 0  # frames with at least one fitted face
@@ -250,7 +256,8 @@ class Pipeline:
         if self.size is not None:
             raise ValueError(f"frame size changed from {self.size[0]}x{self.size[1]} to {width}x{height}")
         self.size = (width, height)
-        self.K = intrinsics_from_fov(width, height, self.fov_deg)
+        if self.K is None:
+            self.K = intrinsics_from_fov(width, height, self.fov_deg)
         self.faces = FaceFitters(lambda: make_fitter(self.model, self.fitter_config, self.size, self.K),
                                  self.selection)
 
@@ -270,9 +277,10 @@ class Pipeline:
         return None if self.faces is None else self.faces.first
 
     # -- the stages -------------------------------------------------------------------------------
-    def fit_faces(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None) -> dict:
-        """Landmarks and fit of one frame (H, W, 3) uint8 BGR at time ``stamp_s`` (s). Returns
-        face key -> :class:`FitResult` for the selected faces that were fitted ({} without one)."""
+    def fit_faces(self, frame_bgr: np.ndarray, stamp_s: float, timings: dict | None = None, depth=None) -> dict:
+        """Landmarks and fit of one frame (H, W, 3) uint8 BGR at time ``stamp_s`` (s), refined on
+        its aligned ``depth`` image when given (a :class:`DepthImage`). Returns face key ->
+        :class:`FitResult` for the selected faces that were fitted ({} without one)."""
         h, w = frame_bgr.shape[:2]
         self._prepare(w, h)
         timings = {} if timings is None else timings
@@ -286,7 +294,8 @@ class Pipeline:
         t0 = time.perf_counter()
         fits = {}
         for face in self.faces.fit([f.points for f in found], [f.score for f in found],
-                                   [f.track_id for f in found], stamp_s, self.min_score, image=frame_bgr):
+                                   [f.track_id for f in found], stamp_s, self.min_score, image=frame_bgr,
+                                   depth=depth):
             if face.outcome.fit is not None:
                 fit = face.outcome.fit
                 fitter = self.faces.fitters[face.key]
@@ -321,8 +330,9 @@ class Pipeline:
         fits = self.fit_faces(frame_bgr, stamp_s, timings)
         return fits[min(fits)] if fits else None
 
-    def analyse(self, frame_bgr: np.ndarray, stamp_s: float) -> tuple[dict, dict]:
-        """Landmarks, fit and each fitted face's edit (solved now if new) of one frame: the part of
+    def analyse(self, frame_bgr: np.ndarray, stamp_s: float, depth=None) -> tuple[dict, dict]:
+        """Landmarks, fit (on the frame's aligned ``depth`` image when given, a :class:`DepthImage`)
+        and each fitted face's edit (solved now if new) of one frame: the part of
         :meth:`process` that carries state from frame to frame. Returns (face key -> FitResult,
         timings ms). :meth:`compose` then renders it; a second thread may compose frame i while
         this analyses frame i + 1."""
@@ -332,7 +342,7 @@ class Pipeline:
         if self.compositor is not None:  # what the compositor needs of the frame alone starts now
             self.compositor.prefetch(frame_bgr)
         timings: dict[str, float] = {}
-        fits = self.fit_faces(frame_bgr, stamp_s, timings)
+        fits = self.fit_faces(frame_bgr, stamp_s, timings, depth)
         for key, fit in fits.items():
             self.displacement_of(key)
             fit.pose_edit = self._pose_edit(key, fit, stamp_s)
@@ -375,7 +385,7 @@ class Pipeline:
         :func:`facesculpt.geometry.hand_regions.hand_region_mask`)."""
         if not fits:
             return FrameResult(frame_bgr, None, timings)
-        out, render_ms = frame_bgr, {}
+        out, render_ms, drawn = frame_bgr, {}, {}
         timings["merge"] = timings["render"] = 0.0
         for key, fit in fits.items():
             t0 = time.perf_counter()
@@ -387,6 +397,7 @@ class Pipeline:
                 deformed = merge_deformation(fit.vertices, fit.R, fit.scale, displacement)
             if fit.pose_edit is not None:
                 deformed = self._turn(key, fit, deformed)
+            drawn[key] = deformed
             timings["merge"] += (time.perf_counter() - t0) * 1e3
             t0 = time.perf_counter()
             compositor = self._compositor()
@@ -397,7 +408,7 @@ class Pipeline:
             for k, v in compositor.timings.items():
                 if k != "total":
                     render_ms[k] = render_ms.get(k, 0.0) + v
-        return FrameResult(out, fits[min(fits)], timings, render_ms, fits)
+        return FrameResult(out, fits[min(fits)], timings, render_ms, fits, drawn)
 
     def uv_layout(self) -> np.ndarray | None:
         """(V, 2) float32 texture coordinates of the model (:func:`uv_layout`: its own, or a
@@ -449,13 +460,15 @@ class Pipeline:
                    for k, f in self.faces.fitters.items())
 
     def calibrate(self, frames: Iterable[np.ndarray], fps: float, progress=None) -> int:
-        """Landmarks + fitting over ``frames`` (the video's first frames, in order) until the neutral
+        """Landmarks + fitting over ``frames`` (the video's first frames, in order; each an image, or
+        an (image, :class:`DepthImage` or None) pair) until the neutral
         is complete or the frames run out; returns the frames read. The tracker is then reset (the
         frames that follow start from the video's first frame again, and its faces get the same
         track ids); the fitters keep the neutrals."""
         read = 0
         for frame in frames:
-            self.fit_faces(frame, read / fps)
+            frame, depth = frame if isinstance(frame, tuple) else (frame, None)
+            self.fit_faces(frame, read / fps, depth=depth)
             read += 1
             if progress is not None:
                 progress(read)

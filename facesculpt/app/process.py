@@ -27,37 +27,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.app.image_sequence import LOSSLESS_SUFFIXES, ImageSequenceOutput  # noqa: F401 (process's names)
 from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_SMOOTHING_S
-
-LOSSLESS_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
-
-
-class ImageSequenceOutput:
-    """Writes frames as numbered lossless images: ``pattern % index`` with index from 0."""
-
-    def __init__(self, pattern: str):
-        try:
-            first = pattern % 0
-        except (TypeError, ValueError):
-            raise ValueError(f"output pattern {pattern!r} must hold one integer field such as %05d") from None
-        if first == pattern % 1:
-            raise ValueError(f"output pattern {pattern!r} gives every frame the same name")
-        if Path(first).suffix.lower() not in LOSSLESS_SUFFIXES:
-            raise ValueError(f"output pattern {pattern!r}: image sequences are written losslessly, as "
-                             f"{', '.join(LOSSLESS_SUFFIXES)}")
-        self.pattern = pattern
-        self.path = pattern
-        self.frames = 0
-
-    def write(self, frame_bgr: np.ndarray) -> None:
-        path = Path(self.pattern % self.frames)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), frame_bgr):
-            raise RuntimeError(f"cannot write {path}")
-        self.frames += 1
-
-    def close(self) -> None:
-        pass
 
 
 def open_output(spec: str, fps: float, codec: str | None = None, crf: int = 18, audio_from: str | None = None,
@@ -77,10 +48,15 @@ def open_output(spec: str, fps: float, codec: str | None = None, crf: int = 18, 
     return StagedVideo(spec, writer)
 
 
-def open_input(path: str):
-    """The input video as a frame source; one clear sentence when it cannot be read."""
+def open_input(path: str, fov_deg: float = 60.0):
+    """The input video as a frame source, or an RGB-D recording as an :class:`.rgbd_process.RGBDInput`
+    (``fov_deg``: its colour camera's field of view where it does not say); one clear sentence when
+    it cannot be read."""
+    from facesculpt.app.rgbd_process import RGBDInput, is_rgbd_input
     from facesculpt.nodes.camera.sources import SourceError, VideoSource
 
+    if is_rgbd_input(path):
+        return RGBDInput(path, fov_deg)
     if not Path(path).exists():
         raise FileNotFoundError(f"cannot read {path}: no such file")
     if Path(path).is_dir():
@@ -114,13 +90,17 @@ class _Stop:
             signal.signal(s, handler)
 
 
-def _frames(source, width: int, limit: int):
+def _frames(source, width: int, limit: int, with_depth: bool = False):
+    """The first ``limit`` frames (0: all) resized to ``width``; ``with_depth``: (frame, its
+    DepthImage or None) pairs."""
     from facesculpt.nodes.camera.sources import resize_frame
 
     for i, (frame, _) in enumerate(source.frames()):  # the clock stamps are not used: time = index / fps
         if limit and i >= limit:
             return
-        yield resize_frame(frame, width, 0)
+        frame, depth = frame if isinstance(frame, tuple) else (frame, None)
+        frame = resize_frame(frame, width, 0)
+        yield (frame, depth) if with_depth else frame
 
 
 def _progress(total: int | None, desc: str, quiet: bool):
@@ -164,14 +144,14 @@ def missing_face(selection, track_ids: set[int], video) -> str:
 
 def _calibrate(pipeline, args, total, fps: float, stop, presets) -> None:
     """First pass: the person's neutral from the first frames, then the edit solved on it once."""
-    calib = open_input(args.input)
+    calib = open_input(args.input, args.fov)
     try:
         with _progress(min(args.neutral_frames, total or args.neutral_frames), "neutral", args.quiet) as bar:
             def tick(_read):
                 bar.update(1)
                 if stop.signal:
                     raise KeyboardInterrupt
-            pipeline.calibrate(_frames(calib, args.width, args.max_frames), fps, progress=tick)
+            pipeline.calibrate(_frames(calib, args.width, args.max_frames, True), fps, progress=tick)
     finally:
         calib.close()
     if pipeline.fitter is None or pipeline.fitted_frames == 0:
@@ -181,42 +161,49 @@ def _calibrate(pipeline, args, total, fps: float, stop, presets) -> None:
         pipeline.set_edits(preset, face)
 
 
-def _finish(output, completed: bool) -> None:
-    """A staged video is renamed onto its target when the run completed, kept under its partial
-    name when it was interrupted; an image sequence is already where it belongs."""
-    if not hasattr(output, "commit"):
-        output.close()
-    elif completed:
-        output.commit()
-    else:
-        output.keep_partial()
+def _finish(completed: bool, *outputs) -> None:
+    """Each staged output (video, bag) is renamed onto its target when the run completed, kept under
+    its partial name when it was interrupted; an image sequence is already where it belongs (None: skipped)."""
+    for output in filter(None, outputs):
+        if not hasattr(output, "commit"):
+            output.close()
+        elif completed:
+            output.commit()
+        else:
+            output.keep_partial()
 
 
-def _render_frames(pipeline, source, args, fps: float, total, output, export, stop, seen: dict) -> None:
+def _render_frames(pipeline, source, args, fps: float, total, output, export, stop, seen: dict,
+                   depth_output=None) -> None:
     """The rendering pass in three stages on two cores: every frame decoded and analysed a frame
     ahead (:mod:`.read_ahead`), composited and exported here, where the GL context is, and encoded
     a frame behind (:mod:`.write_behind`); decoding, landmarks, fitting and encoding release the
     GIL. In a batch worker (``args.read_ahead`` False), which is one core's worth of work already,
-    all on this thread. ``seen`` counts frames with a face and the faces edited. Raises
+    all on this thread. ``seen`` counts frames with a face and the faces edited; ``depth_output``
+    takes each frame's edited depth (:func:`.rgbd_process.write_edited_depth`). Raises
     KeyboardInterrupt on a stop signal."""
     from facesculpt.app.read_ahead import ReadAhead
     from facesculpt.app.write_behind import WriteBehind
 
     def analysed():
-        for i, frame in enumerate(_frames(source, args.width, args.max_frames)):
-            yield frame, pipeline.analyse(frame, i / fps)
+        for i, (frame, depth) in enumerate(_frames(source, args.width, args.max_frames, True)):
+            yield frame, depth, pipeline.analyse(frame, i / fps, depth)
 
     pipelined = getattr(args, "read_ahead", True)
     ahead = ReadAhead(analysed(), depth=2) if pipelined else nullcontext(analysed())
     behind = WriteBehind(output, depth=2) if pipelined else nullcontext(output)
     with _progress(total, "process", args.quiet) as bar, ahead as frames, behind as writer:
-        for index, (frame, (fits, timings)) in enumerate(frames):
+        for index, (frame, depth, (fits, timings)) in enumerate(frames):
             if export is not None:
                 export.add(index, index / fps, fits)
             result = pipeline.compose(frame, fits, timings)
             seen["frames_with_face"] += bool(result.fits)
             seen["faces_edited"].update(k for k in result.fits if pipeline.displacement_of(k) is not None)
             writer.write(np.hstack([frame, result.image]) if args.side_by_side else result.image)
+            if depth_output is not None:
+                from facesculpt.app.rgbd_process import write_edited_depth
+
+                write_edited_depth(depth_output, result.image, pipeline.K, depth, result, pipeline.model.triangles)
             bar.update(1)
             if stop.signal:
                 raise KeyboardInterrupt
@@ -280,6 +267,32 @@ def _warn_reduced_turns(limiter) -> None:
               f"docs/guide/new-views.md)", file=sys.stderr)
 
 
+def _open_streams(args):
+    """(the input source, fps, frame count or None, the video output, the edited depth's output or
+    None, the colour K of an RGB-D input's frames as processed or None); one sentence (ValueError)
+    for --depth-out without an RGB-D input, nothing left open."""
+    from facesculpt.app.rgbd_process import RGBDInput, colour_intrinsics, open_depth_output
+
+    source = open_input(args.input, args.fov)
+    rgbd, depth_spec, depth_output = isinstance(source, RGBDInput), getattr(args, "depth_out", ""), None
+    fps, total = source.native_fps, source.frame_count or None
+    if total and args.max_frames:
+        total = min(total, args.max_frames)
+    try:
+        if depth_spec and not rgbd:
+            raise ValueError(f"--depth-out needs an RGB-D input (a folder of colour + 16-bit depth images, or a bag "
+                             f"whose frames carry depth); {args.input} is a video")
+        if depth_spec:
+            depth_output = open_depth_output(depth_spec, args.input, fps)
+        output = open_output(args.output, fps, args.codec, args.crf,
+                             None if args.no_audio or rgbd else args.input, getattr(args, "preset", None))
+    except BaseException:
+        getattr(depth_output, "discard", lambda: None)()
+        source.close()
+        raise
+    return source, fps, total, output, depth_output, colour_intrinsics(source, args.width) if rgbd else None
+
+
 def process_file(args, input_path: str, output_spec: str, detector=None) -> tuple[int, str]:
     """One video through the pipeline with the options of ``args`` (the command line's); returns
     (exit status, the one line that says what was written). ``detector``: a
@@ -292,27 +305,24 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
 
     args = copy.copy(args)
     args.input, args.output = input_path, output_spec
-    refuse_output_over_input(args.input, args.output)  # before anything is opened
+    from facesculpt.app.rgbd_process import input_file
+
+    refuse_output_over_input(input_file(args.input), args.output)  # before anything is opened
     export, gaze = None, bool(getattr(args, "gaze", False))
     if getattr(args, "export_params", ""):
         from facesculpt.app.params_export import ParamsExport
 
-        refuse_output_over_input(args.input, args.export_params)
+        refuse_output_over_input(input_file(args.input), args.export_params)
         export = ParamsExport(args.export_params, gaze=gaze)
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
     pose_options, stage_options = _pose_options(args), _stage_options(args)
-    source = open_input(args.input)
-    fps, total = source.native_fps, source.frame_count or None
-    if total and args.max_frames:
-        total = min(total, args.max_frames)
-    output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input,
-                         getattr(args, "preset", None))
+    source, fps, total, output, depth_output, K = _open_streams(args)
     save_texture, atlas = _atlas_options(args)
     pipeline = Pipeline(args.model, threads=args.threads, **stage_options, **pose_options,
                         faces=selection, detector=detector, atlas=atlas, plate=getattr(args, "plate", "off"),
-                        expression=export is not None, gaze=gaze)
+                        expression=export is not None, gaze=gaze, K=K)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 
@@ -325,15 +335,15 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
         with _Stop() as stop:
             if presets:
                 _calibrate(pipeline, args, total, fps, stop, presets)
-            _render_frames(pipeline, source, args, fps, total, output, export, stop, seen)
+            _render_frames(pipeline, source, args, fps, total, output, export, stop, seen, depth_output)
     except KeyboardInterrupt:
-        _finish(output, completed=False)
+        _finish(False, output, depth_output)
         if export is not None:
             export.write()
         return 130, f"interrupted: kept {output.frames} frames in {output.path!s}"
     except BaseException:
-        if hasattr(output, "discard"):
-            output.discard()  # the unfinished file is ours; the target keeps what it held
+        for out in (output, depth_output):
+            getattr(out, "discard", lambda: None)()  # the unfinished file is ours; the target keeps what it held
         raise
     finally:
         source.close()
@@ -343,9 +353,10 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     problem = (f"cannot read {args.input}: it holds no frames" if output.frames == 0
                else missing_face(selection, pipeline.track_ids_seen, args.input))
     if problem:
-        getattr(output, "discard", lambda: None)()  # an image sequence has no discard: its frames stay
+        for out in (output, depth_output):  # an image sequence has no discard: its frames stay
+            getattr(out, "discard", lambda: None)()
         raise ValueError(problem)
-    _finish(output, completed=True)
+    _finish(True, output, depth_output)
     if export is not None:
         export.write()
     if save_texture:
@@ -358,4 +369,5 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
         how = "no face was found" if not frames_with_face else "no face the edits name was found"
         return 0, f"wrote {output.frames} frames to {output.path!s} unedited: {how}"
     edits = f", edits from {', '.join(args.edits)} on {len(faces_edited)} face(s)" if faces_edited else ""
-    return 0, f"wrote {output.frames} frames to {output.path!s} ({frames_with_face} with a face{edits})"
+    depth = f"; the edited depth to {depth_output.path!s}" if depth_output is not None else ""
+    return 0, f"wrote {output.frames} frames to {output.path!s} ({frames_with_face} with a face{edits}){depth}"

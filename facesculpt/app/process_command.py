@@ -59,7 +59,9 @@ def register(sub) -> None:
                        epilog="Examples: facesculpt process in.mp4 -o out.mp4 --edits nose_longer; "
                               "facesculpt process in.mp4 -o frames/%05d.png --side-by-side")
     p.add_argument("input", metavar="IN", nargs="+",
-                   help="input video file; several files, folders or globs make a batch (-o is then a folder)")
+                   help="input video file, or an RGB-D recording (a folder of colour + 16-bit depth PNGs, bag:FILE or "
+                        "a .mcap bag with depth: each fit is refined on the depth); several files, folders or globs "
+                        "make a batch (-o is then a folder)")
     p.add_argument("-o", "--output", metavar="OUT", required=True,
                    help="output video (.mp4, .mov, .m4v, .avi, .mkv) or image pattern such as out/%%05d.png "
                         "(lossless: png, bmp, tif); for a batch, a folder (each output named after its input)")
@@ -82,6 +84,10 @@ def register(sub) -> None:
                         "(faces numbered 1, 2, ... from the left as they first appear)")
     _add_fit_arguments(p)
     p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
+    p.add_argument("--depth-out", default="", metavar="PATTERN|FILE.mcap",
+                   help="with an RGB-D input: also write the edited depth, as 16-bit PNGs (a pattern such as "
+                        "depth/%%05d.png; existing files are never overwritten) or an RGB-D bag of the edited frames "
+                        "(.mcap; docs/guide/depth-cameras.md)")
     p.add_argument("--export-params", default="", metavar="FILE.csv|json",
                    help="also write each frame's head pose, expression parameters and the expression recognised "
                         "(docs/guide/expressions.md); in a batch, beside each output video with this suffix")

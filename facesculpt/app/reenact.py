@@ -119,7 +119,7 @@ def reenact_file(args) -> tuple[int, str]:
                     if stop.signal:
                         raise KeyboardInterrupt
     except KeyboardInterrupt:
-        _finish(output, completed=False)
+        _finish(False, output)
         return 130, f"interrupted: kept {output.frames} frames in {output.path!s}"
     except BaseException:
         if hasattr(output, "discard"):
@@ -130,7 +130,7 @@ def reenact_file(args) -> tuple[int, str]:
         pipe.close()
         if reenactor is not None:
             reenactor.close()
-    _finish(output, completed=True)
+    _finish(True, output)
     return 0, f"wrote {output.frames} frames to {output.path!s} ({with_face} driving frames with a face)"
 
 

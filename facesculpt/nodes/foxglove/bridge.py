@@ -7,6 +7,8 @@ one whose sink is an MCAP file (``facesculpt bag export --foxglove``). Channels 
 
 * ``camera/image``, ``render/image``: ``foxglove.RawImage`` or ``foxglove.CompressedImage`` (JPEG);
 * ``camera/calibration``: ``foxglove.CameraCalibration`` from the image's K;
+* ``camera/points``: ``foxglove.PointCloud`` in the ``camera`` frame, an RGB-D frame's depth image
+  back-projected (every ``point_step``-th pixel, coloured from the frame), beside the meshes;
 * ``face/landmarks``: ``foxglove.ImageAnnotations``, the landmark pixels as points;
 * ``face/scene``: ``foxglove.SceneUpdate`` in the ``camera`` frame, per face the fitted mesh
   (``fitted/ID``), the deformed mesh (``deformed/ID``, paper Eq. 5) and the handles (spheres on
@@ -24,6 +26,7 @@ from foxglove.channels import (
     CameraCalibrationChannel,
     CompressedImageChannel,
     ImageAnnotationsChannel,
+    PointCloudChannel,
     RawImageChannel,
     SceneUpdateChannel,
 )
@@ -51,14 +54,18 @@ class FoxgloveBridge:
     jpeg_quality: 0 sends images raw (``RawImage``), 1..100 as JPEG (``CompressedImage``).
     units_to_m: metres per unit of the face model (0.001 for millimetres).
     handle_diameter_m: size of the spheres drawn at the handles.
+    point_step: the depth image's point cloud takes every this-many-th row and column (1: every pixel).
     """
 
     def __init__(self, context: foxglove.Context | None = None, jpeg_quality: int = 80,
-                 units_to_m: float = 0.001, handle_diameter_m: float = 0.006, frame_id: str = "camera"):
+                 units_to_m: float = 0.001, handle_diameter_m: float = 0.006, frame_id: str = "camera",
+                 point_step: int = 2):
         kw = {} if context is None else {"context": context}
         image_channel = CompressedImageChannel if jpeg_quality > 0 else RawImageChannel
         self.images = {topic: image_channel(topic, **kw) for topic in IMAGE_TOPICS}
         self.calibration = CameraCalibrationChannel("camera/calibration", **kw)
+        self.points = PointCloudChannel("camera/points", **kw)
+        self.point_step = max(1, int(point_step))
         self.landmarks = ImageAnnotationsChannel("face/landmarks", **kw)
         self.scene = SceneUpdateChannel("face/scene", **kw)
         self.diagnostics = foxglove.Channel("diagnostics", schema=DIAGNOSTICS_SCHEMA, message_encoding="json", **kw)
@@ -83,6 +90,10 @@ class FoxgloveBridge:
             if topic == "camera/image" and self.calibration.has_sinks():
                 h, w = msg.image.shape[:2]
                 self.calibration.log(convert.calibration_message(msg.K, w, h, msg.stamp, self.frame_id), log_time=t)
+            if topic == "camera/image" and msg.depth is not None and self.points.has_sinks():
+                P = convert.depth_points(msg.depth, msg.depth_K, msg.depth_to_color, self.point_step)
+                self.points.log(convert.point_cloud_message(P, msg.stamp, self.frame_id, msg.image, msg.K,
+                                                            self.units_to_m), log_time=t)
         elif isinstance(msg, FaceLandmarks):
             if self.landmarks.has_sinks():
                 self.landmarks.log(convert.landmark_annotations(msg.points, msg.stamp), log_time=t)
@@ -132,6 +143,6 @@ class FoxgloveBridge:
         return True
 
     def close(self) -> None:
-        for channel in (*self.images.values(), self.calibration, self.landmarks, self.scene, self.diagnostics,
-                        self.expression):
+        for channel in (*self.images.values(), self.calibration, self.points, self.landmarks, self.scene,
+                        self.diagnostics, self.expression):
             channel.close()

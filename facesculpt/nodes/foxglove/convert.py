@@ -3,7 +3,8 @@
 Images become ``RawImage`` (``bgr8``) or ``CompressedImage`` (JPEG); meshes (camera space)
 ``TriangleListPrimitive`` entities of a ``SceneUpdate`` in the camera's frame (OpenCV axes:
 x right, y down, z forward, as Foxglove's camera frames), scaled from the model's units to
-metres; handles become spheres; landmarks (pixels) ``ImageAnnotations`` points; a JSON object
+metres; handles become spheres; an RGB-D frame's depth image a coloured ``PointCloud`` in the same
+frame (beside the fitted mesh); landmarks (pixels) ``ImageAnnotations`` points; a JSON object
 from Foxglove's publish panel becomes an ``InputEvent``. The node (``node.py``) and
 ``facesculpt bag export --foxglove`` share these through ``bridge.py``.
 """
@@ -20,8 +21,11 @@ from foxglove.messages import (
     Color,
     CompressedImage,
     ImageAnnotations,
+    PackedElementField,
+    PackedElementFieldNumericType,
     Point2,
     Point3,
+    PointCloud,
     PointsAnnotation,
     PointsAnnotationType,
     Pose,
@@ -91,6 +95,52 @@ def calibration_message(K: np.ndarray, width: int, height: int, stamp_ns: int, f
     return CameraCalibration(timestamp=timestamp(stamp_ns), frame_id=frame_id, width=int(width), height=int(height),
                              distortion_model="plumb_bob", D=[0.0] * 5, K=k,
                              R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], P=P)
+
+
+#: A point cloud's packed point: x, y, z float32 metres, then red, green, blue, alpha uint8.
+POINT_FIELDS = [PackedElementField(name=n, offset=4 * i, type=PackedElementFieldNumericType.Float32)
+                for i, n in enumerate("xyz")] + \
+               [PackedElementField(name=n, offset=12 + i, type=PackedElementFieldNumericType.Uint8)
+                for i, n in enumerate(("red", "green", "blue", "alpha"))]
+POINT_STRIDE = 16
+
+
+def depth_points(depth: np.ndarray, depth_K: np.ndarray, depth_to_color: np.ndarray | None = None,
+                 step: int = 1) -> np.ndarray:
+    """(N, 3) float64 mm, colour camera frame: the measured pixels (depth > 0) of ``depth`` (DH, DW)
+    uint16 mm, every ``step``-th row and column, back-projected through ``depth_K`` (3, 3) px and
+    moved by ``depth_to_color`` (4, 4) mm (None: identity)."""
+    K = np.asarray(depth_K, np.float64)
+    i, j = np.mgrid[0:depth.shape[0]:step, 0:depth.shape[1]:step]
+    z = depth[i, j].astype(np.float64)
+    m = z > 0
+    i, j, z = i[m], j[m], z[m]
+    P = np.column_stack([(j - K[0, 2]) / K[0, 0] * z, (i - K[1, 2]) / K[1, 1] * z, z])
+    if depth_to_color is not None:
+        T = np.asarray(depth_to_color, np.float64)
+        P = P @ T[:3, :3].T + T[:3, 3]
+    return P
+
+
+def point_cloud_message(points_mm: np.ndarray, stamp_ns: int, frame_id: str, colour: np.ndarray | None = None,
+                        K: np.ndarray | None = None, to_m: float = 0.001) -> PointCloud:
+    """``points_mm`` (N, 3) camera frame (model units; ``to_m`` metres per unit) as a Foxglove
+    ``PointCloud`` (:data:`POINT_FIELDS`), each point coloured by the pixel of ``colour`` (H, W, 3)
+    uint8 BGR it projects to through ``K`` (3, 3) px (grey where there is no colour or it falls outside)."""
+    P = np.asarray(points_mm, np.float64).reshape(-1, 3)
+    packed = np.zeros(len(P), np.dtype([("xyz", "<f4", 3), ("rgba", "u1", 4)]))
+    packed["xyz"] = P * to_m
+    packed["rgba"] = (160, 160, 160, 255)
+    if colour is not None and K is not None and len(P):
+        K = np.asarray(K, np.float64)
+        z = np.maximum(P[:, 2], 1e-6)
+        u = np.rint(K[0, 0] * P[:, 0] / z + K[0, 2]).astype(np.int64)
+        v = np.rint(K[1, 1] * P[:, 1] / z + K[1, 2]).astype(np.int64)
+        h, w = colour.shape[:2]
+        inside = (P[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        packed["rgba"][inside, :3] = colour[v[inside], u[inside]][:, ::-1]
+    return PointCloud(timestamp=timestamp(stamp_ns), frame_id=frame_id, pose=IDENTITY, point_stride=POINT_STRIDE,
+                      fields=POINT_FIELDS, data=packed.tobytes())
 
 
 def color(rgba) -> Color:

@@ -4,7 +4,8 @@ Serves the running graph live over the Foxglove WebSocket protocol (``foxglove-s
 subprotocol ``foxglove.websocket.v1``): open ``ws://127.0.0.1:8765`` in Foxglove (app or
 browser, "Open connection", Foxglove WebSocket). The channels are those of
 :mod:`.bridge` (images, camera calibration, landmark points, a 3D scene of the fitted and
-deformed meshes and the handles, the expression recognised and diagnostics as JSON). A client may publish JSON objects on
+deformed meshes and the handles, an RGB-D camera's depth as a point cloud beside them, the
+expression recognised and diagnostics as JSON). A client may publish JSON objects on
 ``input/events`` (Foxglove's publish panel; client-publish capability): each one becomes an
 ``InputEvent`` (:func:`.convert.input_event_from_json`) published into the graph with the
 reliable, queued profile, as from any input node. One that is not a valid event is dropped,
@@ -83,6 +84,8 @@ class FoxgloveNode(Node):
                               range=(0, 100)),
         "units_to_m": Param(0.001, "metres per unit of the face model's vertices (mm: 0.001)", range=(1e-6, 1.0)),
         "handle_diameter_m": Param(0.006, "diameter of the spheres drawn at the handles, m", range=(0.0, 1.0)),
+        "point_step": Param(2, "an RGB-D frame's point cloud (camera/points) takes every this-many-th pixel row and "
+                               "column of the depth image (1: all)", range=(1, 64)),
     }
 
     def setup(self):
@@ -97,7 +100,7 @@ class FoxgloveNode(Node):
         if warning:
             self.log.warning("%s", warning)
         self.bridge = FoxgloveBridge(jpeg_quality=p.jpeg_quality, units_to_m=p.units_to_m,
-                                     handle_diameter_m=p.handle_diameter_m)
+                                     handle_diameter_m=p.handle_diameter_m, point_step=p.point_step)
         self.listener = _Listener()
         try:
             self.server = foxglove.start_server(name="facesculpt", host=p.host, port=p.port,
