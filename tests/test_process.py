@@ -218,14 +218,18 @@ def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, mo
         stack = EditStack(model.mean, model.triangles, list(model.landmark_names), model.landmark_vertices)
         stack.apply_preset(preset)
         disp = stack.solve()
-        for edit in preset["edits"]:
-            for handle in edit["handles"]:
-                v = stack.landmark_vertex(handle["landmark"])
-                # exactly on the mesh solved (the face mesh's refinement), and within a millimetre
-                # on the surface drawn (its Loop subdivision fits the refined solution)
-                assert np.allclose(stack.solved[v], handle["offset"], atol=1e-6), (model.model_id, handle)
-                drawn = (stack.solve_mesh.loop @ disp)[v]
-                assert np.linalg.norm(drawn - handle["offset"]) < 1.0, (model.model_id, handle, drawn)
+        handles = [h for edit in preset["edits"] for h in edit["handles"]]
+        named = [h for h in handles if "landmark" in h]
+        assert named, "each shipped preset names its main handles by landmark"
+        # exact unless handles placed by position share a vertex with it on a coarser model
+        tol = 1e-6 if len(named) == len(handles) else 0.5
+        for handle in named:  # the others (nose_longer's nostrils) are placed by position
+            v = stack.landmark_vertex(handle["landmark"])
+            # exactly on the mesh solved (the face mesh's refinement), and within a millimetre
+            # on the surface drawn (its Loop subdivision fits the refined solution)
+            assert np.allclose(stack.solved[v], handle["offset"], atol=tol), (model.model_id, handle)
+            drawn = (stack.solve_mesh.loop @ disp)[v]
+            assert np.linalg.norm(drawn - handle["offset"]) < 1.0, (model.model_id, handle, drawn)
         moved = np.linalg.norm(disp, axis=1) > 0.5
         # a local edit: cheeks (ROI 70 mm, each handle a single vertex) moves the face's
         # outline, most of the face-mesh placeholder (0.81 of it), yet leaves the rest in place
