@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facesculpt.geometry.head_angles import euler_from_rotation
+from facesculpt.geometry.similarity import similarity_procrustes
 from facesculpt.nodes.fitter.model import ModelFormatError, MorphableModel
 
 CALIBRATION_FORMAT = "facesculpt-landmark-calibration"
@@ -62,6 +64,31 @@ def triangulate(K: np.ndarray, R: np.ndarray, c: np.ndarray, observed: np.ndarra
     return out
 
 
+def network_rotation(points3d: np.ndarray, R_true: np.ndarray, depth_scale: float = 1.0,
+                     rows: np.ndarray | None = None) -> dict:
+    """The head's rotation as the network's own 3D points (F, N, 3) (x, y px, z relative depth px,
+    camera axes) give it against the truth ``R_true`` (F, 3, 3): each frame's similarity
+    Procrustes from the frame nearest frontal, composed with that frame's true rotation. Returns
+    per-frame ``yaw``, ``pitch`` (network, degrees), the true ones, and the least-squares
+    ``yaw_slope``, ``pitch_slope`` (network angle per true angle, about the reference frame).
+    ``depth_scale`` multiplies the network's depths first; ``rows`` picks the points used."""
+    P = np.asarray(points3d, np.float64)
+    if rows is not None:
+        P = P[:, rows]
+    P = P * np.array([1.0, 1.0, depth_scale])
+    true = np.array([euler_from_rotation(R)[:2] for R in R_true])
+    ok = np.isfinite(P).all(axis=(1, 2))
+    ref = int(np.argmin(np.where(ok, np.abs(true).sum(1), np.inf)))
+    net = np.full_like(true, np.nan)
+    for i in np.flatnonzero(ok):
+        _, Rr, _ = similarity_procrustes(P[ref], P[i])
+        net[i] = euler_from_rotation(Rr @ R_true[ref])[:2]
+    d_true, d_net = true[ok] - true[ref], net[ok] - true[ref]
+    slopes = [float(d_true[:, k] @ d_net[:, k] / (d_true[:, k] @ d_true[:, k])) for k in range(2)]
+    return {"yaw": net[:, 0], "pitch": net[:, 1], "true_yaw": true[:, 0], "true_pitch": true[:, 1],
+            "yaw_slope": slopes[0], "pitch_slope": slopes[1], "reference": ref}
+
+
 def learn_calibration(sequences: list[dict]) -> dict:
     """The calibration of L landmarks from sequences, each a dict with ``K``, ``R``, ``c`` (the
     poses, as the module docstring says), ``observed`` (F, L, 2) px (the network's points, NaN
@@ -81,6 +108,19 @@ def learn_calibration(sequences: list[dict]) -> dict:
     weights = 1.0 / np.maximum(sigma, 1e-3) ** 2
     weights = np.clip(weights / weights.mean(), *WEIGHT_RANGE)
     return {"offsets": offsets, "sigma": sigma, "weights": weights / weights.mean()}
+
+
+def uncalibrated(model: MorphableModel) -> MorphableModel:
+    """A copy of ``model`` without a landmark calibration (each landmark at its vertex, weight 1)."""
+    return replace(model, landmark_offsets=np.zeros((0, 3), np.float32), landmark_weights=np.zeros(0, np.float32),
+                   network_rotation_gain=np.zeros(0, np.float32), calibration="")
+
+
+def fixed_landmarks(model: MorphableModel) -> list[str]:
+    """The model's iBUG landmarks (1-based names, "1".."68") with a fixed vertex (not on the
+    outline, whose correspondence moves with the pose): the landmarks a calibration learns."""
+    outline = set(model.outline_landmarks_right) | set(model.outline_landmarks_left)
+    return [n for n in model.landmark_names if n.isdigit() and 1 <= int(n) <= 68 and n not in outline]
 
 
 def calibrated(model: MorphableModel, names: list[str], offsets: np.ndarray, weights: np.ndarray,
