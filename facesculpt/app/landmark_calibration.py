@@ -30,8 +30,9 @@ from facesculpt.app.synthetic_head import (
     FACING,
     border_alpha,
     close_holes_with_centres,
-    fit_photo,
     intrinsics,
+    painted_points,
+    photo_fit,
     procedural_background,
     random_identity,
     rotation,
@@ -83,7 +84,9 @@ MOTIONS = (
 class Head:
     """A textured head (:mod:`.synthetic_head`): rest vertices (V, 3) model mm (the model's own
     first, then the centres of the fans that close its holes), triangles (T, 3), texture
-    coordinates (V, 2) px into ``texture`` (BGR), per-vertex alpha (V,), a background (H, W, 3)."""
+    coordinates (V, 2) px into ``texture`` (BGR), per-vertex alpha (V,), a background (H, W, 3),
+    and ``landmarks`` (68, 3) model mm: where the face's own iBUG points (the network's on the
+    photo) are painted on the head (NaN where off it)."""
 
     rest: np.ndarray
     triangles: np.ndarray
@@ -91,6 +94,7 @@ class Head:
     alpha: np.ndarray
     texture: np.ndarray
     background: np.ndarray
+    landmarks: np.ndarray
 
 
 def video_frame(path: Path, index: int) -> np.ndarray:
@@ -122,9 +126,10 @@ def make_head(model, texture: np.ndarray, seed: int, background: int) -> Head:
     from facesculpt.nodes.fitter.calibration import uncalibrated
 
     rest = np.asarray(random_identity(model, seed), np.float64).reshape(-1, 3)
-    uv = fit_photo(uncalibrated(model), texture, FOV_DEG)
+    uv, depth, points = photo_fit(uncalibrated(model), texture, FOV_DEG)
+    painted = painted_points(uv, depth, np.asarray(model.triangles, np.int64), rest, points)
     rest, tris, tex, outer = close_holes_with_centres(rest, np.asarray(model.triangles, np.int64), uv)
-    return Head(rest, tris, tex, border_alpha(rest, outer), texture, procedural_background(background, SIZE))
+    return Head(rest, tris, tex, border_alpha(rest, outer), texture, procedural_background(background, SIZE), painted)
 
 
 def poses(motion: Motion, frames: int) -> tuple[np.ndarray, np.ndarray]:
@@ -177,12 +182,16 @@ def track(frames: list[np.ndarray]) -> np.ndarray:
     return out
 
 
-def sequences(model, textures: list[np.ndarray], frames: int = FRAMES, workers: int = 0, progress=None) -> list[dict]:
+def sequences(model, textures: list[np.ndarray], frames: int = FRAMES, workers: int = 0, progress=None,
+              painted: bool = True) -> list[dict]:
     """One calibration sequence per texture photo (BGR): a dict with ``K``, ``R``, ``c``,
     ``observed`` (F, L, 2) px (the network's points of the model's fixed landmarks,
-    :func:`~facesculpt.nodes.fitter.calibration.fixed_landmarks`), ``vertices`` (L, 3) mm,
-    ``points`` (F, 468, 3) (all the network's points), ``yaw`` (F,) degrees and ``source`` (what it
-    is, in words). ``progress(done, total)`` is called after each sequence."""
+    :func:`~facesculpt.nodes.fitter.calibration.fixed_landmarks`), ``vertices`` (L, 3) mm (what
+    the offsets are learned from: with ``painted``, where the photo's own landmarks are painted on
+    the head, so that the texture fit's misregistration is not learned as the network's offset;
+    else the head's landmark vertices), ``landmark_vertices`` (L, 3) mm (the latter), ``points``
+    (F, 468, 3) (all the network's points), ``yaw`` (F,) degrees and ``source`` (what it is, in
+    words). ``progress(done, total)`` is called after each sequence."""
     from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH
     from facesculpt.nodes.fitter.calibration import fixed_landmarks
 
@@ -198,9 +207,14 @@ def sequences(model, textures: list[np.ndarray], frames: int = FRAMES, workers: 
         head = make_head(model, texture, seed, background)
         R, c = poses(motion, frames)
         points = track(render(head, R, c, workers))
+        ibug = [int(n) - 1 for n in names]
+        reference = head.rest[vertices].copy()
+        if painted:
+            ok = np.isfinite(head.landmarks[ibug]).all(axis=1)
+            reference[ok] = head.landmarks[ibug][ok]
         out.append({"K": intrinsics(SIZE, FOV_DEG), "R": R, "c": c, "points": points,
-                    "observed": points[:, IBUG68_FROM_MESH[[int(n) - 1 for n in names]], :2],
-                    "vertices": head.rest[vertices], "yaw": np.array([motion.pose(i)[0] for i in range(frames)]),
+                    "observed": points[:, IBUG68_FROM_MESH[ibug], :2], "vertices": reference,
+                    "landmark_vertices": head.rest[vertices], "yaw": np.array([motion.pose(i)[0] for i in range(frames)]),
                     "source": f"identity seed {seed}, background {background}, yaw +-{motion.yaw_deg:g} "
                               f"pitch +-{motion.pitch_deg:g} deg"})
         if progress is not None:

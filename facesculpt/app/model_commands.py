@@ -226,4 +226,6 @@ def describe(model) -> str:
     ]
     if model.source:
         lines.append(f"source: {model.source}")
+    if model.calibration:
+        lines.append(f"landmark calibration: {model.calibration}")
     return "\n".join(lines)

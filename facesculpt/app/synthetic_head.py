@@ -42,6 +42,12 @@ def fit_photo(model, photo: np.ndarray, fov_deg: float = 60.0) -> np.ndarray:
     """Pixel positions (V, 2) of the model's vertices on the face in ``photo`` (BGR): the project's
     landmark detector and sparse fitter (several iterations, no smoothing) on the still image, a
     camera of ``fov_deg`` degrees. RuntimeError when the photo shows no face."""
+    return photo_fit(model, photo, fov_deg)[0]
+
+
+def photo_fit(model, photo: np.ndarray, fov_deg: float = 60.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`fit_photo`'s vertex pixels (V, 2), their depths (V,) mm, and the landmark network's
+    68 iBUG points (68, 2) px that were fitted."""
     from facesculpt.geometry import to_ibug68
     from facesculpt.nodes.fitter import FitterConfig, make_fitter
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
@@ -54,7 +60,30 @@ def fit_photo(model, photo: np.ndarray, fov_deg: float = 60.0) -> np.ndarray:
     fitter = make_fitter(model, config, (w, h), intrinsics((w, h), fov_deg))
     pts = to_ibug68(faces[0].points[:, :2].astype(np.float64))
     fit = fitter.fit(pts, [str(i) for i in range(1, 69)])
-    return np.asarray(fit.projected, np.float64)
+    return np.asarray(fit.projected, np.float64), np.asarray(fit.vertices, np.float64)[:, 2], pts
+
+
+def painted_points(uv: np.ndarray, depth: np.ndarray, triangles: np.ndarray, rest: np.ndarray,
+                   targets: np.ndarray) -> np.ndarray:
+    """(P, 3) model mm: where each texture pixel ``targets`` (P, 2) is painted on the head, given
+    the texture coordinates ``uv`` (V, 2) px of its rest vertices (V, 3) and their depths (V,) in
+    the photo (the front-most triangle of ``triangles`` (T, 3) that holds the pixel wins); NaN for a
+    pixel no triangle holds."""
+    tri = np.asarray(triangles, np.int64)
+    a, b, c = uv[tri[:, 0]], uv[tri[:, 1]], uv[tri[:, 2]]
+    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    out = np.full((len(targets), 3), np.nan)
+    for k, q in enumerate(np.asarray(targets, np.float64)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            l0 = ((b[:, 0] - q[0]) * (c[:, 1] - q[1]) - (b[:, 1] - q[1]) * (c[:, 0] - q[0])) / area
+            l1 = ((c[:, 0] - q[0]) * (a[:, 1] - q[1]) - (c[:, 1] - q[1]) * (a[:, 0] - q[0])) / area
+        lam = np.stack([l0, l1, 1.0 - l0 - l1], axis=1)
+        inside = np.flatnonzero((np.abs(area) > 1e-9) & (lam >= -1e-9).all(axis=1))
+        if len(inside):
+            z = (lam[inside] * depth[tri[inside]]).sum(axis=1)
+            best = inside[np.argmin(z)]
+            out[k] = lam[best] @ rest[tri[best]]
+    return out
 
 
 def close_holes_with_centres(rest: np.ndarray, triangles: np.ndarray, texcoords: np.ndarray):

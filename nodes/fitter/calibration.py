@@ -89,6 +89,40 @@ def network_rotation(points3d: np.ndarray, R_true: np.ndarray, depth_scale: floa
             "yaw_slope": slopes[0], "pitch_slope": slopes[1], "reference": ref}
 
 
+def view_direction(R: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(F, 3) unit vectors, model space: from the model's origin toward the camera, at the poses
+    R (F, 3, 3), c (F, 3) (a perspective camera at the origin of camera space)."""
+    d = -np.einsum("fji,fj->fi", R, c)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def triangulate_posed(K: np.ndarray, R: np.ndarray, c: np.ndarray, observed: np.ndarray,
+                      ridge_px: float = 1.0) -> np.ndarray:
+    """(P, 3, 3) per point its model-space position (row 0, mm) and how it moves with the view
+    (rows 1, 2: mm per unit of the view direction's x and y, :func:`view_direction`): the point
+    ``X + d_x A + d_y B`` whose projections best match ``observed`` (F, P, 2) px in linear least
+    squares, each equation scaled to pixels at its frame's depth, A and B pulled toward 0 with
+    ``ridge_px`` px per mm. NaN for a point seen in fewer than 4 frames."""
+    f = np.array([K[0, 0], K[1, 1]])
+    d = view_direction(R, c)
+    out = np.full((observed.shape[1], 3, 3), np.nan)
+    ridge = np.hstack([np.zeros((6, 3)), ridge_px * np.eye(6)])
+    for p in range(observed.shape[1]):
+        ok = np.isfinite(observed[:, p]).all(1)
+        if ok.sum() < 4:
+            continue
+        u = observed[ok, p] + 0.5 - K[:2, 2]
+        Rk, ck, dk = R[ok], c[ok], d[ok]
+        z = ck[:, 2:3]
+        rows = (u[:, :, None] * Rk[:, 2:3, :] - f[None, :, None] * Rk[:, :2, :]) / z[:, :, None]   # (n, 2, 3)
+        design = np.concatenate([rows, dk[:, 0, None, None] * rows, dk[:, 1, None, None] * rows], axis=2)
+        rhs = -(u * ck[:, 2:3] - f * ck[:, :2]) / z
+        A = np.vstack([design.reshape(-1, 9), ridge])
+        b = np.concatenate([rhs.reshape(-1), np.zeros(6)])
+        out[p] = np.linalg.lstsq(A, b, rcond=None)[0].reshape(3, 3)
+    return out
+
+
 def learn_calibration(sequences: list[dict]) -> dict:
     """The calibration of L landmarks from sequences, each a dict with ``K``, ``R``, ``c`` (the
     poses, as the module docstring says), ``observed`` (F, L, 2) px (the network's points, NaN
