@@ -25,8 +25,9 @@ def register(subparsers) -> None:
     imp.add_argument("--contours", type=Path, help="eos model contour JSON, e.g. sfm_model_contours.json")
     imp.add_argument("--id", dest="model_id", help="model id (default: the file's stem)")
     imp.add_argument("-o", "--output", type=Path, required=True, help="output .npz path")
-    imp.add_argument("--no-calibrate", dest="calibrate", action="store_false",
-                     help="write the model without its landmark calibration (`facesculpt model calibrate`, minutes)")
+    imp.add_argument("--calibrate", action="store_true",
+                     help="also learn the model's landmark calibration (`facesculpt model calibrate`: about a minute of "
+                     "CPU; not by default, docs/guide/face-models.md)")
     _texture_arguments(imp)
     imp.set_defaults(func=_import_eos)
 

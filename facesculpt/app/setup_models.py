@@ -17,8 +17,8 @@ tessellation (read as data), converts the networks with the project's own conver
     facemesh_triangles.npy                     (T, 3) int32 triangles of the 468-point mesh
     manifest.json                              versions and the sha256 of every file
     downloads/<wheel>                          the wheel, so a re-run never needs the network
-    calibration/sfm_shape_3448.npz             the Surrey model's landmark calibration (when the shared
-                                               data folder holds the model; `facesculpt model calibrate`)
+    calibration/sfm_shape_3448.npz             with --calibrate: the Surrey model's landmark calibration
+                                               (when the shared data holds the model; `model calibrate`)
 
 It is idempotent: when the manifest matches the files, nothing is downloaded or rewritten, and
 the calibration is built only when it is not there.
@@ -297,15 +297,15 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "setup", help="download and convert the face and hand networks (run once)",
         description="Download the pinned mediapipe wheel, convert its face and hand networks to ONNX and write "
-                    "them with the face-mesh triangles into the model directory; where the shared data folder holds "
-                    "the Surrey model, build its landmark calibration there too (`facesculpt model calibrate`).")
+                    "them with the face-mesh triangles into the model directory; with --calibrate, where the shared data "
+                    "folder holds the Surrey model, build its landmark calibration there too.")
     p.add_argument("--home", type=Path, default=None,
                    help="model directory (default: $FACESCULPT_HOME or ~/.cache/facesculpt)")
     p.add_argument("--wheel", type=Path, default=None,
                    help=f"use this already-downloaded {WHEEL_NAME} (hash-checked) instead of pip")
     p.add_argument("--force", action="store_true", help="convert again even when the directory is up to date")
-    p.add_argument("--no-calibrate", dest="calibrate", action="store_false",
-                   help="do not build the Surrey model's landmark calibration (built by default into the models folder "
-                   "that load_model reads, when the shared data folder is there and the calibration is not; about a "
-                   "minute)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="also build the Surrey model's landmark calibration into the models folder that load_model "
+                   "reads, where the shared data folder holds the model (`facesculpt model calibrate`; about a minute "
+                   "of CPU; not by default: it did not win on real faces, docs/results/registration.md)")
     p.set_defaults(func=_main)
