@@ -30,7 +30,7 @@ scene's). Per fitted frame, against the truth:
 Writes ``results.md`` and ``results.json`` to ``--out`` (default: a new temporary folder) and
 prints the table.
 
-Run: ``python benchmarks/bench_appearance.py [--out DIR] [--frames 90] [--still-frames 120]``. Needs the shared data
+Run: ``python -m benchmarks.bench_appearance [--out DIR] [--frames 90] [--still-frames 120]``. Needs the shared data
 (../shared/data or FACESCULPT_DATA) and ``facesculpt setup``.
 """
 
@@ -47,18 +47,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.jitter import CONDITIONS, degraded, jitter, low_passed, still_steps, tracked_motion  # noqa: E402
-from realism.metrics import changed  # noqa: E402
-from realism.posed import render_all  # noqa: E402
-from realism.raster import project_pixels  # noqa: E402
-from realism.scene import FACING, FOV_DEG, head_pose, make_scene, rotation  # noqa: E402
-from realism.scoring import YAW_BINS  # noqa: E402
-
-from facesculpt.geometry.head_angles import euler_from_rotation  # noqa: E402
-from facesculpt.nodes.fitter.config import FitterConfig  # noqa: E402
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.realism.jitter import CONDITIONS, degraded, jitter, low_passed, still_steps, tracked_motion
+from benchmarks.realism.metrics import changed
+from benchmarks.realism.posed import render_all
+from benchmarks.realism.raster import project_pixels
+from benchmarks.realism.scene import FACING, FOV_DEG, head_pose, make_scene, rotation
+from benchmarks.realism.scoring import YAW_BINS
+from facesculpt.geometry.head_angles import euler_from_rotation
+from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.paths import shared_data_dir
 
 #: A visible vertex within this distance (px) of the true silhouette is an outline vertex.
 OUTLINE_PX = 3.0
@@ -132,7 +129,7 @@ def run(frames: list, truths: list, background: np.ndarray, scene, fitter_option
 
     rows, took = [], []
     size = (frames[0].shape[1], frames[0].shape[0])
-    with Pipeline("sfm", fov_deg=FOV_DEG, **fitter_options) as pipe:
+    with Pipeline("sfm", fov_deg=FOV_DEG, fit=FitterConfig(**fitter_options)) as pipe:
         for i, frame in enumerate(frames):
             t0 = time.perf_counter()
             fit = pipe.fit_frame(frame, i / 25.0)
@@ -149,7 +146,7 @@ def fitted_pixels(frames: list, model: str, options: dict, **pipeline) -> np.nda
     from facesculpt.app.pipeline import Pipeline
 
     tracks = []
-    with Pipeline(model, **options, **pipeline) as pipe:
+    with Pipeline(model, fit=FitterConfig(**options), **pipeline) as pipe:
         for i, frame in enumerate(frames):
             fit = pipe.fit_frame(frame, i / 25.0)
             if fit is None:
@@ -160,6 +157,7 @@ def fitted_pixels(frames: list, model: str, options: dict, **pipeline) -> np.nda
 
 #: The fits compared: the project's default, the same without the landmark network's rotation
 #: as the pose's prior (``rotation_prior_px=0``), and refined by appearance.
+#: FitterConfig fields of each method.
 METHODS = {
     "landmarks only": {},
     "landmarks only, no network rotation": {"rotation_prior_px": 0.0},
@@ -199,7 +197,7 @@ def real_video_jitter(data: Path, videos: list[str], count: int) -> dict:
     :func:`.tracked_motion` started from the landmark fit, "low-passed": that of the same motion
     through the fitter's smoothing of a still head (:func:`.low_passed`), both on the landmark fit's
     still frames, "still_frames": their number} over the first ``count`` frames of each shared video."""
-    from realism.sequences import read_video
+    from benchmarks.realism.sequences import read_video
 
     out = {}
     for video in videos:

@@ -34,7 +34,7 @@ synthetic set, and the plate on a real video.
 
 Writes ``results.md`` and ``results.json`` to ``--out`` (default: a new temporary folder).
 
-Run: ``python benchmarks/bench_background.py [--out DIR] [--frames 90] [--models facemesh,sfm]
+Run: ``python -m benchmarks.bench_background [--out DIR] [--frames 90] [--models facemesh,sfm]
 [--methods pushpull,telea,ns,patch,drag,plate,patch+plate,drag+plate] [--real-video d3] [--real-frames 150]``.
 Needs the shared data and ``facesculpt setup``.
 """
@@ -51,18 +51,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.edits import EditSpec, displacement, write_preset  # noqa: E402
-from realism.metrics import changed, psnr_from_mse, squared_error, ssim_map  # noqa: E402
-from realism.raster import project_pixels  # noqa: E402
-from realism.report import crop_boxes, side_by_side  # noqa: E402
-from realism.scene import Scene, make_scene  # noqa: E402
-from realism.sequences import read_video, render_sequences  # noqa: E402
-
-from facesculpt.app.pipeline import Pipeline, read_preset  # noqa: E402
-from facesculpt.geometry import merge_deformation  # noqa: E402
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.realism.edits import EditSpec, displacement, write_preset
+from benchmarks.realism.metrics import changed, psnr_from_mse, squared_error, ssim_map
+from benchmarks.realism.raster import project_pixels
+from benchmarks.realism.report import crop_boxes, side_by_side
+from benchmarks.realism.scene import Scene, make_scene
+from benchmarks.realism.sequences import read_video, render_sequences
+from facesculpt.app.pipeline import Pipeline, read_preset
+from facesculpt.geometry import merge_deformation
+from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.paths import shared_data_dir
 
 EDITS = {
     "jaw10": EditSpec("jaw10", {"vertex:1886": (-10.0, 0.0, 0.0), "vertex:1882": (10.0, 0.0, 0.0)}, 40.0,
@@ -75,7 +73,7 @@ METHODS = {"pushpull": ("pushpull", False), "telea": ("telea", False), "ns": ("n
            "patch+plate": ("patch", True), "drag+plate": ("drag", True),
            "plate-face-only": ("pushpull", "face only"), "drag+plate-face-only": ("drag", "face only")}
 SWAY_PERIOD = 50
-REAL_PRESET = Path(__file__).resolve().parent.parent / "nodes" / "deformer" / "presets" / "cheeks.json"
+REAL_PRESET = Path(__file__).resolve().parent.parent / "facesculpt" / "nodes" / "deformer" / "presets" / "cheeks.json"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -181,7 +179,7 @@ class FittedFaces:
     on the first ``neutral_frames``), each edit's preset solved once on its neutral."""
 
     def __init__(self, model: str, inputs: list, presets: dict, neutral_frames: int):
-        self.pipe = Pipeline(model, neutral_frames=neutral_frames)
+        self.pipe = Pipeline(model, fit=FitterConfig(neutral_frames=neutral_frames))
         self.pipe.calibrate(inputs[:neutral_frames], 25.0)
         self.disps = {}
         for e, preset in presets.items():
@@ -296,7 +294,7 @@ def real_video(args, data: Path, out: Path) -> dict:
     """Part 4: the plate's share of the uncovered pixels over a real video, flicker, a picture."""
     frames = read_video(data / "video" / f"{args.real_video}.mp4", args.real_frames)
     H, W = frames[0].shape[:2]
-    pipe = Pipeline("facemesh", neutral_frames=args.neutral_frames)
+    pipe = Pipeline("facemesh", fit=FitterConfig(neutral_frames=args.neutral_frames))
     pipe.calibrate(frames[: args.neutral_frames], 25.0)
     pipe.set_edits(read_preset(REAL_PRESET))
     plates = ["drag+plate", "drag+plate-face-only"]

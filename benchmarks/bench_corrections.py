@@ -23,7 +23,7 @@ yaw while the correction was kept (degrees), and the time of the targets per fra
 fit's. The network's 33 is the reference here, and the ``detected`` head frame is posed on the same
 network's nose and eyes (33 among them; ``detected-1`` shows what that is worth).
 
-Run: ``python benchmarks/bench_corrections.py [--videos d3 d0 d12] [--frames N] [--pair 34 33]``.
+Run: ``python -m benchmarks.bench_corrections [--videos d3 d0 d12] [--frames N] [--pair 34 33]``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Per-drag ARAP update time on the Surrey Face Model (3448 vertices, ROI ~1500 vertices) next to
 libigl's ``arap_solve`` with the same constraints and its default 10 iterations, in the same run.
 
-    python benchmarks/bench_deformer.py [--drags 60] [--roi 1500] [--json out.json]
+    python -m benchmarks.bench_deformer [--drags 60] [--roi 1500] [--json out.json]
 
 A drag: the nose-tip handle moves 0.5 mm per event along a fixed direction (60 events = 30 mm);
 every solver warm-starts from its previous result, as in interactive use. Interleaved event by

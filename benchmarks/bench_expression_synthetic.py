@@ -1,6 +1,6 @@
 """Expression parameters against ground truth on the synthetic SFM set (issue 19).
 
-    python benchmarks/bench_expression_synthetic.py [--frames 120] [--neutral-frames 30] [--strip FILE.png]
+    python -m benchmarks.bench_expression_synthetic [--frames 120] [--neutral-frames 30] [--strip FILE.png]
         [--model sfm|facemesh] [--refine appearance] [--no-exact]
 
 The realism benchmark's scene (:mod:`benchmarks.realism.scene`: the Surrey Face Model with a random
@@ -24,13 +24,11 @@ are exact, so the gap between the two runs is what the landmark detector costs.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
 
 PERIODS = (23, 29, 31, 37, 41, 47)
 PEAK = 0.8
@@ -77,7 +75,7 @@ def fit_sequence(args, scene, model, exact: bool) -> dict:
     fitter = make_fitter(model, FitterConfig(neutral_frames=args.neutral_frames), size,
                          intrinsics_from_fov(*size, 60.0)) if exact else None
     refine = getattr(args, "refine", None)   # a caller's Namespace may predate the option
-    with nullcontext() if exact else Pipeline(args.model, neutral_frames=args.neutral_frames, refine=refine) as pipe:
+    with nullcontext() if exact else Pipeline(args.model, fit=FitterConfig(neutral_frames=args.neutral_frames, refine=refine)) as pipe:
         for i in range(args.frames):
             w = activation(i, args.neutral_frames)
             shape = scene.rest.copy()

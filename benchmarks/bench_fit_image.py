@@ -10,7 +10,7 @@ error over the outer-eye-corner distance) of the 68 fitted landmark points (the 
 landmark was matched to) before and after, over all faces, frontal ones and turned ones, and the
 milliseconds a fit_image takes.
 
-Run: ``python benchmarks/bench_fit_image.py [--components 10] [--json FILE]``. Needs the shared data
+Run: ``python -m benchmarks.bench_fit_image [--components 10] [--json FILE]``. Needs the shared data
 and ``facesculpt setup``.
 """
 

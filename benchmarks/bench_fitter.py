@@ -17,7 +17,7 @@
    68 landmarks per frame, px) and the facemesh dense fit (its residual: RMS distance of the points
    from the rigidly posed neutral, px), with time per fit for both.
 
-Run: ``python benchmarks/bench_fitter.py [--faces 200]``. BLAS is limited to one thread (eos runs
+Run: ``python -m benchmarks.bench_fitter [--faces 200]``. BLAS is limited to one thread (eos runs
 single-threaded; tiny matrices gain nothing from threads).
 """
 
@@ -28,25 +28,21 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import sys
+import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from eos_peer import EosPeer  # noqa: E402
-from synthetic_faces import (  # noqa: E402
+from benchmarks.eos_peer import EosPeer
+from benchmarks.synthetic_faces import (
     landmark_reprojection_error,
     make_face,
     similarity_aligned_error,
 )
-
-from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter  # noqa: E402
-from facesculpt.nodes.fitter.eos_import import sfm_files  # noqa: E402
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
+from facesculpt.nodes.fitter.eos_import import sfm_files
+from facesculpt.paths import shared_data_dir
 
 BINS = [(0, 20), (20, 40), (40, 61)]
 PAPER_MS = (20.63, 30.58)

@@ -19,7 +19,7 @@ Writes ``results.md``/``results.json``, shaded close-ups ``spike_EDIT_MODEL.png`
 rasteriser with the camera zoomed ``ZOOM`` times (a face about 3x as large as the benchmark's,
 as a close webcam shows it) to ``--out``.
 
-Run: ``python benchmarks/bench_handle_spike.py [--out DIR] [--edits nose,chin,cheeks,jaw]
+Run: ``python -m benchmarks.bench_handle_spike [--out DIR] [--edits nose,chin,cheeks,jaw]
 [--no-textured]``. Needs the shared data (../shared/data or FACESCULPT_DATA; s18.mp4 for
 ``--textured``).
 """
@@ -35,16 +35,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.edits import EDITS, displacement, preset  # noqa: E402
-from realism.raster import rasterise  # noqa: E402
-
-from facesculpt.geometry.boundary_loops import boundary_loops  # noqa: E402
-from facesculpt.geometry.close_holes import close_holes  # noqa: E402
-from facesculpt.geometry.subdivision import loop_subdivision  # noqa: E402
-from facesculpt.geometry.vertex_normals import face_normals, vertex_normals  # noqa: E402
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.realism.edits import EDITS, displacement, preset
+from benchmarks.realism.raster import rasterise
+from facesculpt.geometry.boundary_loops import boundary_loops
+from facesculpt.geometry.close_holes import close_holes
+from facesculpt.geometry.subdivision import loop_subdivision
+from facesculpt.geometry.vertex_normals import face_normals, vertex_normals
+from facesculpt.paths import shared_data_dir
 
 GRIPS = (0.0, 0.2)
 VIEWS = ((0.0, "front"), (60.0, "turned 60"))
@@ -131,9 +128,8 @@ def labelled(img: np.ndarray, text: str) -> np.ndarray:
 def textured(spec, scene, out: Path) -> None:
     """``textured_EDIT.png``: the synthetic head at TEXTURED_FRAMES, zoomed on the edit's handles:
     input | grip 0 | grip 0.2 | the paper's truth (rows: frames)."""
-    from realism.edits import handle_vertex
-    from realism.raster import project, render_textured
-
+    from benchmarks.realism.edits import handle_vertex
+    from benchmarks.realism.raster import project, render_textured
     from facesculpt.nodes.deformer import EditStack
 
     n = scene.model_vertices
@@ -247,7 +243,7 @@ def main(argv=None) -> int:
     sfm_landmarks = {str(k): int(v) for k, v in zip(sfm.landmark_names, sfm.landmark_vertices)}
     rows = [r for e in args.edits for r in measure_edit(EDITS[e], models, sfm_landmarks, out)]
     if args.textured:
-        from realism.scene import make_scene
+        from benchmarks.realism.scene import make_scene
 
         scene = make_scene(data, max(TEXTURED_FRAMES) + 1)
         for e in args.edits:

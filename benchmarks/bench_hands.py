@@ -2,7 +2,7 @@
 to ai-edge-litert running the original .tflite networks, through the same HandDetector, in the
 same run.
 
-    python benchmarks/bench_hands.py [--repeats 40] [--threads 1] [--json out.json]
+    python -m benchmarks.bench_hands [--repeats 40] [--threads 1] [--json out.json]
 
 Inputs: the five shared hand photos (hands/*.jpg). Measured per call, interleaving the two
 runtimes call by call:
@@ -19,8 +19,8 @@ import sys
 
 import cv2
 import numpy as np
-from runtime_pair import BACKENDS, report, runtime_arguments, timed
 
+from benchmarks.runtime_pair import BACKENDS, report, runtime_arguments, timed
 from facesculpt.nodes.hands.detector import HandDetector
 
 

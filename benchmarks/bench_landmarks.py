@@ -1,7 +1,7 @@
 """Landmark time per frame at 856x480: onnxruntime (the converted networks) next to
 ai-edge-litert running the original .tflite networks, through the same pipeline, in the same run.
 
-    python benchmarks/bench_landmarks.py [--video s18] [--frames 120] [--threads 1] [--json out.json]
+    python -m benchmarks.bench_landmarks [--video s18] [--frames 120] [--threads 1] [--json out.json]
 
 Frames: the shared video (default s18.mp4, 1280x720) resized to 856x480, the paper's size.
 Measured per frame, interleaving the two runtimes frame by frame:
@@ -14,16 +14,12 @@ and each network alone on one input. Reported: medians (ms), the ratio onnxrunti
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
-from runtime_pair import BACKENDS, report, runtime_arguments, timed
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from renderer_scene import read_frames  # noqa: E402
-
-from facesculpt.nodes.landmarks.detector import LandmarkDetector  # noqa: E402
+from benchmarks.renderer_scene import read_frames
+from benchmarks.runtime_pair import BACKENDS, report, runtime_arguments, timed
+from facesculpt.nodes.landmarks.detector import LandmarkDetector
 
 PAPER_MS = 36.28
 

@@ -33,7 +33,7 @@ the new pose, on synthetic videos with exact ground truth.
 Writes ``results.md``, ``results.json`` and the crops to ``--out`` (default: a new temporary
 folder) and prints the table.
 
-Run: ``python benchmarks/bench_new_views.py [--out DIR] [--frames 60] [--models facemesh,sfm]
+Run: ``python -m benchmarks.bench_new_views [--out DIR] [--frames 60] [--models facemesh,sfm]
 [--deltas 5,10,15,20] [--pitch-deltas 5,10,15,20] [--geometry-models facemesh,sfm]
 [--atlas-models facemesh,sfm]``. Needs the shared data (../shared/data or
 FACESCULPT_DATA) and ``facesculpt setup``.
@@ -52,16 +52,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.metrics import Pooled, changed, psnr_from_mse, squared_error, ssim_map  # noqa: E402
-from realism.posed import render_all  # noqa: E402
-from realism.report import side_by_side  # noqa: E402
-from realism.scene import head_pose, make_scene  # noqa: E402
-from realism.sequences import run_process, write_lossless  # noqa: E402
-
-from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG  # noqa: E402
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.realism.metrics import Pooled, changed, psnr_from_mse, squared_error, ssim_map
+from benchmarks.realism.posed import render_all
+from benchmarks.realism.report import side_by_side
+from benchmarks.realism.scene import head_pose, make_scene
+from benchmarks.realism.sequences import run_process, write_lossless
+from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG
+from facesculpt.paths import shared_data_dir
 
 #: Dilation (px) of the head's region for the scores.
 REGION_DILATE_PX = 4
@@ -134,7 +131,7 @@ def real_face_camera(data: Path, name: str, count: int, out: Path, limits: list[
     """``process --face-camera 1`` on the shared video ``name`` (``count`` frames) at each
     ``--face-camera-limit`` of ``limits``: the mean absolute yaw and pitch still needed to look
     into the camera, refitted on the input and on each output; a picture input | outputs."""
-    from realism.sequences import read_video
+    from benchmarks.realism.sequences import read_video
 
     video = data / "video" / f"{name}.mp4"
     inputs = read_video(video, count)

@@ -1,7 +1,7 @@
 """The pose smoothing's lag against its jitter (issue 46): fitter settings compared on sequences
 whose pose is known.
 
-    python benchmarks/bench_pose_lag.py [--frames 60] [--still-frames 60] [--scenes 0,1,2,bench]
+    python -m benchmarks.bench_pose_lag [--frames 60] [--still-frames 60] [--scenes 0,1,2,bench]
         [--variants before,default,...] [--oracle] [--out DIR]
 
 Each variant (:data:`VARIANTS`: :class:`FitterConfig` fields changed from the defaults) fits the
@@ -31,15 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_appearance import STILL_SKIP_FRAMES  # noqa: E402
-from bench_registration import fitted_rotation, render  # noqa: E402
-from realism.calibration_scenes import CALIBRATION_SCENES, make_calibration_scene  # noqa: E402
-from realism.jitter import jitter  # noqa: E402
-from realism.scene import FOV_DEG, make_scene  # noqa: E402
-
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.bench_appearance import STILL_SKIP_FRAMES
+from benchmarks.bench_registration import fitted_rotation, render
+from benchmarks.realism.calibration_scenes import CALIBRATION_SCENES, make_calibration_scene
+from benchmarks.realism.jitter import jitter
+from benchmarks.realism.scene import FOV_DEG, make_scene
+from facesculpt.paths import shared_data_dir
 
 #: name -> FitterConfig fields changed from the defaults ("before": the smoothing as it was before
 #: issue 46's options, one speed coefficient for rotation and expression, 0.05 Hz per mm/s, no
@@ -73,8 +70,7 @@ def true_points(scene, size: tuple[int, int], on: bool):
     """With ``on``: every landmark detector of this process gives ``scene``'s true inner iBUG
     points (:mod:`realism.landmark_oracle`, KEEP 0; the jaw line and the network's depth stay the
     detector's), counted from this fit's first frame; the detector as it was afterwards."""
-    from realism import landmark_oracle
-
+    from benchmarks.realism import landmark_oracle
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
 
     saved = LandmarkDetector.track, LandmarkDetector.reset

@@ -1,7 +1,7 @@
 """New views that know their limits (issue 51): turns of the shared real videos with the pose limit
 on and off, in the same run.
 
-    python benchmarks/bench_pose_limits.py [--videos d0,d3,d12] [--turns yaw=15,yaw=-15,face-camera=1]
+    python -m benchmarks.bench_pose_limits [--videos d0,d3,d12] [--turns yaw=15,yaw=-15,face-camera=1]
         [--frames 24] [--crops DIR]
 
 Each video's first ``--frames`` frames go through the offline pipeline (``facesculpt process``'s,
@@ -25,16 +25,12 @@ Prints a table (means over the frames, worst frame's seam), and with ``--crops D
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from realism.metrics import gradient_magnitude, seam_band  # noqa: E402
+from benchmarks.realism.metrics import gradient_magnitude, seam_band
 
 SEAM_HALF_WIDTH_PX = 3
 ERODE_PX = 3

@@ -50,9 +50,9 @@ libigl: ``realism/paper_arap.py``); several, comma-separated, score each process
 once more from each DIR (as ``--pythonpath``), as rows ``MODEL [LABEL]`` of the same run. Every row
 also gives how far the lower lip (iBUG 58) moved along the edit's image displacement (median px).
 
-Run: ``python benchmarks/bench_realism.py [--out DIR] [--frames 90] [--models facemesh,sfm]
+Run: ``python -m benchmarks.bench_realism [--out DIR] [--frames 90] [--models facemesh,sfm]
 [--edits nose,chin,cheeks,jaw] [--real-videos d3,d12] [--real-frames 90] [--no-oracle] [--pythonpath DIR]
-[--process-args "--fill drag"] [--landmark-oracle KEEP] [--truth-edit falloff,arap,paper]
+[--process-args "--inpaint drag"] [--landmark-oracle KEEP] [--truth-edit falloff,arap,paper]
 [--variants old=DIR,...]``
 (``--pythonpath``: process runs the facesculpt found there first, e.g. a copy of an older
 revision, to compare compositors on the same ground truth). Needs the shared data
@@ -73,19 +73,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, write_preset  # noqa: E402
-from realism.landmark_oracle import MODULE as LANDMARK_ORACLE  # noqa: E402
-from realism.landmark_oracle import process_environment, true_landmarks, write_true_landmarks  # noqa: E402
-from realism.metrics import Pooled, liquify, shift_along  # noqa: E402
-from realism.oracle import deformer_displacement, oracle_frames  # noqa: E402
-from realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table  # noqa: E402
-from realism.scene import make_scene  # noqa: E402
-from realism.scoring import landing, landing_by_yaw, score_frame, score_real_frame, summarise  # noqa: E402
-from realism.sequences import Sequences, read_video, render_sequences, run_process, write_lossless  # noqa: E402
-
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.realism.edits import ATLAS_EDITS, EDITS, TRUTH_EDITS, write_preset
+from benchmarks.realism.landmark_oracle import MODULE as LANDMARK_ORACLE
+from benchmarks.realism.landmark_oracle import process_environment, true_landmarks, write_true_landmarks
+from benchmarks.realism.metrics import Pooled, liquify, shift_along
+from benchmarks.realism.oracle import deformer_displacement, oracle_frames
+from benchmarks.realism.report import crop_boxes, landing_table, real_table, side_by_side, synthetic_table
+from benchmarks.realism.scene import make_scene
+from benchmarks.realism.scoring import landing, landing_by_yaw, score_frame, score_real_frame, summarise
+from benchmarks.realism.sequences import Sequences, read_video, render_sequences, run_process, write_lossless
+from facesculpt.paths import shared_data_dir
 
 REPO = Path(__file__).resolve().parent.parent
 #: The rows that take the fit away (``--oracle``): the true head through the project's compositor.
@@ -105,7 +102,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--atlas-edits", default=",".join(ATLAS_EDITS),
                    help=f"edits also run with process --atlas on (default {','.join(ATLAS_EDITS)}; '' for none)")
     p.add_argument("--process-args", default="", type=str.split, metavar="ARGS",
-                   help="more options for every process run, e.g. '--fill drag' (compare settings on one truth)")
+                   help="more options for every process run, e.g. '--inpaint drag' (compare settings on one truth)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--oracle", action=argparse.BooleanOptionalAction, default=True,
                    help="also score the project's compositor on the true head (the true edit, and the preset as the "

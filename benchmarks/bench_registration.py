@@ -1,7 +1,7 @@
 """Registration of the landmark network's points on the model (issue 46): the diagnosis, and the
 fitted head's rotation with and without a calibration.
 
-    python benchmarks/bench_registration.py [--frames 90] [--out DIR] [--models sfm,facemesh]
+    python -m benchmarks.bench_registration [--frames 90] [--out DIR] [--models sfm,facemesh]
         [--calibrate FILE] [--calibration FILE] [--oracles] [--photos] [--real-videos d0,d3,s18]
         [--jitter-videos d0,d3,s18]
 
@@ -24,7 +24,7 @@ and vertices, and the project's landmark network is run on every frame. Reported
   the truth's is removed, the correlation of the pitch error with the pitch, and (SFM) the inner
   and outline vertices' image error.
 
-``--calibrate FILE`` learns the SFM's landmark calibration (``nodes/fitter/calibration.py``) from
+``--calibrate FILE`` learns the SFM's landmark calibration (``facesculpt/nodes/fitter/calibration.py``) from
 sequences of its own (as `facesculpt model calibrate` does: :mod:`facesculpt.app.landmark_calibration`)
 and writes it; with it (or
 ``--calibration FILE``) the benchmark set is fitted with and without it, ``--photos`` adds the 43
@@ -46,21 +46,18 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_appearance import OUTLINE_PX, rotation_angle, silhouette_distance  # noqa: E402
-from realism import registration as reg  # noqa: E402
-from realism.landmark_oracle import INNER  # noqa: E402
-from realism.posed import render_all  # noqa: E402
-from realism.raster import project_pixels  # noqa: E402
-from realism.scene import FOV_DEG, make_scene  # noqa: E402
-
-import facesculpt.nodes.fitter.calibration as nodes_calibration  # noqa: E402
-from facesculpt.app.landmark_calibration import track  # noqa: E402
-from facesculpt.geometry.head_angles import euler_from_rotation  # noqa: E402
-from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH, IBUG68_GROUPS  # noqa: E402
-from facesculpt.nodes.fitter.calibration import uncalibrated  # noqa: E402
-from facesculpt.paths import shared_data_dir  # noqa: E402
+import facesculpt.nodes.fitter.calibration as nodes_calibration
+from benchmarks.bench_appearance import OUTLINE_PX, rotation_angle, silhouette_distance
+from benchmarks.realism import registration as reg
+from benchmarks.realism.landmark_oracle import INNER
+from benchmarks.realism.posed import render_all
+from benchmarks.realism.raster import project_pixels
+from benchmarks.realism.scene import FOV_DEG, make_scene
+from facesculpt.app.landmark_calibration import track
+from facesculpt.geometry.head_angles import euler_from_rotation
+from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH, IBUG68_GROUPS
+from facesculpt.nodes.fitter.calibration import uncalibrated
+from facesculpt.paths import shared_data_dir
 
 GROUPS = ("right_eyebrow", "left_eyebrow", "nose_bridge", "nose_base", "right_eye", "left_eye",
           "outer_lips", "inner_lips")
@@ -261,7 +258,7 @@ def leave_one_yaw_bin_out(sequences: list[dict]) -> list[dict]:
     """For each yaw bin of :data:`realism.scoring.YAW_BINS`: the calibration learned from the
     calibration frames outside it, scored on the frames inside it (landmark RMS px at the true
     pose, with the vertices and with the learned points)."""
-    from realism.scoring import YAW_BINS
+    from benchmarks.realism.scoring import YAW_BINS
 
     rows = []
     for lo, hi in YAW_BINS:
@@ -315,8 +312,8 @@ def photo_nme(data: Path, models: dict) -> dict:
     (``nme_vertices``, :func:`bench_fit_image.nme`) and those moved by the model's calibration
     (``nme_landmarks``, :func:`calibration.fitted_landmarks`): name -> figures."""
     import cv2
-    from bench_fit_image import nme
 
+    from benchmarks.bench_fit_image import nme
     from facesculpt.app.appearance_training import photo_fits
     from facesculpt.geometry.ibug68 import dlib_annotations
     from facesculpt.nodes.landmarks import LandmarkDetector
@@ -347,7 +344,7 @@ def oracle_fits(scene, frames: list, truths: list, points: np.ndarray, sfm, cali
     set's own per-point offsets (learned from it: a bound, not a calibration), without the pose
     smoothing, and to the true inner landmarks (:mod:`realism.landmark_oracle`, KEEP 0; the jaw
     line stays the network's). Installs the oracle in this process: call it last."""
-    from realism import landmark_oracle
+    from benchmarks.realism import landmark_oracle
 
     names = nodes_calibration.fixed_landmarks(sfm)
     own = nodes_calibration.learn_calibration([sequence_of(scene, points, names)])
@@ -379,8 +376,7 @@ def real_video(data: Path, video: str, models: dict, count: int) -> dict:
     identity's spread between bins (RMS mm of the bin means about their mean, over all vertices)."""
     import dataclasses
 
-    from realism.sequences import read_video
-
+    from benchmarks.realism.sequences import read_video
     from facesculpt.app.pipeline import Pipeline
 
     frames = read_video(data / "video" / f"{video}.mp4", count)
@@ -414,9 +410,9 @@ def real_jitter(data: Path, videos: list[str], models: dict, count: int) -> dict
     """Each model's fitted-mesh jitter (:func:`realism.jitter.jitter`, px, default settings as
     ``process`` fits: identity accumulation and smoothing on) over the first ``count`` frames of
     each shared video: video -> name -> {"jitter_px", "still_frames"}."""
-    from bench_appearance import fitted_pixels
-    from realism.jitter import jitter
-    from realism.sequences import read_video
+    from benchmarks.bench_appearance import fitted_pixels
+    from benchmarks.realism.jitter import jitter
+    from benchmarks.realism.sequences import read_video
 
     out = {}
     for video in videos:

@@ -1,7 +1,7 @@
 """Renderer time per frame at 856x480, next to OpenCV's Telea inpainting of the same mask on the
 full frame and next to the compositor of an earlier commit, in the same run.
 
-    python benchmarks/bench_renderer.py [--video s18] [--frames 60] [--model sfm|facemesh]
+    python -m benchmarks.bench_renderer [--video s18] [--frames 60] [--model sfm|facemesh]
                                         [--baseline REV] [--json out.json]
 
 Frames: the shared video (default s18.mp4, 1280x720) resized to 856x480, the paper's size. Face
@@ -38,10 +38,8 @@ import moderngl
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tests"))
 
-from renderer_scene import issue_edit, place_fitted, place_marked, read_frames  # noqa: E402
-
+from benchmarks.renderer_scene import issue_edit, place_fitted, place_marked, read_frames  # noqa: E402
 from facesculpt.geometry import merge_deformation  # noqa: E402
 from facesculpt.nodes.renderer import Compositor  # noqa: E402
 from facesculpt.nodes.renderer.person_segmentation import NETWORK_FILE, PersonSegmenter  # noqa: E402
@@ -103,7 +101,7 @@ def geometry(frames, model_name: str):
 
 
 def baseline_compositor(rev: str):
-    """The Compositor class of ``nodes/renderer/compositor.py`` at git revision ``rev`` (its
+    """The Compositor class of ``facesculpt/nodes/renderer/compositor.py`` at git revision ``rev`` (its
     relative imports resolved in today's package), or None when git cannot show it."""
     import importlib.util
     import subprocess

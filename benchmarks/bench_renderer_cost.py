@@ -1,7 +1,7 @@
 """The compositor's cost per frame in CPU time, this checkout against another one (e.g. the
 pre-realism renderer, 22775c8, in a second worktree with its own venv), alternating, in one run.
 
-    python benchmarks/bench_renderer_cost.py --against /work/wt/speed-old [--model facemesh|sfm]
+    python -m benchmarks.bench_renderer_cost --against /work/wt/speed-old [--model facemesh|sfm]
                                              [--frames 100] [--rounds 3] [--json out.json]
 
 The renderer's inputs are captured once, here, from the bench's own pipeline (`facesculpt bench`'s

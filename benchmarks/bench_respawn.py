@@ -2,7 +2,7 @@
 tests/test_reliability_chaos.py), one node killed with SIGKILL a few times, in this checkout and in
 another one (its own venv), alternating, in one run.
 
-    python benchmarks/bench_respawn.py --against /work/wt/startup-old [--node fitter] [--kills 3]
+    python -m benchmarks.bench_respawn --against /work/wt/startup-old [--node fitter] [--kills 3]
                                        [--rounds 2] [--json out.json]
 
 Per kill: the wall-clock time from the kill to the first ``render/image`` whose capture stamp is
@@ -44,7 +44,7 @@ def _free_port() -> int:
 
 
 def _launch_file(checkout: Path, video: Path, out: Path) -> Path:
-    demo = yaml.safe_load((checkout / "launch" / "demo.yaml").read_text())
+    demo = yaml.safe_load((next(d for d in (checkout / "facesculpt" / "launch", checkout / "launch") if d.is_dir()) / "demo.yaml").read_text())
     nodes = []
     for entry in demo["nodes"]:
         if entry["name"] == "script":

@@ -8,7 +8,7 @@
    camera node reads (``color/``, ``depth/``, ``camera.json``) with ``truth.npz``.
 2. Landmarks: the project's own detector and face mesh on each colour frame (no oracle).
 3. Two SFM fitters with the default options in perspective with the scene's K, one given only
-   the landmarks, one also the depth image (``nodes/fitter/depth_fitting.py``), frame after frame.
+   the landmarks, one also the depth image (``facesculpt/nodes/fitter/depth_fitting.py``), frame after frame.
 4. Against the truth the scene rendered: head rotation error (degrees, the angle of R_fit R_true^T),
    vertex error (RMS over the model's vertices, camera space, mm; all, and those visible), and the
    time of each fit call (wall and this process's CPU time: the CPU time is what a shared machine
@@ -18,7 +18,7 @@
    fit's constants were chosen on seed 7 (the realism benchmark's head), so the default run is a
    truth they were not tuned to.
 
-Run: ``python benchmarks/bench_rgbd.py [--frames 30] [--json out.json] [--out DIR]``; needs
+Run: ``python -m benchmarks.bench_rgbd [--frames 30] [--json out.json] [--out DIR]``; needs
 ../shared/data (FACESCULPT_DATA) and ``facesculpt setup``'s networks.
 """
 
@@ -29,26 +29,23 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from concurrent.futures import ProcessPoolExecutor  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.depth import rgbd_frame  # noqa: E402
-from realism.raster import visible_vertices  # noqa: E402
-from realism.scene import make_scene  # noqa: E402
-
-from facesculpt.nodes.camera.rgbd_sources import write_rgbd_folder  # noqa: E402
-from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter  # noqa: E402
-from facesculpt.nodes.fitter.depth_fitting import DepthImage  # noqa: E402
-from facesculpt.nodes.fitter.stage import fit_landmarks  # noqa: E402
-from facesculpt.paths import shared_data_dir  # noqa: E402
+from benchmarks.realism.depth import rgbd_frame
+from benchmarks.realism.raster import visible_vertices
+from benchmarks.realism.scene import make_scene
+from facesculpt.nodes.camera.rgbd_sources import write_rgbd_folder
+from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
+from facesculpt.nodes.fitter.depth_fitting import DepthImage
+from facesculpt.nodes.fitter.stage import fit_landmarks
+from facesculpt.paths import shared_data_dir
 
 FPS = 30
 

@@ -1,9 +1,9 @@
 """Talking heads at a few kbit/s (issue 19): reenactment and model-based coding on the shared videos.
 
-    python benchmarks/bench_talking_heads.py reenact [--drivers d0,d3,d12] [--sources astronaut,d12]
-    python benchmarks/bench_talking_heads.py coding [--videos d0,d3,d12] [--components 12] [--frames N]
+    python -m benchmarks.bench_talking_heads reenact [--drivers d0,d3,d12] [--sources astronaut,d12]
+    python -m benchmarks.bench_talking_heads coding [--videos d0,d3,d12] [--components 12] [--frames N]
         [--body both|on|off] [--stills DIR] [--no-h264] [--time-reps N]
-    python benchmarks/bench_talking_heads.py graph [--videos d3,s18] [--fps 30]
+    python -m benchmarks.bench_talking_heads graph [--videos d3,s18] [--fps 30]
 
 reenact: each source (``astronaut``: the embedded photo, mouth open showing teeth; a video name:
 its first frame) is driven by each video; the output is fitted again (its own neutral learned
@@ -21,7 +21,7 @@ on the same stream; then, for the body motion's decode, H.264 (libx264 through P
 bitrate it really spent is reported) on the same frames at a ladder of bitrates, and the bitrate
 H.264 needs for the model stream's PSNR (interpolated on the ladder, log bitrate).
 
-graph: launch/coding.yaml on a video at ``--fps``, scaled to the paper's pixel count (856x480)
+graph: facesculpt/launch/coding.yaml on a video at ``--fps``, scaled to the paper's pixel count (856x480)
 at its own aspect as `facesculpt bench` does (camera, landmarks, fitter and encoder; the
 coded topics on tcp loopback to the decoder node): decoded frames out per second over the coded
 part, latency from capture to the decoded frame (p50/p99), coding/frame's bytes on the wire (the
@@ -40,8 +40,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.nodes.fitter.config import FitterConfig
+
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
 
 
 def _video(name: str) -> Path:
@@ -69,7 +70,7 @@ def _expressions(frames, fps, neutral_frames=30):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.nodes.fitter.expression import NAMES
 
-    pipe = Pipeline("facemesh", neutral_frames=neutral_frames)
+    pipe = Pipeline("facemesh", fit=FitterConfig(neutral_frames=neutral_frames))
     pipe.calibrate(frames[:neutral_frames], fps)
     fits, E = [], []
     for i, frame in enumerate(frames):

@@ -6,7 +6,7 @@ The two alternate in rounds (raw, runtime, raw, runtime, ...): this machine's sp
 within a minute, so each ratio compares neighbours, and the figure reported is the median of
 the rounds' ratios.
 
-    python benchmarks/bench_transport.py [--messages 400] [--rounds 3] [--json out.json]
+    python -m benchmarks.bench_transport [--messages 400] [--rounds 3] [--json out.json]
 """
 
 from __future__ import annotations

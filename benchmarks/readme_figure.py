@@ -6,7 +6,7 @@ facesculpt this script belongs to; "before" is an older checkout (``--before DIR
 tree such as ``git worktree add /tmp/before 37891d3~1``), each rendered in a child process of
 its own so that the two never share an import.
 
-Run: ``python benchmarks/readme_figure.py --before DIR [--edits chin,nose_longer] [--model
+Run: ``python -m benchmarks.readme_figure --before DIR [--edits chin,nose_longer] [--model
 facemesh] [-o docs/images/realism.jpg]``. Needs ``facesculpt setup``.
 """
 
@@ -21,9 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from realism.sequences import importable_checkout  # noqa: E402
+from benchmarks.realism.sequences import importable_checkout
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -58,11 +56,12 @@ def run_child(checkout: Path | None, out: Path, edits: list[str], model: str, sc
     import os
 
     env = dict(os.environ)
-    if checkout is not None:
-        env["PYTHONPATH"] = str(importable_checkout(checkout, scratch / "pythonpath"))
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--render", str(out), "--edits", ",".join(edits),
+    root = str(Path(__file__).resolve().parents[1])  # where ``benchmarks`` imports from
+    first = [str(importable_checkout(checkout, scratch / "pythonpath"))] if checkout is not None else []
+    env["PYTHONPATH"] = os.pathsep.join([*first, root])
+    cmd = [sys.executable, "-m", "benchmarks.readme_figure", "--render", str(out), "--edits", ",".join(edits),
            "--model", model]
-    # run from scratch: python puts the script's folder first on sys.path, never the checkout's root
+    # run from scratch, so that the checkout's facesculpt (first on PYTHONPATH) is the one imported
     done = subprocess.run(cmd, env=env, cwd=scratch, capture_output=True, text=True)
     if done.returncode != 0:
         raise SystemExit(f"rendering with {checkout or 'this checkout'} failed: {done.stderr.strip()[-1500:]}")

@@ -2,7 +2,7 @@
 project's converted networks) next to ai-edge-litert (the original .tflite networks), timed call
 by call in the same run, reported as medians and the ratio onnxruntime / litert.
 
-    from runtime_pair import BACKENDS, report, runtime_arguments, timed
+    from benchmarks.runtime_pair import BACKENDS, report, runtime_arguments, timed
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ COMMAND_MODULES = {
     "facesculpt.app.model_commands": ("model",),  # model import-eos, model info
     "facesculpt.app.setup_models": ("setup",),
     "facesculpt.app.keys_command": ("keys",),  # keys generate
-    "facesculpt.app.process": ("process",),
+    "facesculpt.app.process_command": ("process",),
     "facesculpt.app.reenact": ("reenact",),
     "facesculpt.app.coding_commands": ("encode", "decode"),
     "facesculpt.app.bench": ("bench",),

@@ -71,14 +71,14 @@ def _shipped_file(name_or_path: str, folder: Path, suffix: str, what: str) -> Pa
 
 
 def launch_file(name_or_path: str) -> Path:
-    """Resolve a launch file given as a path, or as the name of one shipped in launch/."""
+    """Resolve a launch file given as a path, or as the name of one shipped in facesculpt/launch/."""
     from facesculpt import launch as launch_pkg
 
     return _shipped_file(name_or_path, Path(launch_pkg.__file__).parent, ".yaml", "launch file")
 
 
 def shipped_launch_files() -> list[Path]:
-    """The launch files shipped in launch/ (those with a top-level ``nodes:`` list; a gesture
+    """The launch files shipped in facesculpt/launch/ (those with a top-level ``nodes:`` list; a gesture
     script such as demo_gestures.yaml is not one), sorted by name."""
     from facesculpt import launch as launch_pkg
 

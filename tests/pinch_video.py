@@ -16,17 +16,14 @@ writes the scripted video (FFV1, lossless) and returns its frames and script.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from benchmarks.realism.sequences import read_video, write_lossless
 from facesculpt.geometry.hand_regions import FINGERS, INDEX_MCP, INDEX_TIP, PALM, THUMB_TIP, hand_size
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-from realism.sequences import read_video, write_lossless  # noqa: E402
 
 PHOTO = "google_sample_woman_hands.jpg"
 BACKDROP_GREY = 70       # the photo's backdrop is darker than this, the hand brighter

@@ -61,6 +61,7 @@ class _Collector:
         return list(self.items)
 
 
+@pytest.mark.slow
 def test_bag_round_trip_of_a_real_video_is_byte_identical(graph, data_dir, tmp_path):
     video = data_dir / "video" / "d3.mp4"
     truth = _video_frames(video)
@@ -105,6 +106,7 @@ def _record_ends(path) -> list[tuple[int, int]]:
     return ends
 
 
+@pytest.mark.slow
 def test_bag_cut_at_random_offsets_recovers_every_complete_record(graph, data_dir, tmp_path):
     video = data_dir / "video" / "d0.mp4"
     truth = _video_frames(video)[:40]

@@ -100,6 +100,7 @@ def _foreign_bag(path, summary=True):
 
 
 @pytest.mark.parametrize("summary", [True, False], ids=["with-summary", "without-summary"])
+@pytest.mark.slow
 def test_bag_info_reads_another_tools_mcap_and_says_what_it_cannot_decode(graph, tmp_path, summary):
     bag = tmp_path / "foreign.mcap"
     _foreign_bag(bag, summary)
@@ -149,6 +150,7 @@ def test_seeking_and_info_use_the_index_not_the_chunks(tmp_path):
         list(BagReader(bag))
 
 
+@pytest.mark.slow
 def test_an_old_format_bag_still_plays_byte_identically(graph, data_dir, tmp_path):
     bag = tmp_path / "old.bag"
     cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
@@ -167,6 +169,7 @@ def test_an_old_format_bag_still_plays_byte_identically(graph, data_dir, tmp_pat
     assert [frames for _, frames in received] == written
 
 
+@pytest.mark.slow
 def test_play_from_a_time_and_a_killed_recorder(graph, data_dir, tmp_path):
     """`bag record` killed with SIGKILL (no summary written) still leaves every message older than
     a chunk's age limit readable; `bag play --start S` plays from S seconds in."""

@@ -16,6 +16,7 @@ STAGES = ("landmark_detection", "model_fitting", "mesh_deformation", "merging", 
           "texture_update_rendering", "sequential_total")
 
 
+@pytest.mark.slow
 def test_short_bench_writes_every_figure(data_dir, models_dir, tmp_path):
     out = tmp_path / "bench.json"
     result = subprocess.run(
@@ -49,6 +50,7 @@ def test_short_bench_writes_every_figure(data_dir, models_dir, tmp_path):
     assert "slowest slices of the window" in result.stdout
 
 
+@pytest.mark.slow
 def test_bench_at_a_chosen_size(data_dir, models_dir, tmp_path):
     out = tmp_path / "bench.json"
     result = subprocess.run(
@@ -61,6 +63,7 @@ def test_bench_at_a_chosen_size(data_dir, models_dir, tmp_path):
     assert bad.returncode != 0 and "must be WIDTHxHEIGHT" in bad.stderr.strip().splitlines()[-1]
 
 
+@pytest.mark.slow
 def test_bench_gives_each_figure_over_a_reference_workload_of_the_same_run(data_dir, models_dir, tmp_path):
     """The report has the reference workload, measured at the start and the end of the run, and each
     stage's ms over it, in the JSON and beside the ms in the table (the ratio's value is the
@@ -90,6 +93,7 @@ def test_bench_gives_each_figure_over_a_reference_workload_of_the_same_run(data_
         reference_workload(0)
 
 
+@pytest.mark.slow
 def test_bench_scenario_acts_in_the_window_beside_a_busy_loop(data_dir, models_dir, tmp_path):
     """--scenario: the first preset load and the first nose drag (8 s in) happen inside the measured
     window, and the deformer takes them; --load 1 runs a busy loop beside it and stops it after."""
@@ -132,6 +136,7 @@ def test_timeline_gives_no_cpu_figure_for_a_slice_too_short_to_measure():
     assert rows[1]["p50_ms"] == 20.0
 
 
+@pytest.mark.slow
 def test_bench_with_the_plate_and_the_atlas_runs_them_in_process_and_in_the_graph(data_dir, models_dir, tmp_path):
     out = tmp_path / "bench.json"
     result = subprocess.run(

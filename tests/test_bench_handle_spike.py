@@ -3,15 +3,10 @@ a flat grid: a vertex pulled alone is all spike, a patch moved with it none."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import scipy.sparse as sp
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from bench_handle_spike import median_edge_at, spike_of  # noqa: E402
+from benchmarks.bench_handle_spike import median_edge_at, spike_of
 
 
 def grid(n: int = 9, step: float = 2.0):

@@ -4,17 +4,14 @@ synthetic head. The full benchmark (benchmarks/bench_appearance.py) is not run h
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from realism.jitter import affine_motion, degraded, jitter, low_passed, still_steps, tracked_motion  # noqa: E402
-from realism.scene import MOTIONS, head_pose  # noqa: E402
+from benchmarks.realism.jitter import affine_motion, degraded, jitter, low_passed, still_steps, tracked_motion
+from benchmarks.realism.scene import MOTIONS, head_pose
 
 
 def _smooth_tracks(frames: int = 60, vertices: int = 40) -> np.ndarray:

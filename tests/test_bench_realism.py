@@ -4,17 +4,12 @@ rasteriser, ground-truth edits, presets and metrics on a few synthetic frames. T
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from realism.edits import EDITS, preset  # noqa: E402
-from realism.metrics import (  # noqa: E402
+from benchmarks.realism.edits import EDITS, preset
+from benchmarks.realism.metrics import (
     Pooled,
     changed,
     edit_region,
@@ -24,8 +19,8 @@ from realism.metrics import (  # noqa: E402
     squared_error,
     ssim_map,
 )
-from realism.raster import render_textured  # noqa: E402
-from realism.scoring import score_frame, summarise  # noqa: E402
+from benchmarks.realism.raster import render_textured
+from benchmarks.realism.scoring import score_frame, summarise
 
 
 @pytest.fixture(scope="module")
@@ -34,8 +29,8 @@ def synth(data_dir, models_dir):
     edits."""
     if not (data_dir / "sfm").is_dir() or not (data_dir / "video" / "s18.mp4").is_file():
         pytest.skip("the benchmark needs ../shared/data/sfm and video/s18.mp4")
-    from realism.scene import make_scene
-    from realism.sequences import render_sequences
+    from benchmarks.realism.scene import make_scene
+    from benchmarks.realism.sequences import render_sequences
 
     scene = make_scene(data_dir, frames=3)
     scene_frames = [0, 4, 9]
@@ -49,6 +44,7 @@ def synth(data_dir, models_dir):
     return scene, seq
 
 
+@pytest.mark.slow
 def test_the_edited_render_differs_from_the_unedited_one_only_near_the_edit(synth):
     scene, seq = synth
     for i in range(3):
@@ -66,6 +62,7 @@ def test_the_edited_render_differs_from_the_unedited_one_only_near_the_edit(synt
         assert np.array_equal(seq.inputs[i][~near], scene.background[~near])
 
 
+@pytest.mark.slow
 def test_the_reference_rasteriser_antialiases_the_head_over_the_background(synth):
     scene, _ = synth
     X = scene.to_camera(scene.rest, 0)
@@ -132,7 +129,7 @@ def test_the_presets_load_on_both_models(synth):
             handles = list(stack.edits[0].offsets)
             assert len(handles) == len(spec.handles), (name, spec.name)
             if name == "sfm":
-                from realism.edits import handle_vertex
+                from benchmarks.realism.edits import handle_vertex
 
                 assert handles == [handle_vertex(k, scene.landmarks) for k in spec.handles]
 
@@ -141,8 +138,8 @@ def test_the_compositor_on_the_true_head_is_closer_to_the_truth_than_doing_nothi
     """The oracle rows: the project's compositor drawing the true head, with the true edit or with the
     deformer's own solve of the preset, is closer to the truth than doing nothing; on the nose (no
     background uncovered) the true edit is near exact, far closer than the ideal 2D warp."""
-    from realism.edits import displacement
-    from realism.oracle import deformer_displacement, oracle_frames
+    from benchmarks.realism.edits import displacement
+    from benchmarks.realism.oracle import deformer_displacement, oracle_frames
 
     scene, seq = synth
     for edit in ("nose", "jaw"):
@@ -161,12 +158,13 @@ def test_the_compositor_on_the_true_head_is_closer_to_the_truth_than_doing_nothi
                 assert score["true edit"] > max(score["liquify"] + 3, score["preset"]), (edit, i, score)
 
 
+@pytest.mark.slow
 def test_the_arap_truth_is_what_a_preset_stands_for(synth):
     """--truth-edit arap: the benchmark's own ARAP solver (gripping handles) moves each handle by
     exactly its offset and lands where the project's deformer settles the same preset with the same
     grip (0.2, an option), which the raised-cosine falloff does not."""
-    from realism.edits import displacement, handle_vertex
-    from realism.oracle import deformer_displacement
+    from benchmarks.realism.edits import displacement, handle_vertex
+    from benchmarks.realism.oracle import deformer_displacement
 
     scene, _ = synth
     n = scene.model_vertices
@@ -182,14 +180,14 @@ def test_the_arap_truth_is_what_a_preset_stands_for(synth):
         assert np.array_equal(arap[n:], falloff[n:])   # the vertices closing the mouth keep the falloff
 
 
+@pytest.mark.slow
 def test_the_paper_truth_is_the_single_vertex_arap_solved_by_libigl(synth):
     """--truth-edit paper: libigl's ARAP with each handle a single vertex moves each handle by
     exactly its offset, nothing beyond the ROI, and lands where the project's deformer settles the
     same preset with grip 0 (another solver: cotangent clamping, the ROI along the edges), far
     from the gripped truth, whose skin around the handle moves with it."""
-    from realism.edits import displacement, handle_vertex
-    from realism.paper_arap import geodesic_distances
-
+    from benchmarks.realism.edits import displacement, handle_vertex
+    from benchmarks.realism.paper_arap import geodesic_distances
     from facesculpt.nodes.deformer import EditStack
 
     scene, _ = synth
@@ -215,8 +213,7 @@ def test_the_paper_truth_is_the_single_vertex_arap_solved_by_libigl(synth):
 
 
 def test_the_command_line_takes_several_truths_and_variants(capsys):
-    import bench_realism
-
+    from benchmarks import bench_realism
     a = bench_realism.parse_args(["--truth-edit", "paper,arap,paper", "--variants", "old=/tmp/a,grip0=/tmp/b"])
     assert a.truth_edit == ["paper", "arap"] and a.variants == [("old", "/tmp/a"), ("grip0", "/tmp/b")]
     for bad, said in ((["--truth-edit", "paper,cusp"], "unknown truth edit 'cusp'"),
@@ -227,8 +224,7 @@ def test_the_command_line_takes_several_truths_and_variants(capsys):
 
 
 def test_the_command_line_refuses_an_unknown_edit(capsys):
-    import bench_realism
-
+    from benchmarks import bench_realism
     with pytest.raises(SystemExit) as exc:
         bench_realism.parse_args(["--edits", "nose,ears"])
     assert exc.value.code == 2
@@ -238,8 +234,7 @@ def test_the_command_line_refuses_an_unknown_edit(capsys):
 def test_the_landmark_oracle_moves_the_detectors_inner_points_toward_the_truth(synth, models_dir):
     """``--landmark-oracle KEEP``: the detector's inner iBUG points of a synthetic frame move to
     ``truth + KEEP * (detected - truth)``; the jaw line and the other mesh points stay the detector's."""
-    from realism.landmark_oracle import move_toward_truth, true_landmarks
-
+    from benchmarks.realism.landmark_oracle import move_toward_truth, true_landmarks
     from facesculpt.geometry import IBUG68_FROM_MESH, to_ibug68
     from facesculpt.nodes.landmarks import LandmarkDetector
 
@@ -266,8 +261,7 @@ def test_the_landmark_oracle_moves_the_detectors_inner_points_toward_the_truth(s
 
 
 def test_the_landmark_oracle_is_for_the_surrey_model_only(capsys):
-    import bench_realism
-
+    from benchmarks import bench_realism
     with pytest.raises(SystemExit) as exc:
         bench_realism.parse_args(["--landmark-oracle", "0.5"])   # both models by default
     assert exc.value.code == 2

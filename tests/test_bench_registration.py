@@ -3,16 +3,10 @@ error is known: a pose-linear image offset, a flattened face, a network that tur
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from realism import registration as reg  # noqa: E402
-
-from facesculpt.geometry.head_angles import rotation_from_euler  # noqa: E402
+from benchmarks.realism import registration as reg
+from facesculpt.geometry.head_angles import rotation_from_euler
 
 K = np.array([[560.0, 0, 320], [0, 560.0, 240], [0, 0, 1]])
 

@@ -8,6 +8,7 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 from test_offline_every_frame import _video_frames, _write_bag
 
 from facesculpt.geometry.halving import halve, halved_intrinsics
@@ -21,6 +22,7 @@ def _index(image: np.ndarray) -> int:
     return int(round(float(image[0, 0, 0]) / 4))
 
 
+@pytest.mark.slow
 def test_paced_camera_sends_the_newest_frame_on_each_acknowledgement(graph, tmp_path):
     bag = tmp_path / "numbers.bag"
     _write_bag(bag, [np.full((48, 64, 3), 4 * i, np.uint8) for i in range(60)])
@@ -68,6 +70,7 @@ def test_paced_camera_sends_the_newest_frame_on_each_acknowledgement(graph, tmp_
         "frames nobody acknowledged did not hold the next ones until their timeout"
 
 
+@pytest.mark.slow
 def test_paced_file_camera_reads_a_frame_only_when_it_may_go_out(graph, tmp_path):
     """A recorded source (here a bag) behind a renderer slower than its rate: no frame is read to be
     dropped (every frame goes out, in order), never more than pace_in_flight wait, and each goes
@@ -99,6 +102,7 @@ def test_paced_file_camera_reads_a_frame_only_when_it_may_go_out(graph, tmp_path
     assert np.median(ages) < 10, ages
 
 
+@pytest.mark.slow
 def test_camera_publishes_a_halved_copy_for_the_analysis_path(graph, tmp_path):
     bag = tmp_path / "big.bag"
     _write_bag(bag, [np.random.default_rng(i).integers(0, 256, (1081, 1921, 3), np.uint8) for i in range(3)])

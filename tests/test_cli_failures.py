@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 from conftest import free_port
 
 from facesculpt.msgs import InputEvent
@@ -21,6 +22,7 @@ def _cli(*args: str, env=None, cwd=None, timeout: float = 60) -> subprocess.Comp
                           capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_run_help_lists_the_built_in_nodes(tmp_path):
     for flag in ("--help", "-h"):
         result = _cli("run", flag, cwd=tmp_path)
@@ -30,6 +32,7 @@ def test_run_help_lists_the_built_in_nodes(tmp_path):
     assert bare.returncode == 2 and "built-in nodes:" in bare.stdout
 
 
+@pytest.mark.slow
 def test_topic_echo_without_a_master_says_so(tmp_path):
     env = dict(os.environ, FACESCULPT_MASTER=f"tcp://127.0.0.1:{free_port()}", FACESCULPT_RUN_DIR=str(tmp_path))
     started = time.monotonic()
@@ -55,6 +58,7 @@ def test_topic_echo_json_is_json(graph, tmp_path):
     assert "NaN" not in out
 
 
+@pytest.mark.slow
 def test_a_preset_that_is_not_an_object_is_one_sentence(tmp_path):
     preset = tmp_path / "list.json"
     preset.write_text("[1, 2]")
@@ -72,6 +76,7 @@ def test_a_preset_that_is_not_an_object_is_one_sentence(tmp_path):
         f"'version' and a list of 'edits', as the window's S key saves)")
 
 
+@pytest.mark.slow
 def test_a_node_script_logs_like_facesculpt_run(tmp_path):
     script = tmp_path / "my_node.py"
     script.write_text("from facesculpt.runtime import Node\n\n\nclass Mine(Node):\n    NAME = 'mine'\n\n"
@@ -86,6 +91,7 @@ def test_a_node_script_logs_like_facesculpt_run(tmp_path):
         assert " I [facesculpt.mine] hello from setup" in result.stderr, result.stderr
 
 
+@pytest.mark.slow
 def test_a_json_object_that_is_not_a_preset_names_its_file(tmp_path):
     video = tmp_path / "in.avi"
     import cv2

@@ -30,8 +30,9 @@ def coded(data_dir, models_dir, tmp_path_factory):
     return frames, fps, analysis, path, sizes
 
 
+@pytest.mark.slow
 def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
-    from facesculpt.msgs.fsc import LOG_SCALE_STEP, ROT_STEP, TRANS_STEP, read_stream
+    from facesculpt.coding.fsc import LOG_SCALE_STEP, ROT_STEP, TRANS_STEP, read_stream
 
     frames, fps, analysis, path, sizes = coded
     with pytest.raises(ValueError, match="needs the triangles"):
@@ -56,7 +57,7 @@ def test_round_trip_reproduces_the_fitted_parameters_within_quantisation(coded):
 
 
 def test_per_frame_stream_is_within_the_target_bitrate(coded):
-    from facesculpt.msgs.fsc import record_bytes
+    from facesculpt.coding.fsc import record_bytes
 
     frames, fps, analysis, path, sizes = coded
     assert sizes["stream"] == FRAMES * record_bytes(12) == FRAMES * 27  # what a live link spends
@@ -65,6 +66,7 @@ def test_per_frame_stream_is_within_the_target_bitrate(coded):
     assert path.stat().st_size == sizes["total"]
 
 
+@pytest.mark.slow
 def test_decoded_face_resembles_the_input(coded):
     from facesculpt.app.coding import decode_file, face_region_quality
 
@@ -82,6 +84,7 @@ def test_decoded_face_resembles_the_input(coded):
     assert np.mean(psnr) > np.mean(shifted) + 3.0  # better than the input moved by 12 px
 
 
+@pytest.mark.slow
 def test_commands_round_trip(coded, tmp_path):
     frames, fps, analysis, path, sizes = coded
     run = [sys.executable, "-m", "facesculpt.cli"]
@@ -100,6 +103,7 @@ def test_commands_round_trip(coded, tmp_path):
     assert not (tmp_path / "x.mp4").exists()
 
 
+@pytest.mark.slow
 def test_encode_command_reports_the_bitrate(data_dir, models_dir, tmp_path):
     out = tmp_path / "d0.fsc"
     result = subprocess.run([sys.executable, "-m", "facesculpt.cli", "encode", str(data_dir / "video" / "d0.mp4"),
@@ -117,7 +121,7 @@ def test_a_format_1_stream_still_decodes(coded, tmp_path):
     import zlib
 
     from facesculpt.app.coding import decode_file
-    from facesculpt.msgs.fsc import V1_ARRAYS, coefficient_steps, pack_records
+    from facesculpt.coding.fsc import V1_ARRAYS, coefficient_steps, pack_records
     from facesculpt.nodes.reenact.expression_basis import expression_basis, expression_coefficients
 
     frames, fps, analysis, path, sizes = coded
@@ -148,7 +152,7 @@ def test_a_format_1_stream_still_decodes(coded, tmp_path):
 
 def test_encode_help_states_the_formats_keyframe_quality():
     """The help text names the default without importing the stream format (scipy) at start-up."""
-    from facesculpt.msgs.fsc import KEY_QUALITY
+    from facesculpt.coding.fsc import KEY_QUALITY
 
     result = subprocess.run([sys.executable, "-m", "facesculpt.cli", "encode", "--help"], capture_output=True,
                             text=True, timeout=60)

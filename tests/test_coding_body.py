@@ -1,9 +1,10 @@
-"""The decoder's body motion (issue 51, nodes/renderer/body_motion.py): the head's sway carried over
+"""The decoder's body motion (issue 51, facesculpt/nodes/renderer/body_motion.py): the head's sway carried over
 the neck and body below the jaw, on plain arrays and on a real coded video (d0)."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from facesculpt.nodes.renderer.body_motion import body_box, body_weight, carry_to_body, neck_motion
 from facesculpt.nodes.renderer.source_map import UNCOVERED
@@ -51,6 +52,7 @@ def test_the_body_below_the_chin_takes_the_motion_and_nothing_far_away_moves():
     assert box[1] >= 140 and box[3] == 291 and box[2] - box[0] > 150
 
 
+@pytest.mark.slow
 def test_decoded_neck_band_is_not_worse_with_the_body_motion(data_dir, models_dir, tmp_path):
     """On d0's first 40 frames, the band below the jaw is at least as close to the input with the
     body motion as without (the decoder before issue 51), and the face region is unchanged."""

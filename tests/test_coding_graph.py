@@ -1,5 +1,5 @@
 """Model-based coding live: the live encoder's key and records (d0, in-process), and the coding
-graph of launch/coding.yaml (camera, landmarks, fitter, encoder; coding/key and coding/frame over
+graph of facesculpt/launch/coding.yaml (camera, landmarks, fitter, encoder; coding/key and coding/frame over
 tcp loopback to the decoder node) on d3, with each decoded frame compared to the camera frame of
 the same stamp. Real processes, sockets and networks."""
 
@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 import pytest
 from conftest import free_port
+
+from facesculpt.nodes.fitter.config import FitterConfig
 
 
 def _face_psnr(a: np.ndarray, b: np.ndarray, projected: np.ndarray) -> float:
@@ -34,7 +36,7 @@ def d0_fits(data_dir, models_dir):
         assert ok
         frames.append(frame)
     cap.release()
-    with Pipeline("facemesh", neutral_frames=10) as pipe:
+    with Pipeline("facemesh", fit=FitterConfig(neutral_frames=10)) as pipe:
         fits = [pipe.fit_frame(f, i / 25.0) for i, f in enumerate(frames)]
         neutral = np.array(pipe.neutral, np.float64)
         triangles = pipe.model.triangles
@@ -42,9 +44,9 @@ def d0_fits(data_dir, models_dir):
     return frames, fits, neutral, triangles
 
 
+@pytest.mark.slow
 def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
-    from facesculpt.geometry.similarity import similarity_vector
-    from facesculpt.msgs.fsc import (
+    from facesculpt.coding.fsc import (
         LOG_SCALE_STEP,
         ROT_STEP,
         TRANS_STEP,
@@ -53,6 +55,7 @@ def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
         unpack_key_arrays,
         unpack_records,
     )
+    from facesculpt.geometry.similarity import similarity_vector
     from facesculpt.nodes.reenact.live_encoder import LiveEncoder
     from facesculpt.nodes.renderer.coded_face import CodedFace
 
@@ -102,7 +105,7 @@ def test_live_encoder_sends_a_key_then_records_that_decode_to_the_fit(d0_fits):
 
 
 def test_a_coded_stream_header_that_is_garbage_is_refused_in_one_sentence():
-    from facesculpt.msgs.fsc import unpack_header, unpack_records
+    from facesculpt.coding.fsc import unpack_header, unpack_records
 
     with pytest.raises(ValueError, match="not a coded stream's header"):
         unpack_header(b"{not json")
@@ -110,6 +113,7 @@ def test_a_coded_stream_header_that_is_garbage_is_refused_in_one_sentence():
         unpack_records(b"\x01" * 20, np.ones(12))
 
 
+@pytest.mark.slow
 def test_coding_graph_over_tcp_decodes_the_live_face(data_dir, models_dir, tmp_path):
     from facesculpt.msgs import CodedBasis, CodedFrame, CodedKey, FaceState, Image
     from facesculpt.runtime.node import Node

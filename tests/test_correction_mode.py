@@ -1,4 +1,4 @@
-"""The window's landmark correction mode as plain state (nodes/renderer/correction_mode.py): the
+"""The window's landmark correction mode as plain state (facesculpt/nodes/renderer/correction_mode.py): the
 fit's 68 landmarks from a face state, picking the nearest, a drag sent as throttled
 correct_landmark commands, the points drawn (corrected ones in another colour) with the name of
 the one under the cursor. The real window and graph: tests/test_renderer_window.py."""

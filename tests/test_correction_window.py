@@ -10,6 +10,7 @@ import os
 import time
 
 import numpy as np
+import pytest
 from test_renderer_window import WindowShots, _visible_window, display, xtool  # noqa: F401  (display: a fixture)
 
 from facesculpt.nodes.renderer.correction_mode import CORRECTED_BGR, LANDMARK_BGR
@@ -65,6 +66,7 @@ def _dots(shot, points, colour) -> int:
     return hits
 
 
+@pytest.mark.slow
 def test_dragging_a_landmark_in_correction_mode_corrects_the_fit(display, graph, data_dir, models_dir):  # noqa: F811
     import cv2
 

@@ -99,6 +99,7 @@ def test_iterates_match_libigl_parts_in_double_precision(sfm, case):
 
 
 @pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.slow
 def test_converged_positions_match_libigl_arap_solve(sfm, case):
     V, F, h, X, roi = setup_case(sfm, case)
     start = V.copy()
@@ -159,6 +160,7 @@ def test_accelerated_iterates_never_raise_the_energy(sfm, case):
     assert energies[-1] == pytest.approx(d.energy(d.solve(X, iterations=1)), rel=0.05)
 
 
+@pytest.mark.slow
 def test_accelerated_drag_lands_closer_than_plain_iterations(sfm):
     """A nose drag in 0.5 mm steps (as a mouse gives them): four accelerated iterations per step
     end closer to the converged mesh than ten plain ones (libigl's count) at every checkpoint."""
@@ -183,6 +185,7 @@ def test_accelerated_drag_lands_closer_than_plain_iterations(sfm):
             assert errors[0] < errors[1], (k, errors)
 
 
+@pytest.mark.slow
 def test_rigid_motion_of_all_handles_gives_rigid_result(sfm):
     V, F, _ = sfm
     h = farthest_point_samples(V, 64)

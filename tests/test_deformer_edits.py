@@ -269,6 +269,7 @@ def fit_video(model, data_dir, models_dir, name, frames=12):
     return result, model.instance(result.alpha)
 
 
+@pytest.mark.slow
 def test_preset_from_one_video_applies_to_another(model, data_dir, models_dir, tmp_path):
     """Edits made on the person fitted in d0.mp4, saved, loaded on the person in d3.mp4: the same
     named landmarks move by the same model-space offsets, and in d3's frame they move on screen by
@@ -447,6 +448,7 @@ def test_merge_presets_keeps_each_presets_strength_and_origin(model):
 
 
 @pytest.mark.parametrize("grip, within_mm", [(0.0, 0.1), (0.2, 0.05)])
+@pytest.mark.slow
 def test_a_preset_settles_on_its_arap_solution(grip, within_mm):
     """settle() solves until the mesh stops moving, as the live deformer's idle rounds do, and lands
     where a long solve does (a preset solved once for a video must not stop short of it). A

@@ -98,6 +98,7 @@ def test_press_drags_coalesce_into_one_solve_that_follows_the_cursor(node, sfm):
     assert counters["press"] == 1 and counters["drag"] == 6
 
 
+@pytest.mark.slow
 def test_after_a_drag_idle_rounds_settle_the_edit_on_the_converged_solution(node, sfm):
     """A drag gets a few (accelerated) iterations per round; when the events stop, idle rounds go
     on solving until the mesh has converged, then stop: the last deformation is the ARAP solution
@@ -290,6 +291,7 @@ class DeformerClient:
             self.node.spin_once(0.1)
 
 
+@pytest.mark.slow
 def test_real_process_receives_every_event_and_publishes(graph, sfm):
     """`facesculpt run deformer` in its own process: latched model, state, 40 queued moves."""
     from facesculpt.msgs import Diagnostics

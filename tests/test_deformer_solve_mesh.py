@@ -1,4 +1,4 @@
-"""A coarse model mesh is solved on its refinement (``nodes/deformer/solve_mesh.py``): the face
+"""A coarse model mesh is solved on its refinement (``facesculpt/nodes/deformer/solve_mesh.py``): the face
 mesh's pulled chin moves the skin around the handle with it on the surface the renderer draws,
 the Surrey model is solved on itself, and an edit still moves nothing outside its ROI."""
 

@@ -14,6 +14,7 @@ from conftest import free_port
 
 
 @pytest.mark.timing
+@pytest.mark.slow
 def test_demo_writes_an_edited_video_a_before_after_picture_and_timings(models_dir, tmp_path):
     out = tmp_path / "demo"
     env = dict(os.environ, FACESCULPT_MASTER=f"tcp://127.0.0.1:{free_port()}", FACESCULPT_RUN_DIR=str(tmp_path))

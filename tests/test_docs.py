@@ -53,7 +53,7 @@ def test_every_page_the_readme_links_to_exists():
 
 def test_every_docs_page_the_code_names_exists():
     """Help texts and docstrings point at documentation pages by path (docs/guide/new-views.md)."""
-    named = {(path.relative_to(REPO), page) for folder in ("facesculpt", "nodes", "msgs", "examples", "benchmarks")
+    named = {(path.relative_to(REPO), page) for folder in ("facesculpt", "examples", "benchmarks")
              for path in (REPO / folder).rglob("*.py")
              for page in re.findall(r"docs/[\w/.-]+?\.md", path.read_text())}
     assert named
@@ -79,7 +79,7 @@ def test_the_cli_reference_has_every_command_and_every_option():
                     "facesculpt keys generate", "facesculpt model import-eos"):
         assert f"`{command}`" in page, command
     process = page.split("## `facesculpt process`", 1)[1].split("\n## ", 1)[0]
-    for option in ("--edits", "--fill", "--refine", "--pose", "--face-camera", "--export-params", "--cluster"):
+    for option in ("--edits", "--inpaint", "--refine", "--pose", "--face-camera", "--export-params", "--cluster"):
         assert f"`{option}" in process, option
 
 

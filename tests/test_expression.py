@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.expression import NAMES, expression_parameters, expression_points
 
 REPO = Path(__file__).resolve().parent.parent
@@ -42,13 +43,14 @@ def test_neutral_is_zero_and_components_answer_their_own_motion():
 
 
 @pytest.mark.parametrize("model", ["facemesh", "sfm"])
+@pytest.mark.slow
 def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.geometry import to_ibug68
 
     cap = cv2.VideoCapture(str(data_dir / "video" / "d3.mp4"))
     jaw, opening = [], []
-    with Pipeline(model, neutral_frames=30) as pipeline:
+    with Pipeline(model, fit=FitterConfig(neutral_frames=30)) as pipeline:
         for i in range(150):
             ok, frame = cap.read()
             if not ok:
@@ -64,6 +66,7 @@ def test_jaw_open_follows_the_mouth_on_a_real_video(model, data_dir, models_dir)
     assert np.corrcoef(jaw, opening)[0, 1] >= 0.9
 
 
+@pytest.mark.slow
 def test_process_exports_one_row_per_frame(data_dir, models_dir, tmp_path):
     out_csv, out_json = tmp_path / "p.csv", tmp_path / "p.json"
     for path in (out_csv, out_json):
@@ -81,12 +84,12 @@ def test_process_exports_one_row_per_frame(data_dir, models_dir, tmp_path):
     assert not list(tmp_path.glob(".*writing*"))
 
 
+@pytest.mark.slow
 def test_the_sfm_fit_of_exact_landmarks_recovers_the_true_expression(data_dir):
     """bench_expression_synthetic's exact-landmark run, short: the synthetic head's true iBUG points
     (no detector) through the SFM fitter give expression parameters that follow the true ones."""
     if not (data_dir / "sfm").is_dir() or not (data_dir / "video" / "s18.mp4").is_file():
         pytest.skip("needs ../shared/data/sfm and video/s18.mp4")
-    sys.path.insert(0, str(REPO))
     from argparse import Namespace
 
     from benchmarks.bench_expression_synthetic import fit_sequence

@@ -13,6 +13,7 @@ from facesculpt.nodes.fitter import FitError
 from facesculpt.nodes.fitter.appearance_model import AppearanceModel, train_appearance
 
 
+@pytest.mark.slow
 def test_the_mean_and_components_are_learned_through_unseen_vertices(tmp_path):
     rng = np.random.default_rng(0)
     V, N = 400, 60
@@ -36,6 +37,7 @@ def test_the_mean_and_components_are_learned_through_unseen_vertices(tmp_path):
         train_appearance(samples[:1], 2)
 
 
+@pytest.mark.slow
 def test_train_appearance_writes_a_model_from_the_shared_photos_and_never_overwrites(data_dir, models_dir, tmp_path,
                                                                                       capsys):
     from facesculpt.cli import main
@@ -52,14 +54,11 @@ def test_train_appearance_writes_a_model_from_the_shared_photos_and_never_overwr
     assert "at least 2 are needed" in capsys.readouterr().err and not (tmp_path / "few.npz").exists()
 
 
+@pytest.mark.slow
 def test_fit_image_brings_the_68_points_of_unseen_faces_closer(data_dir, models_dir):
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
     import cv2
-    from bench_fit_image import nme
 
+    from benchmarks.bench_fit_image import nme
     from facesculpt.app.appearance_training import frontal_samples, photo_fits
     from facesculpt.geometry.ibug68 import dlib_annotations
     from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter

@@ -90,7 +90,7 @@ def test_the_fitter_option_is_checked_and_refines_real_frames(data_dir, models_d
     cap.release()
     fits = {}
     for refine in (None, "appearance"):
-        with Pipeline("facemesh", refine=refine) as pipe:
+        with Pipeline("facemesh", fit=FitterConfig(refine=refine)) as pipe:
             fits[refine] = [pipe.fit_frame(f, i / 25.0) for i, f in enumerate(frames)]
             assert pipe.fitter.config.refine == refine
     moved = [np.abs(a.projected - b.projected).max() for a, b in zip(fits[None], fits["appearance"])]
@@ -173,6 +173,7 @@ def test_refinement_filters_landmark_noise_on_a_still_face(data_dir, models_dir)
     assert jitter["appearance"] < 0.5 * jitter[None]
 
 
+@pytest.mark.slow
 def test_the_refined_shape_reaches_the_learned_neutral(data_dir, models_dir):
     """SFM: the refinement's mean shape change is part of the neutral the deformer gets."""
     from facesculpt.app.pipeline import Pipeline
@@ -180,7 +181,7 @@ def test_the_refined_shape_reaches_the_learned_neutral(data_dir, models_dir):
     cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
     frames = [cap.read()[1] for _ in range(16)]
     cap.release()
-    with Pipeline("sfm", refine="appearance") as pipe:
+    with Pipeline("sfm", fit=FitterConfig(refine="appearance")) as pipe:
         for i, f in enumerate(frames):
             pipe.fit_frame(f, i / 25.0)
         fitter = pipe.fitter
@@ -217,17 +218,15 @@ def test_the_applied_shape_follows_the_mean_of_the_samples_without_its_wobble():
     assert np.array_equal(refiner.shape_change, applied[-1])
 
 
+@pytest.mark.slow
 def test_the_refinement_brings_the_synthetic_heads_outline_and_shape_closer(data_dir, models_dir):
     """SFM on the realism benchmark's synthetic head (true pose and shape known): refined, the
     vertices at the head's outline land at least a fifth closer to the true ones than the landmark fit's, and the
     learned neutral is closer to the true shape (the person's size comes from the pixels)."""
-    import sys
-    from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-    from bench_appearance import run
-    from realism.posed import render_all
-    from realism.scene import make_scene
+    from benchmarks.bench_appearance import run
+    from benchmarks.realism.posed import render_all
+    from benchmarks.realism.scene import make_scene
 
     scene = make_scene(data_dir, frames=45)
     truths = render_all(scene, [(0.0, 0.0)], 2)[(0.0, 0.0)]

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic_faces import make_face
 
+from benchmarks.synthetic_faces import make_face
 from facesculpt.nodes.fitter import FitError, FitterConfig, load_model, make_fitter
 
 

@@ -1,4 +1,4 @@
-"""The landmark calibration of a model (nodes/fitter/calibration.py, issue 46): where the
+"""The landmark calibration of a model (facesculpt/nodes/fitter/calibration.py, issue 46): where the
 network's points lie off the model's landmark vertices, learned at known pose, kept with the model
 and used by the sparse fitter."""
 

@@ -6,20 +6,14 @@ colour one is handled through its own K and transform."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-from synthetic_faces import make_face
 
+from benchmarks.realism.raster import rasterise
+from benchmarks.synthetic_faces import make_face
 from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
 from facesculpt.nodes.fitter.depth_fitting import DepthImage
 from facesculpt.nodes.fitter.stage import fit_landmarks
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from realism.raster import rasterise  # noqa: E402
 
 SIZE = (640, 480)
 K = np.array([[554.0, 0, 319.5], [0, 554.0, 239.5], [0, 0, 1]])
@@ -65,6 +59,7 @@ def _frames(sfm, seed: int, n: int):
     return out
 
 
+@pytest.mark.slow
 def test_depth_brings_pose_and_shape_near_the_truth(sfm):
     frames = _frames(sfm, 3, 6)
     fitters = {name: make_fitter(sfm, FitterConfig(), SIZE, K) for name in ("colour", "depth")}
@@ -134,6 +129,7 @@ def test_points_at_follow_the_depth_cameras_transform():
     assert np.allclose(P[:2, 2], 805.0)   # the wall, seen from the colour camera 5 mm behind
 
 
+@pytest.mark.slow
 def test_the_fitter_node_fits_on_the_depth_of_the_landmarks_frame(sfm, monkeypatch, tmp_path):
     """The node with depth=on keeps camera/image's depth by stamp and fits each landmarks message
     on its frame's depth; with depth=off (the default) the same messages give the colour-only fit."""

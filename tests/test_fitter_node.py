@@ -167,6 +167,7 @@ def test_sfm_node_fits_the_68_point_mapping(monkeypatch, tmp_path, frames, data_
         node.close()
 
 
+@pytest.mark.slow
 def test_a_learned_sparse_identity_is_republished_only_for_a_real_change(monkeypatch, tmp_path, frames, data_dir):
     """The SFM identity keeps moving a little with every frame. While it is learned (the first
     2 x neutral_frames frames) each 0.5 mm is republished; afterwards only a change past
@@ -234,6 +235,7 @@ def test_real_process_publishes_state_and_latched_model(graph, frames):
         assert proc.wait(10) == 0
 
 
+@pytest.mark.slow
 def test_expression_parameters_go_out_only_while_someone_subscribes(graph, frames):
     from facesculpt.msgs import Diagnostics, FaceExpression
     from facesculpt.nodes.fitter.expression import NAMES

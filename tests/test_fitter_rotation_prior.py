@@ -1,5 +1,5 @@
 """The sparse fit's rotation prior from the landmark network's own 3D points
-(nodes/fitter/detector_rotation.py): the pose solve's prior term, the network's rotation in the
+(facesculpt/nodes/fitter/detector_rotation.py): the pose solve's prior term, the network's rotation in the
 model's head frame, and a nodding head whose detected landmarks lag its pitch, as the face-mesh
 network's do."""
 
@@ -79,6 +79,7 @@ def _nodding_frames(model, frames: int, rng):
     return out
 
 
+@pytest.mark.slow
 def test_the_network_depth_steadies_the_fitted_pitch_of_a_nodding_head(data_dir):
     model = load_model("sfm")
     frames = _nodding_frames(model, 150, np.random.default_rng(3))
@@ -94,6 +95,7 @@ def test_the_network_depth_steadies_the_fitted_pitch_of_a_nodding_head(data_dir)
     assert errors[100.0] < 0.7 * errors[0.0], errors
 
 
+@pytest.mark.slow
 def test_the_sparse_fit_of_a_filmed_face_takes_the_networks_depth(data_dir, models_dir):
     """The landmark network's 468 points of a real video, through ``fit_landmarks`` as the node and
     the pipeline fit them: the iBUG points keep their depth, so after the reference frames every

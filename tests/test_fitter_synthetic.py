@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from eos_peer import EosPeer
-from synthetic_faces import (
+
+from benchmarks.eos_peer import EosPeer
+from benchmarks.synthetic_faces import (
     landmark_reprojection_error,
     make_face,
     similarity_aligned_error,
 )
-
 from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
 from facesculpt.nodes.fitter import outline as outline_corr
 from facesculpt.nodes.fitter.eos_import import sfm_files
@@ -27,6 +27,7 @@ def sfm(data_dir):
     return load_model("sfm")
 
 
+@pytest.mark.slow
 def test_fit_is_at_least_as_accurate_as_eos_in_every_yaw_bin(sfm, data_dir):
     """24 faces (8 per |yaw| bin), 5 iterations each, same model, blendshapes, contours and landmarks:
     mean 3D error after similarity alignment and landmark reprojection error <= eos' per bin."""
@@ -70,6 +71,7 @@ def _outline_residuals(sfm, mode: str, faces) -> np.ndarray:
     return np.concatenate(out)
 
 
+@pytest.mark.slow
 def test_ray_triangle_outline_points_lie_closer_to_the_true_outline_than_vertices(sfm):
     rng = np.random.default_rng(11)
     faces = [make_face(sfm, rng, noise_px=0.0) for _ in range(12)]
@@ -94,6 +96,7 @@ def test_outline_candidates_exclude_the_nose_and_back_facing_vertices(sfm):
     assert np.median(C[right, 0]) < np.median(C[:, 0]) - 40
 
 
+@pytest.mark.slow
 def test_perspective_fit_recovers_the_pose(sfm):
     K = np.array([[700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]])
     rng = np.random.default_rng(3)
@@ -124,6 +127,7 @@ def test_orthographic_pose_angles_follow_the_head(sfm):
         assert euler_from_rotation(f.R)[0] == pytest.approx(yaw)
 
 
+@pytest.mark.slow
 def test_identity_accumulates_over_frames(sfm):
     """One person, 30 frames of new poses and expressions: the neutral shape learned over the
     frames is closer to the truth than any single frame's estimate on average."""
@@ -143,6 +147,7 @@ def test_identity_accumulates_over_frames(sfm):
     assert np.all(accum.neutral == sfm.mean)
 
 
+@pytest.mark.slow
 def test_smoothing_steadies_a_still_face(sfm):
     """A still face with 1 px landmark noise at 30 fps: the One Euro filter cuts the frame-to-frame
     jitter of the pose and of the projected mesh."""
@@ -162,6 +167,7 @@ def test_smoothing_steadies_a_still_face(sfm):
     assert jitter[True][1] < 0.5 * jitter[False][1]
 
 
+@pytest.mark.slow
 def test_tracking_iterations_follow_a_turning_head_as_well_as_full_iterations(sfm):
     """A head turning from -40° to +40° yaw over 40 frames at 30 fps, one person, perspective camera:
     warm-started frames with one iteration (the default) fit the landmarks and the yaw nearly as

@@ -108,6 +108,7 @@ class _Client:
             await ws.send(struct.pack("<BI", 0x01, 7) + payload)
 
 
+@pytest.mark.slow
 def test_the_node_serves_the_graph_to_a_foxglove_client_and_takes_input(graph, data_dir, models_dir):
     port = free_port()
     events: list[InputEvent] = []

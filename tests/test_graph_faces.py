@@ -9,12 +9,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from two_people import write_two_people
 
 REPO = Path(__file__).resolve().parent.parent
 FRAMES = 30
 
 
+@pytest.mark.slow
 def test_two_people_both_edited_in_every_frame_of_a_replay(data_dir, models_dir, tmp_path):
     video = tmp_path / "two.mkv"
     inputs = write_two_people(data_dir, video, FRAMES)

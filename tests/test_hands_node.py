@@ -5,6 +5,7 @@ empty message (N = 0)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from detector_checks import collect, empty_messages
 
 from facesculpt.msgs import HandLandmarks
@@ -12,6 +13,7 @@ from facesculpt.msgs import HandLandmarks
 RUN = {"node": "hands", "topic": "hands/landmarks", "msg_type": HandLandmarks, "fps": 10}
 
 
+@pytest.mark.slow
 def test_node_publishes_both_hands_with_the_source_stamp(graph, models_dir, data_dir):
     images, hands = collect(graph, models_dir, data_dir / "hands" / "google_sample_woman_hands.jpg", 8, **RUN)
     assert len(images) == 8 and len(hands) >= 4
@@ -26,6 +28,7 @@ def test_node_publishes_both_hands_with_the_source_stamp(graph, models_dir, data
         assert msg.right[left] < 0.5 < msg.right[right]  # her left hand at the bottom left, her right on top
 
 
+@pytest.mark.slow
 def test_node_publishes_an_empty_message_when_there_is_no_hand(graph, models_dir, tmp_path):
     for msg in empty_messages(graph, models_dir, tmp_path, 4, **RUN):
         assert msg.points.shape == (0, 21, 3)

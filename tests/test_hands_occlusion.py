@@ -12,6 +12,7 @@ from facesculpt.app.pipeline import Pipeline, read_preset
 from facesculpt.geometry.hand_regions import hand_region_mask, hand_size
 from facesculpt.nodes.deformer import EditStack
 from facesculpt.nodes.fitter import load_model
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.hands import HandDetector
 from facesculpt.nodes.landmarks.detector import Detection, LandmarkDetector
 
@@ -49,7 +50,7 @@ def test_nothing_rerendered_covers_a_hand(data_dir, models_dir, name, preset, de
     hands = HandDetector(models_dir).detect(photo)
     assert hands
     mask = hand_region_mask(np.stack([hand.points for hand in hands]), w, h)
-    with Pipeline("facemesh", neutral_frames=1, detector=detector(models_dir)) as pipeline:
+    with Pipeline("facemesh", detector=detector(models_dir), fit=FitterConfig(neutral_frames=1)) as pipeline:
         pipeline.calibrate([photo], fps=1.0)
         pipeline.set_edits(preset())
         fits, timings = pipeline.analyse(photo, 0.0)

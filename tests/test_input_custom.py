@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import yaml
 from conftest import REPO_ROOT
 from test_input_script import sfm, sfm_model_msg, sfm_state_msg  # noqa: F401  (sfm is a fixture)
@@ -16,6 +17,7 @@ from facesculpt.runtime.node import Node
 from facesculpt.runtime.qos import EVERY_MESSAGE, LATCHED
 
 
+@pytest.mark.slow
 def test_example_custom_node_joins_a_launched_graph_and_moves_the_nose(graph, sfm, tmp_path):  # noqa: F811
     launch = tmp_path / "graph.yaml"
     launch.write_text(yaml.safe_dump({"nodes": [{"name": "deformer", "node": "deformer",

@@ -161,6 +161,7 @@ def test_the_pose_button_makes_the_axes_turn_the_head(graph, tmp_path):
         pty.close()
 
 
+@pytest.mark.slow
 def test_unplug_and_replug_resume_without_restart(graph, tmp_path):
     pty = Pty(tmp_path / "joystick0")
     try:
@@ -219,6 +220,7 @@ class LineServer:
         self.conn = None
 
 
+@pytest.mark.slow
 def test_socket_url_server_restart_resumes(graph):
     server = LineServer()
     try:

@@ -75,6 +75,7 @@ class FakeFitter:
         return self.graph.spin_until(self.node, predicate, timeout)
 
 
+@pytest.mark.slow
 def test_nose_pull_script_moves_the_nose_tip_by_the_scripted_mm(graph, sfm):
     """examples/gestures/nose_pull.yaml through `facesculpt run script` and `facesculpt run deformer`:
     the script waits for the face, then the nose-tip vertex ends exactly 12 mm out of the face."""
@@ -104,6 +105,7 @@ def test_nose_pull_script_moves_the_nose_tip_by_the_scripted_mm(graph, sfm):
     assert deformer.poll() is None
 
 
+@pytest.mark.slow
 def test_bad_input_one_sentence_each_and_the_graph_keeps_running(graph, sfm, tmp_path):
     deformer = graph.spawn("run", "deformer", "round_s=0.02")
     fitter = FakeFitter(graph, sfm)
@@ -170,6 +172,7 @@ def _face_px(state: FaceState) -> float:
     return float(np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean()))
 
 
+@pytest.mark.slow
 def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_dir, tmp_path):
     """camera (a bag of d3.mp4) -> landmarks -> fitter -> deformer -> renderer, with the script
     dragging the nose tip 24 px to the right. In the output, per rendered frame: the nose-tip
@@ -251,6 +254,7 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
     assert checked >= 5
 
 
+@pytest.mark.slow
 def test_loop_start_delay_and_a_failed_batch_run(graph, tmp_path):
     """In-process: no face or deformer to wait for; the delay holds the first event back; each
     pass plays every event; a script that fails while playing ends a batch run with status 1."""

@@ -44,6 +44,7 @@ def annotated(data_dir, models_dir):
     return out
 
 
+@pytest.mark.slow
 def test_correcting_three_landmarks_improves_the_other_points(annotated):
     from facesculpt.nodes.fitter import FitterConfig, load_model, make_fitter
 
@@ -78,6 +79,7 @@ def test_correcting_three_landmarks_improves_the_other_points(annotated):
 
 @pytest.mark.parametrize("video", ["d3", "d0"])
 @pytest.mark.parametrize("model_name", ["sfm", "facemesh"])
+@pytest.mark.slow
 def test_a_correction_follows_the_head(model_name, video, data_dir, models_dir):
     """Landmark 34 (nose base, centre) is dragged onto the left nostril where the network sees
     iBUG 33, and the fitter uses the correction in every later frame, as the fitter node does;

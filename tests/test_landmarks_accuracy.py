@@ -35,6 +35,7 @@ def results(models_dir, data_dir):
     return out
 
 
+@pytest.mark.slow
 def test_every_annotated_face_is_found(results):
     assert len(results) == 43
     missed = [box.tolist() for _, box, _, face in results if face is None]

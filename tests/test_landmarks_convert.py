@@ -81,6 +81,7 @@ def _compare(models_dir, name, inputs):
         yield ours, ref
 
 
+@pytest.mark.slow
 def test_face_mesh_network_matches_tflite_on_face_crops(models_dir, crops):
     worst_points, worst_score = 0.0, 0.0
     for (points, flag), (ref_points, ref_flag) in _compare(models_dir, "face_landmark", crops[1]):
@@ -94,6 +95,7 @@ def test_face_mesh_network_matches_tflite_on_face_crops(models_dir, crops):
     assert worst_score <= 1e-3
 
 
+@pytest.mark.slow
 def test_face_detector_network_matches_tflite_on_frames(models_dir, crops):
     worst_box, worst_score = 0.0, 0.0
     for (boxes, logits), (ref_boxes, ref_logits) in _compare(models_dir, "face_detector", crops[0]):

@@ -38,6 +38,7 @@ def _node_pid(graph, name: str) -> int | None:
 
 
 @pytest.mark.timing
+@pytest.mark.slow
 def test_respawn_after_kill_and_clean_stop(graph, data_dir, tmp_path):
     launch = graph.spawn("launch", _launch_file(tmp_path, data_dir / "video" / "d0.mp4"))
     arrivals: list[tuple[float, int]] = []
@@ -69,6 +70,7 @@ def test_respawn_after_kill_and_clean_stop(graph, data_dir, tmp_path):
 
 
 @pytest.mark.timing
+@pytest.mark.slow
 def test_user_node_joins_a_launched_graph(graph, data_dir, tmp_path):
     graph.spawn("launch", _launch_file(tmp_path, data_dir / "video" / "d3.mp4"))
     user = subprocess.Popen([sys.executable, str(REPO_ROOT / "examples" / "brightness_node.py"), "gain=2.0"],

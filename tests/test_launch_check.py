@@ -80,6 +80,7 @@ BAD = {
 
 
 @pytest.mark.parametrize("case", list(BAD))
+@pytest.mark.slow
 def test_a_bad_launch_file_is_refused_before_anything_starts(case, tmp_path):
     nodes, overrides, sentence = BAD[case]
     path = _write(tmp_path, nodes)

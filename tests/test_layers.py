@@ -3,8 +3,11 @@
 * the runtime imports nothing from the application, the CLI or the nodes;
 * the shared geometry imports nothing of ours but itself;
 * a node room never imports another room, nor the application;
-* paths.py (below every layer) imports no node;
-* no source file over 600 lines and no function over 80 lines outside benchmarks/.
+* paths.py and options.py (below every layer) import nothing of ours;
+* the messages (the bottom layer) import nothing of ours but themselves;
+* no import loop between modules, imports inside functions included;
+* no source file over 600 lines and no function over 80 lines outside benchmarks/;
+* no ``sys.path`` edit anywhere: the folder path is the import path.
 """
 
 from __future__ import annotations
@@ -15,11 +18,13 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-# Repository folder -> the package it installs as (pyproject.toml's package-dir).
-PACKAGE_OF = {"facesculpt": "facesculpt", "nodes": "facesculpt.nodes", "msgs": "facesculpt.msgs",
-              "launch": "facesculpt.launch"}
 MAX_FILE_LINES = 600
 MAX_FUNCTION_LINES = 80
+
+
+NODES = REPO / "facesculpt" / "nodes"
+# Below every layer, importable from anywhere: where files live, how an option is declared.
+BOTTOM = ("facesculpt.paths", "facesculpt.options")
 
 
 def _module_name(path: Path) -> str:
@@ -27,7 +32,7 @@ def _module_name(path: Path) -> str:
     parts = list(rel.parts)
     if parts[-1] == "__init__":
         parts = parts[:-1]
-    return ".".join([PACKAGE_OF[parts[0]], *parts[1:]])
+    return ".".join(parts)
 
 
 def _sources(*folders: str) -> list[Path]:
@@ -71,19 +76,22 @@ def test_the_runtime_imports_no_node_no_command_and_not_the_cli():
 
 def test_the_shared_geometry_imports_only_itself():
     bad = _violations(_sources("facesculpt/geometry"), lambda p, m: _under(m, "facesculpt")
-                      and not _under(m, "facesculpt.geometry"))
+                      and not _under(m, "facesculpt.geometry") and not any(_under(m, b) for b in BOTTOM))
     assert not bad, bad
 
 
-def test_paths_imports_no_node():
-    above = ("facesculpt.nodes", "facesculpt.app", "facesculpt.cli", "facesculpt.runtime", "facesculpt.geometry")
-    bad = _violations([REPO / "facesculpt" / "paths.py"], lambda p, m: any(_under(m, x) for x in above))
+def test_the_bottom_modules_import_nothing_of_ours():
+    """paths.py and options.py sit below every layer (the launch files are data)."""
+    layers = ("facesculpt.nodes", "facesculpt.app", "facesculpt.cli", "facesculpt.runtime", "facesculpt.geometry",
+              "facesculpt.msgs", "facesculpt.coding")
+    bad = _violations([REPO / "facesculpt" / "paths.py", REPO / "facesculpt" / "options.py"],
+                      lambda p, m: any(_under(m, x) for x in layers))
     assert not bad, bad
 
 
 def test_node_rooms_never_import_each_other_nor_the_application():
     def forbidden(path: Path, module: str) -> bool:
-        room = path.relative_to(REPO / "nodes").parts[0]
+        room = path.relative_to(NODES).parts[0]
         if _under(module, "facesculpt.app") or _under(module, "facesculpt.cli"):
             return True
         if not _under(module, "facesculpt.nodes") or module == "facesculpt.nodes":
@@ -91,19 +99,101 @@ def test_node_rooms_never_import_each_other_nor_the_application():
         other = module.split(".")[2]
         return other != room and other != "BUILTIN_NODES"
 
-    bad = _violations([p for p in _sources("nodes") if p.parent != REPO / "nodes"], forbidden)
+    bad = _violations([p for p in _sources("facesculpt/nodes") if p.parent != NODES], forbidden)
     assert not bad, bad
+
+
+def test_the_messages_import_only_themselves():
+    bad = _violations(_sources("facesculpt/msgs"), lambda p, m: _under(m, "facesculpt")
+                      and not _under(m, "facesculpt.msgs"))
+    assert not bad, bad
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the modules of ours it imports (at any depth in the file), each import resolved
+    to the deepest module that exists (``from pkg import name`` is ``pkg.name`` when that is a
+    module, else ``pkg``); a package's own ``__init__`` seen from inside it is not an edge."""
+    modules = {_module_name(p) for p in _sources("facesculpt")}
+    graph = {}
+    for path in _sources("facesculpt"):
+        name, targets = _module_name(path), set()
+        for m in imported_modules(path):
+            while m and m not in modules:
+                m = m.rpartition(".")[0]
+            if m and m != name and not name.startswith(m + "."):
+                targets.add(m)
+        graph[name] = targets
+    return graph
+
+
+def import_loops(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan, iterative)."""
+    index, low, stack, on_stack, loops, counter = {}, {}, [], set(), [], [0]
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter[0]
+        counter[0] += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = counter[0]
+                    counter[0] += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph.get(child, ())))))
+                elif child in on_stack:
+                    low[v] = min(low[v], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                component = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    component.append(w)
+                    if w == v:
+                        break
+                if len(component) > 1:
+                    loops.append(sorted(component))
+    return loops
+
+
+def test_no_import_loop():
+    loops = import_loops(import_graph())
+    assert not loops, f"modules that import each other (through imports inside functions too): {loops}"
+
+
+def test_the_loop_check_sees_a_loop():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert import_loops(graph) == [["a", "b", "c"]]
+    assert import_loops({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_sys_path_edit_anywhere():
+    edits = [f"{p.relative_to(REPO)}:{n}" for folder in ("facesculpt", "tests", "examples", "benchmarks", "docs")
+             for p in _sources(folder) if p != Path(__file__).resolve()
+             for n, line in enumerate(p.read_text().splitlines(), 1) if "sys.path." + "insert" in line
+             or "sys.path." + "append" in line]
+    assert not edits, edits
 
 
 def test_the_check_itself_sees_cross_room_imports():
     """The checks above must be able to fail: relative and absolute imports into another room."""
-    probe = REPO / "nodes" / "camera" / "probe.py"
+    probe = NODES / "camera" / "probe.py"
     assert "facesculpt.nodes.deformer" in imported_modules(probe, "from ..deformer import EditStack\n")
     assert "facesculpt.nodes.deformer.arap" in imported_modules(probe, "def f():\n    import facesculpt.nodes.deformer.arap\n")
     assert "facesculpt.nodes.camera.sources" in imported_modules(probe, "from .sources import open_source\n")
 
 
-SOURCE_FOLDERS = ("facesculpt", "nodes", "msgs", "launch", "tests", "examples")
+SOURCE_FOLDERS = ("facesculpt", "tests", "examples")
 
 
 @pytest.mark.parametrize("folder", SOURCE_FOLDERS)

@@ -43,6 +43,7 @@ def test_a_misconfigured_node_stops_with_its_reason(args, sentence, env, tmp_pat
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_a_launch_whose_required_node_cannot_start_stops_with_the_reason(env, tmp_path):
     launch = tmp_path / "bad.yaml"
     launch.write_text(yaml.safe_dump({"nodes": [

@@ -10,12 +10,8 @@ import pytest
 
 from facesculpt.nodes.fitter import eos_reader
 from facesculpt.nodes.fitter.eos_import import import_eos, sfm_files
-from facesculpt.nodes.fitter.model import (
-    ModelFormatError,
-    MorphableModel,
-    load_model,
-    save_model,
-)
+from facesculpt.nodes.fitter.model import ModelFormatError, MorphableModel, save_model
+from facesculpt.nodes.fitter.model_loading import load_model
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,7 @@ import time
 import cv2
 import numpy as np
 import psutil
+import pytest
 from conftest import free_port
 
 from facesculpt.msgs import FaceLandmarks, FaceState, FrameDone, Image, encode
@@ -79,6 +80,7 @@ def _check_shutdown_log(log: str, stopping: tuple[str, ...]) -> None:
 RESEND_S, ACK_TIMEOUT_S, HOLD_LAST_S = 0.5, 1.75, 1.2
 
 
+@pytest.mark.slow
 def test_lockstep_camera_waits_for_each_acknowledgement_resends_and_drains(graph, tmp_path):
     bag = tmp_path / "numbers.bag"
     _write_bag(bag, [np.full((48, 64, 3), 5 * i, np.uint8) for i in range(30)])
@@ -133,6 +135,7 @@ def test_lockstep_camera_waits_for_each_acknowledgement_resends_and_drains(graph
     assert 30 in acked, "the camera ended before its last frame was acknowledged"
 
 
+@pytest.mark.slow
 def test_lockstep_camera_sends_its_frame_again_when_a_node_joins(graph, tmp_path):
     """A node that (re)joins the graph (a respawned fitter, which lost the frame it was fitting)
     gets the frame in flight again once it is connected, long before resend_s."""
@@ -185,6 +188,7 @@ def test_a_frame_without_a_fit_gets_an_empty_state_of_its_stamp(monkeypatch, tmp
 
 
 # -- the whole graph, as a user runs it --------------------------------------------------------------
+@pytest.mark.slow
 def test_replay_of_a_bag_writes_every_frame_into_the_video(data_dir, models_dir, tmp_path):
     bag, out = tmp_path / "recording.bag", tmp_path / "out.mp4"
     _write_bag(bag, _video_frames(data_dir / "video" / "d3.mp4", 149))
@@ -200,6 +204,7 @@ def test_replay_of_a_bag_writes_every_frame_into_the_video(data_dir, models_dir,
     _check_shutdown_log(log, stopping=("landmarks", "fitter", "deformer", "renderer"))
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_each_node_once_and_the_master_last(data_dir, models_dir, tmp_path):
     bag = tmp_path / "recording.bag"
     _write_bag(bag, _video_frames(data_dir / "video" / "d0.mp4", 60))

@@ -116,6 +116,7 @@ def test_help_lists_every_parameter_with_its_description_and_range():
     assert "one of geodesic, euclidean" in out.stdout and "range [1, 100]" in out.stdout
 
 
+@pytest.mark.slow
 def test_a_bad_value_stops_a_real_node_in_one_sentence_with_exit_code_2():
     out = _run("run", "deformer", "iterations=0")
     assert out.returncode == EXIT_BAD_PARAMETER == 2
@@ -127,6 +128,7 @@ def test_a_bad_value_stops_a_real_node_in_one_sentence_with_exit_code_2():
     assert out.returncode == 2 and "camera.fps" in out.stderr and "Traceback" not in out.stderr
 
 
+@pytest.mark.slow
 def test_the_launcher_does_not_respawn_a_node_that_exited_2(graph, tmp_path):
     """Both nodes are marked respawn: the one that crashes (exit 1) comes back, the one whose
     parameter names what cannot be used (exit 2: a missing video; a value out of range is refused

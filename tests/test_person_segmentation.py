@@ -14,8 +14,9 @@ import cv2
 import numpy as np
 import pytest
 from conftest import free_port
-from renderer_scene import read_frames
 
+from benchmarks.renderer_scene import read_frames
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER
 
 
@@ -78,7 +79,7 @@ def test_the_plate_learns_nothing_of_the_person(segmenter, models_dir, data_dir)
     frames = read_frames(data_dir, "d3", 96)[::4]  # the head moves: the face-only plate sees hair
     learned = {}
     for people in (True, False):
-        with Pipeline("facemesh", plate="on", neutral_frames=8, models_dir=models_dir) as pipe:
+        with Pipeline("facemesh", plate="on", models_dir=models_dir, fit=FitterConfig(neutral_frames=8)) as pipe:
             if not people:
                 pipe.compositor_options.pop("segmenter")
             pipe.calibrate(frames[:8], 25.0)

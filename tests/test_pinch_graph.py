@@ -128,7 +128,7 @@ def test_pinch_in_a_video_drags_the_nose_through_the_whole_graph(graph, video, t
     assert len(shifts) >= 5 and shifts[-1] > shifts[0] + 0.4 * MOVE_PX
     assert np.corrcoef(np.arange(len(shifts)), shifts)[0, 1] > 0.8
 
-    # The video shows a marker at the pinch while it is held (launch/pinch_replay.yaml turns
+    # The video shows a marker at the pinch while it is held (facesculpt/launch/pinch_replay.yaml turns
     # renderer.pinch_markers on), none before the press and none after the release. (The renderer
     # draws the pinches whose events have come when it draws the frame: in lockstep the frame's
     # own may come a frame or two later than its face state.)

@@ -79,8 +79,7 @@ def test_face_camera_turns_a_face_onto_the_ray_to_the_camera_and_smooths():
 def turned(data_dir):
     """Frame 0 of d0 with the SFM mean posed on it, rendered with the head turned 12° of yaw,
     with and without head_motion."""
-    from renderer_scene import place_marked, read_frames
-
+    from benchmarks.renderer_scene import place_marked, read_frames
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer import Compositor
 
@@ -151,6 +150,7 @@ def _yaws(frames: list, detector, model) -> list[float]:
     return out
 
 
+@pytest.mark.slow
 def test_process_pose_turns_a_real_head_by_about_the_angle_asked(data_dir, models_dir, tmp_path):
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.landmarks import LandmarkDetector
@@ -171,6 +171,7 @@ def test_process_pose_turns_a_real_head_by_about_the_angle_asked(data_dir, model
     assert all(np.array_equal(o[corner], inputs[i][corner]) for o, i in zip(outputs, (3, 7, 11)))
 
 
+@pytest.mark.slow
 def test_process_refuses_a_bad_pose_before_writing_anything(data_dir, tmp_path):
     for args, says in ((["--pose", "yaw=90"], "±45 degrees"), (["--face-camera", "2"], "0 to 1")):
         done = subprocess.run([sys.executable, "-m", "facesculpt.cli", "process", str(data_dir / "video" / "d0.mp4"),
@@ -180,6 +181,7 @@ def test_process_refuses_a_bad_pose_before_writing_anything(data_dir, tmp_path):
         assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_a_presets_pose_turns_the_head_in_process_as_pose_does(data_dir, models_dir, tmp_path):
     preset = tmp_path / "turn.json"
     preset.write_text('{"format": "facesculpt-deformer-preset", "version": 1, "units": "mm", "static": [], '
@@ -224,8 +226,7 @@ def test_keyframe_views_keep_distinct_poses_and_choose_the_closest_better_view()
 def test_a_keyframe_is_sampled_at_its_own_pixels_and_blended_where_the_frame_sees_badly(data_dir):
     """A keyframe that is the frame itself seen from the rendered view changes nothing; one whose
     colours are shifted shows the shift on the turned face's sides, never elsewhere."""
-    from renderer_scene import place_marked, read_frames
-
+    from benchmarks.renderer_scene import place_marked, read_frames
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer import Compositor
     from facesculpt.nodes.renderer.keyframe_views import Keyframe, KeyframeViews

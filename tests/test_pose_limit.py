@@ -1,4 +1,4 @@
-"""New views that know their limits (issue 51, nodes/renderer/pose_limit.py): the share of a turn a
+"""New views that know their limits (issue 51, facesculpt/nodes/renderer/pose_limit.py): the share of a turn a
 frame takes falls as the turn reveals surface nobody saw, smoothly, and stored views raise it;
 `process` says so in one line."""
 
@@ -61,6 +61,7 @@ def test_the_limiter_reduces_a_large_turn_smoothly_and_stored_views_lift_it():
     assert large < up[0] < up[1] < up[2] < 1.0       # it rises back gradually, no jump
 
 
+@pytest.mark.slow
 def test_process_warns_in_one_line_when_the_turn_is_reduced(data_dir, models_dir, tmp_path):
     out = tmp_path / "o.mp4"
     r = subprocess.run([sys.executable, "-m", "facesculpt.cli", "process", str(data_dir / "video" / "d3.mp4"),

@@ -5,9 +5,10 @@ input's bit for bit), and ``face_camera`` turns a face that looks away toward th
 from __future__ import annotations
 
 import numpy as np
-from renderer_scene import place_marked, rasterize_region, read_frames
+import pytest
 from test_renderer_node import MS, Feeder
 
+from benchmarks.renderer_scene import place_marked, rasterize_region, read_frames
 from facesculpt.geometry.pose_offset import PoseOffset, apply_pose_offset, face_camera_offset, head_pivot
 from facesculpt.msgs import Deformation, FaceModel, FaceState, Image
 from facesculpt.nodes.renderer import Compositor
@@ -64,6 +65,7 @@ def placed(data_dir):
     return model, pose, t, read_frames(data_dir, "s18", count=1)[0]
 
 
+@pytest.mark.slow
 def test_the_deformations_pose_turns_the_head_and_leaves_the_rest_of_the_frame(graph, data_dir):
     model, pose, t, frame = placed(data_dir)
     offset = PoseOffset(yaw=12.0, pitch=-4.0)
@@ -85,6 +87,7 @@ def test_the_deformations_pose_turns_the_head_and_leaves_the_rest_of_the_frame(g
     assert not changed[~head].any()  # far from the head: the input's pixels
 
 
+@pytest.mark.slow
 def test_face_camera_turns_a_face_that_looks_away_toward_the_camera(graph, data_dir):
     model, pose, t, frame = placed(data_dir)
     target = face_camera_offset(pose.R, t, 1.0, head_pivot(model.mean), 1.0, 5.0)

@@ -81,6 +81,7 @@ def carry(d0, src: str, dst: str, vertices: list[int], tmp_path) -> tuple[list[i
 
 
 @pytest.mark.parametrize("src, dst, handles", [("facemesh", "sfm", FACEMESH_HANDLES), ("sfm", "facemesh", SFM_HANDLES)])
+@pytest.mark.slow
 def test_a_handle_that_is_no_landmark_lands_on_the_same_point_of_the_other_model(d0, tmp_path, src, dst, handles):
     """Both models fitted to the same frame of d0.mp4: the handle loaded on the other model is
     within a few mm (in the image) of where it was saved. The two fits themselves place named
@@ -131,6 +132,7 @@ def handle_motion_percent(fit, stack: EditStack, preset: dict) -> list[float]:
 
 
 @pytest.mark.parametrize("model, source", [("facemesh", "photo"), ("sfm", "photo"), ("facemesh", "d0"), ("sfm", "d0")])
+@pytest.mark.slow
 def test_shipped_presets_move_their_handles_visibly_on_a_frontal_face(request, models_dir, model, source):
     """Each shipped preset at strength 1 moves each handle landmark by at least 4% of the
     distance between the outer eye corners in the image, on the shipped photo (frontal) and on

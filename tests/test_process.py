@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-PRESETS = REPO / "nodes" / "deformer" / "presets"
+PRESETS = REPO / "facesculpt" / "nodes" / "deformer" / "presets"
 NOSE_TIP, RIGHT_EYE_OUTER, LEFT_EYE_OUTER = 1, 33, 263  # face-mesh points
 
 
@@ -52,6 +52,7 @@ def nose_run(data_dir, models_dir, tmp_path_factory):
     return out, pattern, result
 
 
+@pytest.mark.slow
 def test_every_frame_written_nose_changed_far_background_identical(nose_run, data_dir, models_dir):
     from facesculpt.nodes.landmarks import LandmarkDetector
 
@@ -89,6 +90,7 @@ def test_every_frame_written_nose_changed_far_background_identical(nose_run, dat
         assert np.mean(dist < 0.8 * iod) > 0.9  # the change stays around the nose
 
 
+@pytest.mark.slow
 def test_same_output_twice(nose_run, data_dir, tmp_path):
     out, _, _ = nose_run
     again = tmp_path / "%05d.png"
@@ -102,6 +104,7 @@ def test_same_output_twice(nose_run, data_dir, tmp_path):
     assert not different, f"{len(different)} frames differ between two runs, e.g. {different[:3]}"
 
 
+@pytest.mark.slow
 def test_faceless_frames_pass_through_side_by_side(data_dir, models_dir, tmp_path):
     """A short video: four frames of d12, then four without a face; --width and --side-by-side."""
     from facesculpt.nodes.camera.sources import resize_frame
@@ -132,6 +135,7 @@ def test_faceless_frames_pass_through_side_by_side(data_dir, models_dir, tmp_pat
             assert np.array_equal(out[:, 256:], small), f"frame {i} has no face and must pass through unchanged"
 
 
+@pytest.mark.slow
 def test_clear_errors(tmp_path):
     missing = process(tmp_path / "nope.mp4", "-o", tmp_path / "out.mp4")
     assert missing.returncode == 1
@@ -144,6 +148,7 @@ def test_clear_errors(tmp_path):
     assert not (tmp_path / "out.mp4").exists()
 
 
+@pytest.mark.slow
 def test_bad_output_and_preset_errors(data_dir, models_dir, tmp_path):
     video = data_dir / "video" / "d0.mp4"
     bad_suffix = process(video, "-o", tmp_path / "out.xyz")
@@ -168,6 +173,7 @@ def test_sfm_without_shared_data_says_so(tmp_path):
     assert "Surrey Face Model" in result.stderr and "FACESCULPT_DATA" in result.stderr
 
 
+@pytest.mark.slow
 def test_interrupt_keeps_partial_output(data_dir, models_dir, tmp_path):
     output = tmp_path / "partial.mp4"
     proc = subprocess.Popen([sys.executable, "-m", "facesculpt.cli", "process", str(data_dir / "video" / "d3.mp4"),
@@ -238,6 +244,7 @@ def test_shipped_presets_resolve_by_name_and_a_missing_one_lists_them(tmp_path):
         read_preset("no_such_preset")
 
 
+@pytest.mark.slow
 def test_the_sinc_kernel_resamples_the_edited_region_only_and_sharper_than_bicubic(nose_run, data_dir, tmp_path):
     """The default kernel (sinc) and --interpolation cubic differ only in pixels the edit
     re-rendered, and the sinc keeps more of the skin's detail there."""

@@ -27,6 +27,7 @@ def cluster():
         yield local.scheduler_address
 
 
+@pytest.mark.slow
 def test_batch_on_a_cluster_matches_the_single_file_command(cluster, data_dir, models_dir, tmp_path):
     videos = [data_dir / "video" / f"{name}.mp4" for name in ("d0", "d3", "d12")]
     broken = tmp_path / "broken.mp4"
@@ -53,6 +54,7 @@ def test_batch_on_a_cluster_matches_the_single_file_command(cluster, data_dir, m
     assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == stamps
 
 
+@pytest.mark.slow
 def test_a_folder_of_videos_on_local_workers_and_clear_errors(data_dir, models_dir, tmp_path):
     src = tmp_path / "in"
     src.mkdir()

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from two_people import write_two_people
 
+from facesculpt.nodes.fitter.config import FitterConfig
+
 REPO = Path(__file__).resolve().parent.parent
 FRAMES = 12
 
@@ -32,6 +34,7 @@ def changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=2) > 8
 
 
+@pytest.mark.slow
 def test_two_faces_each_with_its_own_edit(two_people, models_dir, tmp_path):
     video, inputs = two_people
     both = tmp_path / "both" / "%03d.png"
@@ -57,6 +60,7 @@ def test_two_faces_each_with_its_own_edit(two_people, models_dir, tmp_path):
         assert d_both[300:, 512:].sum() > d_both[:150, 512:].sum()
 
 
+@pytest.mark.slow
 def test_largest_is_one_face_and_face_numbers_need_a_selection(two_people, models_dir, tmp_path):
     video, inputs = two_people
     out = tmp_path / "one" / "%03d.png"
@@ -79,7 +83,7 @@ def test_three_people_in_the_shared_photo(data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline, read_preset
 
     photo = cv2.imread(str(data_dir / "faces" / "2008_002506.jpg"))
-    with Pipeline("facemesh", faces="all", neutral_frames=1) as pipeline:
+    with Pipeline("facemesh", faces="all", fit=FitterConfig(neutral_frames=1)) as pipeline:
         pipeline.calibrate([photo], fps=1.0)
         pipeline.set_edits(read_preset("nose_longer"))
         result = pipeline.process(photo, 0.0)
@@ -94,6 +98,7 @@ def test_three_people_in_the_shared_photo(data_dir, models_dir):
         assert moved[y0:y1, x0:x1].sum() > 50, k
 
 
+@pytest.mark.slow
 def test_a_face_number_beyond_the_faces_found_says_how_many_were_found(two_people, data_dir, models_dir, tmp_path):
     """`--faces 3` on two people (and `--faces 2` on one, in a batch) is an error naming how many
     faces were found, with no output left behind, not an unedited copy that exits 0."""

@@ -33,6 +33,7 @@ def _small_video(path: Path, frames: int = 3) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_the_output_may_not_be_the_input(tmp_path):
     video = _small_video(tmp_path / "in.avi")
     link = tmp_path / "link.avi"
@@ -68,6 +69,7 @@ def test_a_failed_run_leaves_no_file_and_an_older_output_untouched(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.mp4", "out.mp4"]  # no temporary left
 
 
+@pytest.mark.slow
 def test_a_completed_run_replaces_the_target_and_leaves_nothing_else(tmp_path, models_dir):
     video = _small_video(tmp_path / "in.avi", frames=4)
     target = tmp_path / "out.mp4"
@@ -106,6 +108,7 @@ def _streams(path: Path) -> dict:
         return {s.type: (s.codec_context.name, float(s.duration * s.time_base), s.frames) for s in c.streams}
 
 
+@pytest.mark.slow
 def test_the_output_is_h264_with_the_inputs_sound_cut_to_the_frames_written(data_dir, models_dir, tmp_path):
     out = tmp_path / "out.mp4"
     result = _process(data_dir / "video" / "d3.mp4", "-o", out, "--max-frames", "60", cwd=tmp_path)
@@ -122,6 +125,7 @@ def test_the_output_is_h264_with_the_inputs_sound_cut_to_the_frames_written(data
     assert "audio" not in _streams(quiet)
 
 
+@pytest.mark.slow
 def test_the_default_quality_is_close_to_the_lossless_output(data_dir, models_dir, tmp_path):
     video = data_dir / "video" / "d12.mp4"
     assert _process(video, "-o", tmp_path / "out.mp4", "--max-frames", "12", "--edits", "chin",

@@ -17,6 +17,7 @@ NODES = "tests/graph_nodes.py"
 
 
 @pytest.mark.timing
+@pytest.mark.slow
 def test_slow_consumer_gets_fresh_messages_and_publisher_keeps_its_rate(graph, tmp_path):
     """100 Hz of 856x480x3 images into a subscriber that sleeps 100 ms per message."""
     rate_hz, count = 100.0, 2000
@@ -96,6 +97,7 @@ def _malformed(rng: random.Random, valid: list) -> list:
     return [valid[0][: rng.randrange(1, len(valid[0]))]] + valid[1:]        # truncated header
 
 
+@pytest.mark.slow
 def test_fuzzed_subscriber_counts_malformed_and_delivers_valid(graph):
     """10,000 malformed multipart messages interleaved with valid ones into a subscriber process."""
     counter = graph.spawn("run", f"{NODES}:EventCounter")

@@ -56,11 +56,12 @@ def test_leaving_early_stops_the_thread():
 
 
 def test_process_with_read_ahead_writes_the_sequential_output(data_dir, models_dir, tmp_path):
-    from facesculpt.app import process as command
+    from facesculpt.app import process_command
+    from facesculpt.app.process import process_file
     from facesculpt.runtime.process_limits import limit_threads
 
     parser = argparse.ArgumentParser()
-    command.register(parser.add_subparsers())
+    process_command.register(parser.add_subparsers())
     outputs = {}
     for read_ahead in (True, False):
         out = tmp_path / str(read_ahead) / "%03d.png"
@@ -68,7 +69,7 @@ def test_process_with_read_ahead_writes_the_sequential_output(data_dir, models_d
                                   "--max-frames", "20", "--neutral-frames", "6", "--quiet"])
         args.read_ahead = read_ahead
         limit_threads(1)
-        code, message = command.process_file(args, args.input[0], args.output)
+        code, message = process_file(args, args.input[0], args.output)
         assert code == 0 and "wrote 20 frames" in message
         outputs[read_ahead] = {p.name: p.read_bytes() for p in Path(out).parent.iterdir()}
     assert len(outputs[True]) == 20 and outputs[True] == outputs[False]
@@ -102,11 +103,12 @@ def test_write_behind_writes_in_order_and_raises_the_writers_error():
 
 def test_pipelined_video_is_byte_identical_to_the_sequential_one(data_dir, models_dir, tmp_path):
     """Decode + analyse | composite | encode on three threads: the same H.264 file, byte for byte."""
-    from facesculpt.app import process as command
+    from facesculpt.app import process_command
+    from facesculpt.app.process import process_file
     from facesculpt.runtime.process_limits import limit_threads
 
     parser = argparse.ArgumentParser()
-    command.register(parser.add_subparsers())
+    process_command.register(parser.add_subparsers())
     outputs = {}
     for pipelined in (True, False):
         out = tmp_path / f"{pipelined}.mp4"
@@ -114,7 +116,7 @@ def test_pipelined_video_is_byte_identical_to_the_sequential_one(data_dir, model
                                   "--max-frames", "24", "--neutral-frames", "6", "--quiet"])
         args.read_ahead = pipelined
         limit_threads(1)
-        code, message = command.process_file(args, args.input[0], args.output)
+        code, message = process_file(args, args.input[0], args.output)
         assert code == 0 and "wrote 24 frames" in message
         outputs[pipelined] = out.read_bytes()
     assert len(outputs[True]) > 10_000 and outputs[True] == outputs[False]

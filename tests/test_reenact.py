@@ -10,6 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
+from facesculpt.nodes.fitter.config import FitterConfig
+
 
 def _frames(path, indices):
     cap, out, i = cv2.VideoCapture(str(path)), [], 0
@@ -47,6 +49,7 @@ def mouth_and_lip_grey(detector, frame) -> tuple[float, float]:
     return float(inside), float(lip)
 
 
+@pytest.mark.slow
 def test_output_mouth_opens_when_the_drivers_does(data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.app.reenactment import Reenactor, fit_source, inner_lip_ids
@@ -56,7 +59,7 @@ def test_output_mouth_opens_when_the_drivers_does(data_dir, models_dir):
     video = data_dir / "video"
     source = fit_source(_frames(video / "d12.mp4", [0])[0])
     driving = _frames(video / "d3.mp4", list(range(20)) + list(range(280, 354, 2)))
-    pipe = Pipeline("facemesh", neutral_frames=20)
+    pipe = Pipeline("facemesh", fit=FitterConfig(neutral_frames=20))
     pipe.calibrate(driving[:20], 30.0)
     assert opening_px(source.fit.projected[inner_lip_ids(pipe.model)]) < 3.0  # the source's mouth is closed
     reenactor = Reenactor(source, pipe.model, pipe.neutral)
@@ -81,6 +84,7 @@ def test_output_mouth_opens_when_the_drivers_does(data_dir, models_dir):
     assert inside < 0.6 * lip
 
 
+@pytest.mark.slow
 def test_command_writes_one_frame_per_driving_frame(data_dir, models_dir, tmp_path):
     video = data_dir / "video"
     out = tmp_path / "avatar.mp4"

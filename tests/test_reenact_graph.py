@@ -1,4 +1,4 @@
-"""The live reenact graph (launch/reenact.yaml) with two video cameras: a still photo of a closed
+"""The live reenact graph (facesculpt/launch/reenact.yaml) with two video cameras: a still photo of a closed
 mouth (d12's first frame) driven by d3 (its first second, then its wide-open mouth), headless into
 a video. Real processes, sockets and networks; the output is measured by the landmark network."""
 
@@ -10,6 +10,7 @@ import sys
 
 import cv2
 import numpy as np
+import pytest
 from conftest import free_port
 from test_reenact import mouth_and_lip_grey
 
@@ -27,6 +28,7 @@ def _read(path, indices=None):
     return out
 
 
+@pytest.mark.slow
 def test_driver_opens_the_source_mouth_through_the_graph(data_dir, models_dir, tmp_path):
     from facesculpt.nodes.landmarks import LandmarkDetector
 

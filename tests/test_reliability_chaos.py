@@ -25,7 +25,7 @@ VICTIMS = ["camera", "landmarks", "fitter", "deformer", "renderer"]
 
 
 def _chaos_launch(tmp_path, video) -> str:
-    demo = yaml.safe_load((REPO_ROOT / "launch" / "demo.yaml").read_text())
+    demo = yaml.safe_load((REPO_ROOT / "facesculpt" / "launch" / "demo.yaml").read_text())
     nodes = []
     for entry in demo["nodes"]:
         if entry["name"] == "script":
@@ -93,6 +93,7 @@ def _assert_clean_stop(launch_proc, seen_pids: set[int]) -> None:
 
 
 @pytest.mark.timing
+@pytest.mark.slow
 def test_chaos_kills_do_not_stop_the_graph(graph, data_dir, models_dir, tmp_path):
     duration_s = float(os.environ.get("FACESCULPT_CHAOS_S", "100"))
     launch_proc = graph.spawn("launch", _chaos_launch(tmp_path, data_dir / "video" / "d3.mp4"))

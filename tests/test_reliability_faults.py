@@ -29,6 +29,7 @@ def small_disk(tmp_path):
     subprocess.run(["umount", "-l", str(mount)])
 
 
+@pytest.mark.slow
 def test_corrupt_and_truncated_videos_are_reported_and_end_cleanly(graph, data_dir, tmp_path):
     data = bytearray((data_dir / "video" / "d3.mp4").read_bytes())
     rng = np.random.default_rng(0)
@@ -52,6 +53,7 @@ def test_corrupt_and_truncated_videos_are_reported_and_end_cleanly(graph, data_d
     assert out.returncode == 2 and f"cannot open video file {cut}" in out.stderr  # a configuration error
 
 
+@pytest.mark.slow
 def test_frames_of_a_new_size_flow_through_the_graph(graph, data_dir, models_dir, tmp_path):
     """A bag of two videos of different sizes (512x512, then 1280x720) through camera,
     landmarks, fitter and renderer: every stage follows the new size, nothing errs."""
@@ -84,6 +86,7 @@ def test_frames_of_a_new_size_flow_through_the_graph(graph, data_dir, models_dir
         assert diags[name]["errors"] == 0, (name, diags[name]["last_error"])
 
 
+@pytest.mark.slow
 def test_bag_record_on_a_full_disk_keeps_what_was_written(graph, data_dir, small_disk):
     bag = small_disk / "full.bag"
     rec = graph.spawn("bag", "record", "camera/image", "-o", str(bag), "--count", "50", stderr=subprocess.PIPE)

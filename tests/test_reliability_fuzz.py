@@ -8,6 +8,7 @@ import random
 
 import msgpack
 import numpy as np
+import pytest
 import zmq
 
 from facesculpt.msgs import (
@@ -119,6 +120,7 @@ def test_malformed_generator_really_is_malformed():
             raise AssertionError(f"{name}: a 'malformed' message decoded: {bad[:1]}")
 
 
+@pytest.mark.slow
 def test_fuzz_every_message_type(graph):
     counter = graph.spawn("run", f"{NODES}:AllTypesCounter")
     fuzzer = graph.node(Node(name="fuzzer"))
@@ -179,6 +181,7 @@ def test_fuzz_every_message_type(graph):
     assert rss_after[-1] - rss_after[1] < 48, f"subscriber RSS kept growing: {rss_start} -> {rss_after} MiB"
 
 
+@pytest.mark.slow
 def test_decode_path_holds_no_memory():
     """The receiver's validate-and-count path keeps nothing per malformed message: 6 rounds of
     5,000 malformed messages of every type leave traced Python memory where it was."""

@@ -23,6 +23,7 @@ def _rate(graph, watcher, arrivals, seconds) -> float:
 
 
 @pytest.mark.timing
+@pytest.mark.slow
 def test_a_ten_times_too_slow_consumer_does_not_slow_the_renderer(graph, data_dir):
     video = data_dir / "video" / "d3.mp4"
     graph.spawn("run", "camera", f"source={video}", "loop=true", f"fps={FPS}")

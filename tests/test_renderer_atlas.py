@@ -14,16 +14,13 @@ import cv2
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from realism.raster import project as reference_project  # noqa: E402
-from realism.raster import project_pixels, render_textured  # noqa: E402
-
-from facesculpt.nodes.renderer import Compositor  # noqa: E402
-from facesculpt.nodes.renderer.atlas_raster import AtlasRasterizer, vertex_frontality  # noqa: E402
-from facesculpt.nodes.renderer.camera import estimate_projection  # noqa: E402
-from facesculpt.nodes.renderer.gl_context import create_headless_context  # noqa: E402
-from facesculpt.nodes.renderer.texture_atlas import TextureAtlas, uv_layout  # noqa: E402
+from benchmarks.realism.raster import project as reference_project
+from benchmarks.realism.raster import project_pixels, render_textured
+from facesculpt.nodes.renderer import Compositor
+from facesculpt.nodes.renderer.atlas_raster import AtlasRasterizer, vertex_frontality
+from facesculpt.nodes.renderer.camera import estimate_projection
+from facesculpt.nodes.renderer.gl_context import create_headless_context
+from facesculpt.nodes.renderer.texture_atlas import TextureAtlas, uv_layout
 
 REPO = Path(__file__).resolve().parent.parent
 W, H, S, T = 320, 240, 128, 256
@@ -241,9 +238,9 @@ def test_face_texture_message_round_trips_and_checks_its_shapes():
         decode([bytes(f) for f in encode(bad, "face/texture")])
 
 
+@pytest.mark.slow
 def test_the_renderer_node_publishes_the_latched_face_texture(graph, data_dir):
-    from renderer_scene import place_marked, read_frames
-
+    from benchmarks.renderer_scene import place_marked, read_frames
     from facesculpt.msgs import FaceModel, FaceState, FaceTexture, Image
     from facesculpt.nodes.fitter import load_model
     from facesculpt.runtime.node import Node

@@ -8,8 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import plane_mesh
 
+from benchmarks.renderer_scene import plane_mesh
 from facesculpt.nodes.renderer import Compositor
 from facesculpt.nodes.renderer.background_plate import BackgroundPlate, face_region
 from facesculpt.nodes.renderer.gl_context import create_headless_context

@@ -13,7 +13,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import (
+
+from benchmarks.renderer_scene import (
     dilate,
     issue_edit,
     place_fitted,
@@ -22,7 +23,6 @@ from renderer_scene import (
     rasterize_region,
     read_frames,
 )
-
 from facesculpt.geometry import merge_deformation
 from facesculpt.nodes.renderer import Compositor
 from facesculpt.nodes.renderer.gl_context import create_headless_context
@@ -191,7 +191,7 @@ def test_bad_input_is_refused_with_a_clear_error(gl, data_dir, sfm):
         comp.render(frame, X, px, T, bad)
     with pytest.raises(ValueError, match="triangle indices"):
         comp.render(frame, X, px, T + len(X), X)
-    with pytest.raises(ValueError, match="inpaint method"):
+    with pytest.raises(ValueError, match="inpaint must be one of"):
         Compositor(W, H, ctx=gl, inpaint="navier")
     # After the errors it still renders correctly.
     assert np.array_equal(comp.render(frame, X, px, T, X), frame)

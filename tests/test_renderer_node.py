@@ -8,8 +8,8 @@ import time
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import issue_edit, place_marked, read_frames
 
+from benchmarks.renderer_scene import issue_edit, place_marked, read_frames
 from facesculpt.geometry import merge_deformation
 from facesculpt.msgs import Deformation, Diagnostics, FaceModel, FaceState, FrameDone, Image
 from facesculpt.nodes.renderer import Compositor
@@ -43,6 +43,7 @@ class Feeder(Node):
 
 
 @pytest.mark.parametrize("plate", ["off", "on"])
+@pytest.mark.slow
 def test_renderer_node_pairs_composites_and_writes_video(plate, graph, data_dir, tmp_path, request):
     from facesculpt.nodes.fitter import load_model
     from facesculpt.nodes.renderer.person_segmentation import PersonSegmenter
@@ -136,6 +137,7 @@ class BurstFeeder(Node):
         self.subscribe("render/done", FrameDone, self.done.append, qos=EVERY_MESSAGE)
 
 
+@pytest.mark.slow
 def test_a_renderer_that_falls_behind_renders_only_the_newest_frame_unless_told_to_keep_all(graph, data_dir):
     from facesculpt.nodes.fitter import load_model
 

@@ -138,8 +138,8 @@ def test_sync_keeps_the_mesh_on_the_face_while_latest_lags_a_slow_fitter(data_di
     pair. The mesh drawn lies where the state puts it (state.projected); the face in the
     rendered frame is where a fresh detection finds it. sync: they agree; latest: the lag."""
     import numpy as np
-    from renderer_scene import read_frames
 
+    from benchmarks.renderer_scene import read_frames
     from facesculpt.nodes.fitter import FitterConfig, facemesh_model, make_fitter
     from facesculpt.nodes.landmarks import LandmarkDetector
     from facesculpt.nodes.renderer import Compositor

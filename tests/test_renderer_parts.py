@@ -5,13 +5,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import read_frames
 
+from benchmarks.renderer_scene import read_frames
 from facesculpt.geometry import boundary_loops, point_bounds
 from facesculpt.geometry.close_holes import close_holes
 from facesculpt.geometry.subdivision import loop_subdivision
 from facesculpt.nodes.renderer.camera import estimate_projection, project
-from facesculpt.nodes.renderer.compositor import OUTLINE_BAND
+from facesculpt.nodes.renderer.compositor_options import OUTLINE_BAND
 from facesculpt.nodes.renderer.frame_size_defaults import (
     AUTO_MAX_FINE_EDGE_PX,
     auto_interpolation,

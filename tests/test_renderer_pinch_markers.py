@@ -5,6 +5,7 @@ the pinch in render/image and, without the option, leaves the frame as it came."
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from facesculpt.msgs import Image, InputEvent
 from facesculpt.nodes.renderer.pinch_markers import PinchMarkers, draw_pinch_markers, marker_radius
@@ -90,6 +91,7 @@ def _marked_at(out: np.ndarray, frame: np.ndarray) -> np.ndarray:
     return np.array([xs.mean(), ys.mean()]) if len(xs) else np.array([np.nan, np.nan])
 
 
+@pytest.mark.slow
 def test_renderer_marks_each_pinch_only_with_the_option(graph):
     rng = np.random.default_rng(1)
     frame = rng.integers(60, 120, (120, 160, 3), dtype=np.uint8)

@@ -16,7 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from renderer_scene import place_marked, psnr, read_frames
+
+from benchmarks.renderer_scene import place_marked, psnr, read_frames
 
 TOOLS = ("Xvfb", "xdotool", "xdpyinfo")
 
@@ -236,6 +237,7 @@ def _scene_feeder(model, pose, frame, preset_dir: Path | None = None):
     return Feeder()
 
 
+@pytest.mark.slow
 def test_drag_in_the_window_deforms_the_nose_through_the_deformer(display, graph, data_dir):
     """The graph: this test plays camera + fitter (real frame, posed SFM); the renderer (window)
     and the deformer run as real processes. A drag sent with xdotool on the nose reaches the
@@ -319,6 +321,7 @@ def _panel_size(shot: np.ndarray, frame: np.ndarray) -> tuple[int, int]:
     return int(rows.sum()), int(cols.sum())
 
 
+@pytest.mark.slow
 def test_pins_and_a_saved_preset_show_in_the_window(display, graph, data_dir, tmp_path):
     """The overlay in a real window: pinned vertices (Deformation.static) are drawn as yellow
     squares where the face shows them; S sends save_preset, the window says so at once, and
@@ -415,6 +418,7 @@ def _press_q_until(env, title: str, done, timeout: float = 30.0) -> None:
         time.sleep(0.5)
 
 
+@pytest.mark.slow
 def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
     """Q in the window ends the renderer with the stop-the-graph status; the launcher stops every
     node (the renderer is marked respawn, and does not come back) and exits 0."""
@@ -426,6 +430,7 @@ def test_q_in_the_window_stops_the_whole_graph(display, graph, tmp_path):
     assert "[renderer] asked the graph to stop" in text and text.count("[renderer] running") == 1, text
 
 
+@pytest.mark.slow
 def test_q_with_close_node_stops_only_the_renderer(display, graph, tmp_path):
     """close: node in the launch file: Q ends the renderer alone, with EXIT_NODE_CLOSED, which the
     launcher does not respawn (it is marked respawn) nor count as a failure; the camera runs on

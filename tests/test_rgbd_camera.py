@@ -17,8 +17,10 @@ import pytest
 from conftest import free_port
 
 from facesculpt.msgs import DecodeError, Image, decode, encode
+from facesculpt.nodes.camera.bag_source import BagImageSource
 from facesculpt.nodes.camera.rgbd_sources import RGBDFolderSource, RGBDFrame, resized_intrinsics, write_rgbd_folder
-from facesculpt.nodes.camera.sources import BagImageSource, SourceError, open_source, resize_frame
+from facesculpt.nodes.camera.source_opening import open_source
+from facesculpt.nodes.camera.sources import SourceError, resize_frame
 from facesculpt.runtime.bag import BagReader, BagWriter
 from facesculpt.runtime.node import Node
 from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER

@@ -4,18 +4,12 @@ shadow, disparity quantisation; and the shipped `rgbd` launch file."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-from realism.depth import BASELINE_MM, SUBPIXEL, RGBDTruth, projector_shadow, structured_light  # noqa: E402
-
-from facesculpt.nodes.fitter.node import FitterNode  # noqa: E402
-from facesculpt.paths import launch_file  # noqa: E402
-from facesculpt.runtime.launcher import load_launch  # noqa: E402
+from benchmarks.realism.depth import BASELINE_MM, SUBPIXEL, RGBDTruth, projector_shadow, structured_light
+from facesculpt.nodes.fitter.node import FitterNode
+from facesculpt.paths import launch_file
+from facesculpt.runtime.launcher import load_launch
 
 F = 554.0
 

@@ -46,6 +46,7 @@ def _event(handle: int) -> InputEvent:
     return InputEvent(stamp=time.time_ns(), kind="move", vector=np.ones(3, np.float32), handle=handle)
 
 
+@pytest.mark.slow
 def test_curve_admits_authenticated_peers_and_shuts_out_strangers(graph, keys):
     graph_dir, stranger_dir = keys
     trusted = Security.from_dir(graph_dir)
@@ -107,6 +108,7 @@ def test_curve_admits_authenticated_peers_and_shuts_out_strangers(graph, keys):
     assert {"secure_pub", "secure_sub"} <= nodes and "evil_pub" not in nodes
 
 
+@pytest.mark.slow
 def test_keys_command_and_a_secure_launch_file(graph, data_dir, tmp_path):
     keys_dir = tmp_path / "k"
     out = graph.run("keys", "generate", str(keys_dir))

@@ -84,6 +84,7 @@ def test_second_run_without_network_reuses_what_is_there(fresh_home):
     assert after == before
 
 
+@pytest.mark.slow
 def test_no_network_and_nothing_there_says_what_to_do_in_one_sentence(tmp_path):
     result = _cli("--home", str(tmp_path / "empty"), env_extra=NO_NETWORK)
     assert result.returncode == 1

@@ -52,6 +52,7 @@ def _stop_while(graph, tmp_path, marker: str, signum: int, *params: str, **env: 
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.slow
 def test_a_stop_while_the_node_imports_stops_it_before_setup(graph, tmp_path, signum):
     code, log = _stop_while(graph, tmp_path, "importing", signum, SLOW_IMPORT_S="2")
     assert code == 0, log
@@ -59,6 +60,7 @@ def test_a_stop_while_the_node_imports_stops_it_before_setup(graph, tmp_path, si
     assert "setting up" not in log and "Traceback" not in log, log
 
 
+@pytest.mark.slow
 def test_a_stop_during_setup_holds(graph, tmp_path):
     code, log = _stop_while(graph, tmp_path, "setting up", signal.SIGINT, "setup_s=2")
     assert code == 0, log

@@ -3,13 +3,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-from realism.sequences import read_video, write_lossless  # noqa: E402
+from benchmarks.realism.sequences import read_video, write_lossless
 
 
 def write_two_people(data_dir: Path, path: Path, frames: int) -> list[np.ndarray]:

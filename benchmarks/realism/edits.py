@@ -110,7 +110,7 @@ def _symmetric(p: np.ndarray, q: np.ndarray) -> list[float]:
 
 
 def preset(spec: EditSpec, rest: np.ndarray, landmarks: dict[str, int], triangles: np.ndarray) -> dict:
-    """The edit as a deformer preset document (nodes/deformer/preset_format.py). ``rest``
+    """The edit as a deformer preset document (facesculpt/nodes/deformer/preset_format.py). ``rest``
     (V, 3) and ``triangles`` (T, 3) are the SFM mesh the edit is defined on (its original
     topology, without closed holes), ``landmarks`` its landmark name -> vertex. The preset
     carries the SFM topology and the named landmarks' rest positions, so that the facemesh

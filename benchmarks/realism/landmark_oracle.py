@@ -28,7 +28,7 @@ from .raster import project_pixels
 LANDMARKS_ENV = "FACESCULPT_BENCH_TRUE_LANDMARKS"
 KEEP_ENV = "FACESCULPT_BENCH_LANDMARK_KEEP"
 #: The module ``run_process`` runs instead of ``facesculpt.cli``.
-MODULE = "realism.landmark_oracle"
+MODULE = "benchmarks.realism.landmark_oracle"
 #: iBUG points (0-based) whose truth is a vertex: the jaw line (0-16) is a silhouette.
 INNER = range(17, 68)
 
@@ -53,8 +53,8 @@ def write_true_landmarks(path: Path, truth: np.ndarray, size: tuple[int, int]) -
 
 def process_environment(path: Path, keep: float) -> dict[str, str]:
     """The environment variables that make ``python -m`` :data:`MODULE` find the true landmarks
-    at ``path`` and keep ``keep`` of the detector's error (benchmarks/ first on PYTHONPATH)."""
-    here = str(Path(__file__).resolve().parent.parent)
+    at ``path`` and keep ``keep`` of the detector's error (the checkout's root first on PYTHONPATH)."""
+    here = str(Path(__file__).resolve().parents[2])
     pythonpath = os.pathsep.join(p for p in (here, os.environ.get("PYTHONPATH", "")) if p)
     return {LANDMARKS_ENV: str(Path(path).resolve()), KEEP_ENV: repr(float(keep)), "PYTHONPATH": pythonpath}
 

@@ -41,9 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
+from facesculpt.app.bench_graph import SIZE
 from facesculpt.app.bench_reference import add_ratios, as_ratio, reference_workload
+from facesculpt.nodes.fitter.config import FitterConfig
 
-SIZE = (856, 480)
 FRONTAL_YAW_DEG = 20.0
 PRESETS = ("nose_longer.json", "chin.json", "cheeks.json")  # the paper's Fig. 6e, in order
 
@@ -159,7 +160,8 @@ def read_frames(spec: str, count: int, size: tuple[int, int] | None = None
                 ) -> tuple[list[np.ndarray], float, tuple[int, int]]:
     """The first ``count`` frames of a camera source (a video loops) at ``size`` (scaled to cover
     it and cropped) or else :func:`bench_size`, its fps and that size."""
-    from facesculpt.nodes.camera.sources import open_source, resize_frame
+    from facesculpt.nodes.camera.source_opening import open_source
+    from facesculpt.nodes.camera.sources import resize_frame
 
     source = open_source(spec, loop=True)
     mode = "fill" if size else "stretch"  # bench_size keeps the input's aspect: nothing to crop
@@ -224,7 +226,7 @@ def measure_stages(model: str, frames: list[np.ndarray], fps: float, preset: dic
     from facesculpt.app.pipeline import Pipeline
 
     skip = 3  # the first frames create the GL context and warm the caches
-    with Pipeline(model, refine=refine, plate=memory, atlas=memory) as pipeline:
+    with Pipeline(model, plate=memory, atlas=memory, fit=FitterConfig(refine=refine)) as pipeline:
         pipeline.calibrate(iter(frames), fps)
         if pipeline.fitted_frames == 0:
             raise RuntimeError(f"no face found in the bench input with the {model} model")

@@ -4,7 +4,7 @@
     facesculpt decode talk.fsc -o talk_decoded.mp4
 
 See :mod:`facesculpt.app.coding` for what is sent and how it is rendered back, and
-:mod:`facesculpt.msgs.fsc` for the stream's layout. ``encode`` prints the bitrate: the
+:mod:`facesculpt.coding.fsc` for the stream's layout. ``encode`` prints the bitrate: the
 per-frame stream (what a live link spends) and the whole file with its one-time header.
 """
 
@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+
+from facesculpt.app.option_arguments import add_option_argument
+from facesculpt.nodes.fitter.config import FitterConfig
 
 
 def register(sub) -> None:
@@ -25,11 +28,11 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="FILE.fsc", help="the coded stream")
     p.add_argument("--components", type=int, default=12, metavar="N",
                    help="expression coefficients per frame, 1 to 64 (default 12; one byte each)")
-    # The default is facesculpt.msgs.fsc.KEY_QUALITY, not imported here (it pulls in scipy at every start).
+    # The default is facesculpt.coding.fsc.KEY_QUALITY, not imported here (it pulls in scipy at every start).
     p.add_argument("--key-quality", type=int, default=None, metavar="Q",
                    help="keyframe WebP quality, 1 to 100 (default 70)")
-    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
-                   help="frames the person's neutral face is learned from (default 30)")
+    add_option_argument(p, FitterConfig(), "neutral_frames", "--neutral-frames", metavar="N",
+                        extra_help="the person's neutral face is learned from them")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="code only the first N frames (0: all)")
     p.add_argument("--fov", type=float, default=60.0, metavar="DEG", help="assumed horizontal field of view")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -52,7 +55,7 @@ def cmd_encode(args) -> int:
     from facesculpt.app.coding import analyse, encode
     from facesculpt.app.process import _frames, _progress, open_input
     from facesculpt.app.safe_output import refuse_output_over_input, temporary_name
-    from facesculpt.msgs.fsc import KEY_QUALITY
+    from facesculpt.coding.fsc import KEY_QUALITY
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)

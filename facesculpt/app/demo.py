@@ -1,6 +1,6 @@
 """`facesculpt demo`: the main job on the embedded default input.
 
-Runs launch/demo.yaml (the embedded face photo under a moving virtual camera ->
+Runs facesculpt/launch/demo.yaml (the embedded face photo under a moving virtual camera ->
 landmarks -> fitter -> deformer <- scripted edits -> renderer -> video file), all
 headless, as separate processes. Beside the graph, an in-process listener keeps
 camera frames and rendered frames by stamp and every node's diagnostics, and

@@ -207,7 +207,7 @@ def _train_appearance(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
-    from facesculpt.nodes.fitter.model import load_model
+    from facesculpt.nodes.fitter.model_loading import load_model
 
     print(describe(load_model(args.model)))
     return 0

@@ -22,6 +22,7 @@ filters and the landmark tracker start afresh. Same input, same options: same ou
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -29,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facesculpt.app.pipeline_options import options_of_old_names
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.pose_offset import (
     FACE_CAMERA_LIMIT_DEG,
@@ -52,6 +54,7 @@ from facesculpt.nodes.fitter import (
 from facesculpt.nodes.fitter.expression import face_expression
 from facesculpt.nodes.landmarks import LandmarkDetector
 from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
+from facesculpt.nodes.renderer.compositor_options import CompositorOptions
 
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
 STAGES = ("landmarks", "fit", "merge", "render")
@@ -125,16 +128,15 @@ class FrameResult:
 class Pipeline:
     """Landmarks, fitting, the edit and compositing of one video, frame by frame, in-process.
 
-    model: "facemesh", "sfm" or a .npz path (or a :class:`MorphableModel`); threads: onnxruntime
-    intra-op threads of each network; fov_deg: horizontal field of view of the pinhole K given to
-    the fitter (as the camera node does; the fitter then fits in perspective); neutral_frames:
-    frames the fitter averages into the dense neutral (and that :meth:`calibrate` runs);
-    iterations: the fitter's cold-start iterations; min_score: faces below this landmark score
-    are not fitted (the other fitter options are :class:`FitterConfig`'s defaults, the fitter
-    node's); faces: which faces are fitted and edited, "largest", "all" or a face number from 1
+    model: "facemesh", "sfm" or a .npz path (or a :class:`MorphableModel`); fit: the fitter's
+    options (:class:`FitterConfig`, the fitter node's defaults; its ``neutral_frames`` are also the
+    frames :meth:`calibrate` runs); render: the compositor's
+    (:class:`~facesculpt.nodes.renderer.compositor_options.CompositorOptions`; its ``atlas`` and
+    ``plate`` are set from the modes below); threads: onnxruntime intra-op threads of each
+    network; fov_deg: horizontal field of view of the pinhole K given to the fitter (as the camera
+    node does; the fitter then fits in perspective); min_score: faces below this landmark score are
+    not fitted; faces: which faces are fitted and edited, "largest", "all" or a face number from 1
     (:func:`facesculpt.nodes.fitter.parse_faces`), each with its own fitter and neutral;
-    inpaint, feather_px, dilate_px, interpolation: the compositor's (inpaint "pushpull", "telea", "ns",
-    "patch" or "drag"; interpolation "sinc", "cubic", "lanczos" or "linear", the kernel the frame is sampled with);
     plate: "on" keeps a background plate and takes what an edit uncovers from it where it was seen
     (issue 16, :mod:`facesculpt.nodes.renderer.background_plate`), "off" not; atlas: the face's texture memory (issue 16),
     "off", "on" (learned and blended where the frame sees the edited surface badly) or "learn"
@@ -150,29 +152,28 @@ class Pipeline:
     ``pose``; keyframes: "on" keeps views of each face at the poses it shows and renders turned
     surface from the closest one where it sees it better than the frame (image-based rendering,
     :mod:`facesculpt.nodes.renderer.keyframe_views`), "auto" (the default) does so when a pose edit
-    is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never; outline_band: how far
-    past the fitted outline an edit's motion is carried (share of the face's size; None: the
-    compositor's ``OUTLINE_BAND``); expression: give each fit its expression parameters
-    (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`; False: None, and their cost
-    saved); rotation_prior_px: a sparse model's fit holds its pitch toward that of the landmark
-    network's own 3D points with this weight (px per radian; 0: off;
-    :mod:`facesculpt.nodes.fitter.detector_rotation`). The GL context is made here; call
+    is asked for (``pose``, ``face_camera`` or a preset's pose), "off" never; expression: give
+    each fit its expression parameters (``fit.expression``, :mod:`facesculpt.nodes.fitter.expression`;
+    False: None, and their cost saved). The old keywords ``neutral_frames``, ``iterations``,
+    ``rotation_prior_px``, ``refine``, ``inpaint``, ``feather_px``, ``dilate_px``, ``interpolation``
+    and ``outline_band`` still work for one release, with a DeprecationWarning
+    (:mod:`.pipeline_options`). The GL context is made here; call
     :meth:`close` (or use ``with``) to free it. pose_limit: each frame draws only the share of its pose
     edit that what is known of the surface it reveals allows (issue 51,
     :mod:`facesculpt.nodes.renderer.pose_limit`; ``pose_limiter.lowest`` and ``.reduced`` say how
     far and how often it was reduced); False: the whole edit always.
     """
 
-    def __init__(self, model: str | MorphableModel = "facemesh", *, threads: int = 1, fov_deg: float = 60.0,
-                 neutral_frames: int = 30, iterations: int = 5, min_score: float = 0.5, inpaint: str = "drag",
-                 feather_px: float = 3.0, dilate_px: int = 2, models_dir: str | Path | None = None,
+    def __init__(self, model: str | MorphableModel = "facemesh", *, fit: FitterConfig | None = None,
+                 render: CompositorOptions | None = None, threads: int = 1, fov_deg: float = 60.0,
+                 min_score: float = 0.5, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
-                 plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS, interpolation: str = "sinc",
+                 plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS,
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",
                  face_camera_limit_deg: float = FACE_CAMERA_LIMIT_DEG,
-                 face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, refine: str | None = None,
-                 outline_band: float | None = None, expression: bool = True,
-                 rotation_prior_px: float = FitterConfig.rotation_prior_px, pose_limit: bool = True):
+                 face_camera_smoothing_s: float = FACE_CAMERA_SMOOTHING_S, expression: bool = True,
+                 pose_limit: bool = True, **deprecated):
+        fit, render = options_of_old_names(fit or FitterConfig(), render or CompositorOptions(), deprecated)
         self.model = model if isinstance(model, MorphableModel) else load_face_model(model)
         self.selection = parse_faces(faces)
         if detector is None:
@@ -182,9 +183,8 @@ class Pipeline:
         self.detector = detector
         self.analysis_pixels = int(analysis_pixels)
         self.fov_deg = float(fov_deg)
-        self.neutral_frames = int(neutral_frames)
-        self.fitter_config = FitterConfig(iterations=int(iterations), neutral_frames=self.neutral_frames, refine=refine,
-                                          rotation_prior_px=float(rotation_prior_px))
+        self.fitter_config = fit
+        self.neutral_frames = fit.neutral_frames
         self.min_score = float(min_score)
         if plate not in ("off", "on"):
             raise ValueError(f"plate must be off or on, got {plate!r}")
@@ -192,15 +192,13 @@ class Pipeline:
             raise ValueError(f"keyframes must be off, on or auto, got {keyframes!r}")
         if atlas not in ("off", "on", "learn"):
             raise ValueError(f"atlas must be off, on or learn, got {atlas!r}")
-        self.compositor_options = {"inpaint": inpaint, "feather_px": feather_px, "dilate_px": dilate_px,
-                                   "atlas": atlas != "off", "atlas_blend": atlas == "on", "plate": plate == "on",
-                                   "interpolation": interpolation}
-        if outline_band is not None:
-            self.compositor_options["outline_band"] = float(outline_band)
+        self.render_options = dataclasses.replace(render, atlas=atlas != "off", atlas_blend=atlas == "on",
+                                                  plate=plate == "on")
+        self.segmenter = None
         if plate == "on":  # the plate learns nothing where a person is (their hair, neck, shoulders)
             from facesculpt.nodes.renderer.person_segmentation import PersonSegmenter
 
-            self.compositor_options["segmenter"] = PersonSegmenter(models_dir, threads)
+            self.segmenter = PersonSegmenter(models_dir, threads)
         self.expression = bool(expression)
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
@@ -237,7 +235,8 @@ class Pipeline:
 
             turns = not self.pose.is_zero or self.face_camera > 0 or any(p.get("pose") for _, p in self.presets)
             keyframes = self.keyframes == "on" or (self.keyframes == "auto" and turns)
-            self.compositor = Compositor(self.size[0], self.size[1], keyframes=keyframes, **self.compositor_options)
+            self.compositor = Compositor(self.size[0], self.size[1], self.render_options, keyframes=keyframes,
+                                         segmenter=self.segmenter)
         return self.compositor
 
     @property
@@ -359,7 +358,7 @@ class Pipeline:
     def uv_layout(self) -> np.ndarray | None:
         """(V, 2) float32 texture coordinates of the model (:func:`uv_layout`: its own, or a
         frontal projection of its mean); None with the atlas off."""
-        if not self.compositor_options["atlas"]:
+        if not self.render_options.atlas:
             return None
         if self._uv is None:
             from facesculpt.nodes.renderer.texture_atlas import uv_layout

@@ -32,119 +32,6 @@ from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_S
 LOSSLESS_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
 
 
-def _add_fit_arguments(p) -> None:
-    """--model, --neutral-frames, --fov, --refine, --rotation-prior: how each frame's face is fitted."""
-    p.add_argument("--model", default="facemesh", metavar="facemesh|sfm|MODEL.npz",
-                   help="face model: facemesh (built in, default), sfm (Surrey Face Model from the shared data, "
-                        "non-commercial) or a .npz from `facesculpt model import-eos`")
-    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
-                   help="frames the first pass learns the neutral face from, before the edits are solved (default 30)")
-    p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
-                   help="horizontal field of view assumed for the camera (default 60)")
-    p.add_argument("--refine", choices=("off", "appearance"), default="off",
-                   help="refine each frame's landmark fit on its pixels against the person's learned appearance "
-                        "(issue 20; docs/guide/face-models.md)")
-    p.add_argument("--rotation-prior", type=float, default=100.0, metavar="PX",
-                   help="with --model sfm: hold each fit's pitch toward the landmark network's own 3D rotation "
-                        "with this weight, px per radian (default 100; 0: the landmarks alone; "
-                        "docs/guide/face-models.md)")
-
-
-def _add_pose_arguments(p) -> None:
-    """--pose, --face-camera, --face-camera-limit, --keyframes (docs/guide/new-views.md)."""
-    p.add_argument("--pose", default="", metavar="yaw=D,pitch=D,roll=D,x=MM,y=MM,z=MM",
-                   help="turn (degrees, added to the head's own angles) and move (mm, camera axes) every fitted head, "
-                        "e.g. yaw=10,pitch=-5 (docs/guide/new-views.md, for the angles results hold to)")
-    p.add_argument("--face-camera", type=float, default=0.0, metavar="F",
-                   help="turn each face F (0-1) of the way toward looking into the camera, every frame "
-                        "(at most --face-camera-limit degrees; on top of --pose)")
-    p.add_argument("--face-camera-limit", type=float, default=FACE_CAMERA_LIMIT_DEG, metavar="DEG",
-                   help=f"the largest turn --face-camera applies, yaw and pitch each (default {FACE_CAMERA_LIMIT_DEG:g}, "
-                        "the largest the new-views benchmark's figures hold for; at most 45)")
-    p.add_argument("--face-camera-smoothing", type=float, default=FACE_CAMERA_SMOOTHING_S, metavar="S",
-                   help="time constant (s) smoothing the direction to the camera over the frames (default 0: none, "
-                        "which follows the head best; docs/guide/new-views.md)")
-    p.add_argument("--pose-limit", choices=("on", "off"), default="on",
-                   help="on (default): each frame draws only the share of the turn that what the video showed of the "
-                        "surface it reveals allows, reduced smoothly beyond it (with a warning); off: the whole turn")
-    p.add_argument("--keyframes", choices=("auto", "on", "off"), default="auto",
-                   help="render a turned head's surface from the stored view of the video closest to it where that "
-                        "sees it better than the frame (image-based rendering); auto (default): with a pose edit")
-
-
-def register(sub) -> None:
-    p = sub.add_parser("process", help="run a video file through the pipeline (landmarks, fit, edits, render)",
-                       description="A video through the whole pipeline in one process, every frame: the face "
-                                   "fitted on a frame is rendered on that frame; a frame without a face is "
-                                   "written unchanged.",
-                       epilog="Examples: facesculpt process in.mp4 -o out.mp4 --edits nose_longer; "
-                              "facesculpt process in.mp4 -o frames/%05d.png --side-by-side")
-    p.add_argument("input", metavar="IN", nargs="+",
-                   help="input video file; several files, folders or globs make a batch (-o is then a folder)")
-    p.add_argument("-o", "--output", metavar="OUT", required=True,
-                   help="output video (.mp4, .mov, .m4v, .avi, .mkv) or image pattern such as out/%%05d.png "
-                        "(lossless: png, bmp, tif); for a batch, a folder (each output named after its input)")
-    p.add_argument("--workers", type=int, default=0, metavar="N",
-                   help="batch: parallel workers on this machine (default: one per core)")
-    p.add_argument("--cluster", default="", metavar="ADDRESS",
-                   help="batch: run on a Dask distributed cluster, e.g. tcp://scheduler:8786 (workers need facesculpt "
-                        "installed and set up)")
-    p.add_argument("--suffix", default=".mp4", metavar=".EXT", help="batch: output video suffix (default .mp4)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="batch: process inputs whose output already exists (default: skip them, so a rerun resumes)")
-    p.add_argument("--edits", action="append", default=[], metavar="[N:]PRESET",
-                   help="a deformer preset file, or the name of a shipped one (nose_longer, chin, cheeks); "
-                        "repeat to stack several, in order; N:PRESET edits face N only (with --faces all)")
-    p.add_argument("--strength", type=float, default=1.0, metavar="S",
-                   help="multiply the edits' offsets by S, 0 (no edit) to 3 (default 1)")
-    _add_pose_arguments(p)
-    p.add_argument("--faces", default="largest", metavar="all|largest|N",
-                   help="which faces to fit and edit: the largest (default), all, or face N only "
-                        "(faces numbered 1, 2, ... from the left as they first appear)")
-    _add_fit_arguments(p)
-    p.add_argument("--side-by-side", action="store_true", help="write the input and the result next to each other")
-    p.add_argument("--export-params", default="", metavar="FILE.csv|json",
-                   help="also write each frame's head pose and expression parameters (docs/guide/expressions.md); "
-                        "in a batch, beside each output video with this suffix")
-    p.add_argument("--codec", default=None, metavar="NAME",
-                   help="video encoder (default by suffix: libx264 (H.264) for .mp4/.mov/.m4v/.mkv, mjpeg for .avi; "
-                        "others: libx265, mpeg4, ffv1, ...)")
-    p.add_argument("--crf", type=int, default=18, metavar="Q",
-                   help="H.264/H.265 quality, 0 (lossless) to 51; lower is better and larger (default 18)")
-    p.add_argument("--preset", default="auto", metavar="NAME",
-                   help="H.264/H.265 speed preset: ultrafast, superfast, veryfast, faster, fast, medium, slow, ... "
-                        "(faster: larger files at about the same --crf quality); default auto: the encoder's own "
-                        "(medium) up to 1920x1080, ultrafast above, where medium alone limits 4K to a few fps")
-    p.add_argument("--no-audio", action="store_true", help="do not copy the input's sound into the output video")
-    p.add_argument("--width", type=int, default=0, metavar="W", help="resize frames to this width first (aspect kept)")
-    p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N frames (0: all)")
-    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads per network (default 1)")
-    p.add_argument("--atlas", choices=("on", "off"), default="off",
-                   help="keep a texture memory (UV atlas) of the face over the frames and take colours from it "
-                        "where the frame sees the edited surface badly: stretched or hidden (default off)")
-    p.add_argument("--save-texture", default="", metavar="FILE.png",
-                   help="write the face's texture atlas (in the model's UV layout) as a PNG at the end "
-                        "(learned even with --atlas off)")
-    p.add_argument("--fill", choices=("drag", "pushpull", "telea", "ns", "patch"), default="drag",
-                   help="fill of the background an edit uncovers where it was never seen: drag (the background "
-                        "beside the face carried in by its motion, the default), pushpull (smooth), telea / ns "
-                        "(OpenCV inpainting), patch (background copied in from nearby)")
-    p.add_argument("--plate", choices=("on", "off"), default="off",
-                   help="keep a background plate (the background seen behind the face and the person in other frames, "
-                        "registered when the camera moves) and take what an edit uncovers from it where known "
-                        "(default off)")
-    p.add_argument("--outline-band", type=float, default=None, metavar="S",
-                   help="carry an edit's motion this far past the fitted outline, fading out, as a share of the "
-                        "face's size, so a real outline the fit lies inside moves with the face (default 0.05; "
-                        "0: not at all)")
-    p.add_argument("--interpolation", choices=("sinc", "cubic", "lanczos"), default="sinc",
-                   help="kernel the frame is resampled with where the face moved: sinc (the default: a long "
-                        "windowed sinc, keeps the skin's finest detail), cubic (faster, softer) or lanczos "
-                        "(Lanczos-4)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_process)
-
-
 class ImageSequenceOutput:
     """Writes frames as numbered lossless images: ``pattern % index`` with index from 0."""
 
@@ -305,20 +192,6 @@ def _finish(output, completed: bool) -> None:
         output.keep_partial()
 
 
-def cmd_process(args) -> int:
-    from facesculpt.app.batch import expand_inputs, is_batch, run_batch
-    from facesculpt.runtime.process_limits import limit_threads
-
-    limit_threads(1)  # one thread per stage is faster here (see facesculpt.runtime.process_limits)
-    if args.width < 0 or args.max_frames < 0 or args.neutral_frames < 1:
-        raise ValueError("--width and --max-frames must be >= 0 and --neutral-frames >= 1")
-    if is_batch(args):
-        return run_batch(args, expand_inputs(args.input))
-    code, message = process_file(args, args.input[0], args.output)
-    print(message, file=sys.stderr, flush=True)
-    return code
-
-
 def _render_frames(pipeline, source, args, fps: float, total, output, export, stop, seen: dict) -> None:
     """The rendering pass in three stages on two cores: every frame decoded and analysed a frame
     ahead (:mod:`.read_ahead`), composited and exported here, where the GL context is, and encoded
@@ -363,15 +236,22 @@ def _atlas_options(args) -> tuple[str, str]:
     return save_texture, "on" if atlas == "on" else ("learn" if save_texture else "off")
 
 
-def _fit_options(args) -> dict:
-    """The Pipeline's fitting options from --fov, --neutral-frames, --refine and --rotation-prior
-    (ValueError in one sentence on a negative --rotation-prior)."""
+def _stage_options(args) -> dict:
+    """The Pipeline's fitting and compositing options (``fit``, ``render``, ``fov_deg``) from the
+    command line's flags (ValueError in one sentence on a bad value)."""
+    from facesculpt.nodes.fitter.config import FitterConfig
+    from facesculpt.nodes.renderer.compositor_options import CompositorOptions
+
     rotation_prior = args.rotation_prior
     if not rotation_prior >= 0:
         raise ValueError(f"--rotation-prior must be a weight >= 0 px per radian (0: off), got {rotation_prior}")
     refine = getattr(args, "refine", "off")
-    return {"fov_deg": args.fov, "neutral_frames": args.neutral_frames, "rotation_prior_px": rotation_prior,
-            "refine": None if refine == "off" else refine}
+    fit = FitterConfig(neutral_frames=args.neutral_frames, rotation_prior_px=rotation_prior,
+                       refine=None if refine == "off" else refine)
+    render = {"inpaint": getattr(args, "inpaint", "drag"), "interpolation": getattr(args, "interpolation", "sinc")}
+    if getattr(args, "outline_band", None) is not None:
+        render["outline_band"] = args.outline_band
+    return {"fov_deg": args.fov, "fit": fit, "render": CompositorOptions(**render)}
 
 
 def _pose_options(args) -> dict:
@@ -418,7 +298,7 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     selection = parse_faces(args.faces)
     strength = check_strength(args.strength, "--strength")
     presets = [(face, scale_preset(read_preset(p), strength)) for face, p in parse_edits(args.edits, selection)]
-    pose_options, fit_options = _pose_options(args), _fit_options(args)
+    pose_options, stage_options = _pose_options(args), _stage_options(args)
     source = open_input(args.input)
     fps, total = source.native_fps, source.frame_count or None
     if total and args.max_frames:
@@ -426,10 +306,9 @@ def process_file(args, input_path: str, output_spec: str, detector=None) -> tupl
     output = open_output(args.output, fps, args.codec, args.crf, None if args.no_audio else args.input,
                          getattr(args, "preset", None))
     save_texture, atlas = _atlas_options(args)
-    pipeline = Pipeline(args.model, threads=args.threads, **fit_options, **pose_options,
-                        faces=selection, detector=detector, atlas=atlas, inpaint=getattr(args, "fill", "drag"),
-                        plate=getattr(args, "plate", "off"), interpolation=getattr(args, "interpolation", "sinc"),
-                        outline_band=getattr(args, "outline_band", None), expression=export is not None)
+    pipeline = Pipeline(args.model, threads=args.threads, **stage_options, **pose_options,
+                        faces=selection, detector=detector, atlas=atlas, plate=getattr(args, "plate", "off"),
+                        expression=export is not None)
     if presets:
         from facesculpt.nodes.deformer import DeformerError
 

@@ -18,6 +18,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.app.option_arguments import add_option_argument
+from facesculpt.nodes.fitter.config import FitterConfig
+
 
 def register(sub) -> None:
     p = sub.add_parser("reenact", help="animate a source face with a driving video's expression (avatar)",
@@ -36,8 +39,8 @@ def register(sub) -> None:
                    help="also turn the source head as the driver's turns away from its neutral pose")
     p.add_argument("--no-mouth", action="store_true", help="do not paint the mouth interior")
     p.add_argument("--side-by-side", action="store_true", help="write source | driver | result side by side")
-    p.add_argument("--neutral-frames", type=int, default=30, metavar="N",
-                   help="driving frames the driver's neutral face is learned from (default 30)")
+    add_option_argument(p, FitterConfig(), "neutral_frames", "--neutral-frames", metavar="N",
+                        extra_help="driving frames the driver's neutral face is learned from")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N driving frames (0: all)")
     p.add_argument("--codec", default=None, metavar="NAME", help="video encoder (as for process)")
     p.add_argument("--crf", type=int, default=18, metavar="Q", help="H.264/H.265 quality (default 18)")
@@ -82,7 +85,7 @@ def reenact_file(args) -> tuple[int, str]:
     fps = driving.native_fps
     total = min(driving.frame_count or 0, args.max_frames or 10**9) or None
     output = open_output(args.output, fps, args.codec, args.crf, None)
-    pipe = Pipeline("facemesh", fov_deg=args.fov, neutral_frames=args.neutral_frames)
+    pipe = Pipeline("facemesh", fov_deg=args.fov, fit=FitterConfig(neutral_frames=args.neutral_frames))
     reenactor, with_face = None, 0
     try:
         with _Stop() as stop:

@@ -30,6 +30,7 @@ import numpy as np
 
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.projection import project
+from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.renderer.mouth_interior import (
     CLOSED_MOUTH_PX,
     INNER_LIP_FACEMESH,
@@ -72,7 +73,7 @@ def fit_source(image: np.ndarray, model="facemesh", fov_deg: float = 60.0, threa
     ValueError when no face is found."""
     from facesculpt.app.pipeline import Pipeline
 
-    with Pipeline(model, threads=threads, fov_deg=fov_deg, neutral_frames=1) as pipe:
+    with Pipeline(model, threads=threads, fov_deg=fov_deg, fit=FitterConfig(neutral_frames=1)) as pipe:
         fit = None
         for attempt in range(2):  # the second pass tracks from the first one's points
             fit = pipe.fit_frame(image, float(attempt)) or fit

@@ -1,7 +1,7 @@
 """A smooth field over a mesh from its values at a few control vertices: biharmonic interpolation
 (the field minimises the squared umbrella Laplacian, ``|L x|^2``, with the control vertices held).
 Model-based coding sends the expression basis at control vertices only and the receiver, who has
-the mesh, fills in the rest (:mod:`facesculpt.msgs.fsc`); the coder and the reenactment rooms share it.
+the mesh, fills in the rest (:mod:`facesculpt.coding.fsc`); the coder and the reenactment rooms share it.
 """
 
 from __future__ import annotations

@@ -11,11 +11,9 @@ arguments a detector is constructed with, including a room's own name for a fiel
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-
-def _option(default, help_text: str, unit: str = "", range=None, choices=None):  # noqa: A002 - as Param's
-    return field(default=default, metadata={"help": help_text, "unit": unit, "range": range, "choices": choices})
+from facesculpt.options import option
 
 
 @dataclass(frozen=True)
@@ -27,20 +25,20 @@ class DetectorOptions:
     ``mirrored`` for the hands only (handedness).
     """
 
-    models_dir: str = _option("", "directory filled by `facesculpt setup` (\"\": FACESCULPT_HOME / cache)")
-    threads: int = _option(1, "onnxruntime intra-op threads per network (0: onnxruntime's default)",
+    models_dir: str = option("", "directory filled by `facesculpt setup` (\"\": FACESCULPT_HOME / cache)")
+    threads: int = option(1, "onnxruntime intra-op threads per network (0: onnxruntime's default)",
                            range=(0, 64))
-    max_tracked: int = _option(1, "the most faces (hands) tracked at once; faces: the largest are kept", range=(1, 16))
-    min_detection_score: float = _option(0.5, "detector score threshold", range=(0.0, 1.0))
-    min_tracking_score: float = _option(0.5, "presence score below which one counts as lost and the detector "
+    max_tracked: int = option(1, "the most faces (hands) tracked at once; faces: the largest are kept", range=(1, 16))
+    min_detection_score: float = option(0.5, "detector score threshold", range=(0.0, 1.0))
+    min_tracking_score: float = option(0.5, "presence score below which one counts as lost and the detector "
                                              "reruns", range=(0.0, 1.0))
-    nms_iou: float = _option(0.3, "overlap (IoU) above which two detections merge", range=(0.0, 1.0))
-    redetect_interval: int = _option(15, "frames between detector runs while fewer than the most are tracked",
+    nms_iou: float = option(0.3, "overlap (IoU) above which two detections merge", range=(0.0, 1.0))
+    redetect_interval: int = option(15, "frames between detector runs while fewer than the most are tracked",
                                      unit="frames", range=(1, 1000))
-    min_face: float = _option(0.15, "smallest face to detect, fraction of the short image side (0: whole image "
+    min_face: float = option(0.15, "smallest face to detect, fraction of the short image side (0: whole image "
                                     "only)", range=(0.0, 1.0))
-    mirrored: bool = _option(False, "the camera image is mirrored (a selfie view): swaps handedness")
-    backend: str = _option("onnxruntime", "the runtime: onnxruntime (the converted networks) or litert (the "
+    mirrored: bool = option(False, "the camera image is mirrored (a selfie view): swaps handedness")
+    backend: str = option("onnxruntime", "the runtime: onnxruntime (the converted networks) or litert (the "
                                           "original .tflite networks, a reference)",
                            choices=("onnxruntime", "litert"))
 

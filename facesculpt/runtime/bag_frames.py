@@ -1,7 +1,7 @@
 """What a bag stores of one message: its wire frames, optionally with the image compressed.
 
 A recorded message is its frames exactly as they travelled (msgpack header + one frame per
-array, ``msgs/codec.py``), so playback is byte-identical. In an MCAP bag (``bag.py``) each
+array, ``facesculpt/msgs/codec.py``), so playback is byte-identical. In an MCAP bag (``bag.py``) each
 message's data is these frames in the ``facesculpt-frames`` message encoding::
 
     u16 n_frames | (u8 codec | u32 frame_len | frame)*          little-endian

@@ -19,7 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from facesculpt.runtime.parameters import ParameterError, resolve_params
-from facesculpt.runtime.topics import node_topics, topic_problem
+from facesculpt.runtime.topic_names import topic_problem
+from facesculpt.runtime.topics import node_topics
 
 
 def check_nodes(path: Path, specs: list, node_class: Callable[[str], type]) -> None:

@@ -19,6 +19,7 @@ which the launcher does not respawn (the same values would fail again).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass
 from types import SimpleNamespace
@@ -26,7 +27,7 @@ from typing import Any
 
 import yaml
 
-from facesculpt.runtime.topics import topic_problem
+from facesculpt.runtime.topic_names import topic_problem
 
 # Exit status of a node stopped by a parameter it cannot run with.
 EXIT_BAD_PARAMETER = 2
@@ -111,9 +112,39 @@ class Param:
         return text + (f": {self.description}" if self.description else "")
 
 
+@dataclass(frozen=True)
+class Renamed:
+    """A parameter's old name in a node's ``PARAMS`` (``"min_cutoff": Renamed("smooth_min_cutoff")``):
+    a value given under it goes to the new name, with a warning; it works for one release."""
+
+    new_name: str
+
+
 def declared(params: dict[str, Any]) -> dict[str, Param]:
-    """A node's ``PARAMS`` with plain defaults read as undescribed, unbounded :class:`Param`."""
-    return {name: value if isinstance(value, Param) else Param(value) for name, value in params.items()}
+    """A node's ``PARAMS`` with plain defaults read as undescribed, unbounded :class:`Param`
+    (old names, :class:`Renamed`, left out)."""
+    return {name: value if isinstance(value, Param) else Param(value) for name, value in params.items()
+            if not isinstance(value, Renamed)}
+
+
+def renamed(node_name: str, params: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """``given`` with each old parameter name (:class:`Renamed` in ``params``) replaced by its new
+    one, warning once per name."""
+    out = {}
+    for key, value in given.items():
+        old = params.get(key)
+        if isinstance(old, Renamed):
+            if (node_name, key) not in _WARNED:
+                _WARNED.add((node_name, key))
+                logging.getLogger("facesculpt").warning(
+                    "node %s: param %s is now called %s (the old name works for one release)",
+                    node_name, key, old.new_name)
+            key = old.new_name
+        out[key] = value
+    return out
+
+
+_WARNED: set = set()
 
 
 def option_params(options, fields, aliases: dict[str, str] | None = None) -> dict[str, Param]:
@@ -128,8 +159,12 @@ def option_params(options, fields, aliases: dict[str, str] | None = None) -> dic
         field_name = aliases.get(name, name)
         m = meta[field_name]
         text, unit = m.get("help", ""), m.get("unit", "")
-        out[name] = Param(getattr(options, field_name), f"{text} ({unit})" if unit and unit not in text else text,
-                          range=m.get("range"), choices=m.get("choices"))
+        text = f"{text} ({unit})" if unit and unit not in text else text
+        default, choices = getattr(options, field_name), m.get("choices")
+        if default is None and choices is not None and m.get("none"):
+            # a choice that may be None is "off" on a node (a launch file's value is a string)
+            default, choices, text = "off", ("off", *choices), f"{text}; off: {m['none']}"
+        out[name] = Param(default, text, range=m.get("range"), choices=choices)
     return out
 
 
@@ -172,6 +207,7 @@ def resolve_params(node_name: str, params: dict[str, Any], given: dict[str, Any]
     ``given``, each converted to its type and checked against its range or choices. Raises
     :class:`ParameterError` naming the node, the parameter, the value and what is allowed."""
     decl = declared(params)
+    given = renamed(node_name, params, given)
     unknown = sorted(set(given) - set(decl))
     if unknown:
         known = ", ".join(sorted(decl)) or "none"

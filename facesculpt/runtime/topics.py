@@ -12,30 +12,14 @@ held to it.
 
 from __future__ import annotations
 
-import re
-
-# Every node publishes its diagnostics here (facesculpt.runtime.node); a renderer may show them.
-DIAGNOSTICS_TOPIC = "diagnostics"
-_WORD = r"[A-Za-z0-9_][A-Za-z0-9_.\-]*"
-_TOPIC = re.compile(rf"{_WORD}(/{_WORD})*\Z")
-
-
-def topic_problem(name) -> str:
-    """Why ``name`` is not a topic name, as the end of a sentence; "" when it is one."""
-    if not isinstance(name, str):
-        return f"{name!r} is not a string"
-    if not _TOPIC.match(name):
-        return (f"{name!r} is not a topic name (words of letters, digits, _ . - joined by /, "
-                f"as in camera/image)")
-    return ""
+from facesculpt.runtime.parameters import declared
+from facesculpt.runtime.topic_names import DIAGNOSTICS_TOPIC
 
 
 def node_topics(cls, values: dict) -> set[str] | None:
     """The topics a node of class ``cls`` may advertise or subscribe (before remapping) when it
     runs with the parameter values ``values`` (name -> value): its ``TOPICS``, the topics its
     topic parameters name, and :data:`DIAGNOSTICS_TOPIC`. None when ``cls`` declares no ``TOPICS``."""
-    from facesculpt.runtime.parameters import declared
-
     if not getattr(cls, "TOPICS", ()):
         return None
     named = {values.get(name, p.default) for name, p in declared(cls.PARAMS).items() if p.topic}

@@ -1,1 +1,0 @@
-"""Launch files shipped with the package: `facesculpt launch demo` finds launch/demo.yaml."""
