@@ -11,7 +11,8 @@ import pytest
 from facesculpt.app import landmark_calibration as lc
 from facesculpt.cli import main
 from facesculpt.nodes.fitter.calibration import calibration_file, project_model, uncalibrated
-from facesculpt.nodes.fitter.model import load_model, save_model
+from facesculpt.nodes.fitter.model import save_model
+from facesculpt.nodes.fitter.model_loading import load_model
 
 
 @pytest.fixture(scope="module")

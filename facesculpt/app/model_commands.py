@@ -148,7 +148,8 @@ def _calibrated(model, textures: list, what: str, args):
 
 def _calibrate(args: argparse.Namespace) -> int:
     from facesculpt.nodes.fitter.calibration import calibration_file
-    from facesculpt.nodes.fitter.model import ModelFormatError, load_model, save_model
+    from facesculpt.nodes.fitter.model import ModelFormatError, save_model
+    from facesculpt.nodes.fitter.model_loading import load_model
 
     try:
         model = load_model(args.model)
