@@ -59,6 +59,8 @@ VARIANTS = {
     "beta 10 beta_mm 0.2": {"smooth_beta": 10.0, "smooth_beta_mm": 0.2},
     "beta 20": {"smooth_beta": 20.0},
     "no rotation prior": {"rotation_prior_px": 0.0},
+    "rotation prior 300": {"rotation_prior_px": 300.0},
+    "rotation prior 1000": {"rotation_prior_px": 1000.0},
     "no identity accumulation": {"accumulate_identity": False},
     "outline off": {"outline": "off"},
     "no smoothing no rotation prior": {"smoothing": False, "rotation_prior_px": 0.0},

@@ -98,7 +98,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
-    p.add_argument("--models", default="facemesh,sfm", help="models to run process with (default facemesh,sfm)")
+    p.add_argument("--models", default="facemesh,sfm", help="models to run process with, names or .npz files (default facemesh,sfm)")
     p.add_argument("--edits", default=",".join(EDITS), help=f"edits (default {','.join(EDITS)})")
     p.add_argument("--real-videos", default="d3,d12", help="shared videos to score without ground truth ('' for none)")
     p.add_argument("--real-frames", type=int, default=90, help="frames of each real video (default 90)")
@@ -255,30 +255,35 @@ def run_with_atlas(args, data, seqs, video, preset, e, m, frames, scored, truth_
     """Edit ``e`` with model ``m`` once more with ``process --atlas on``: its scores per truth (and
     the crops against ``frames``, the run without the atlas, and the first truth); ``oracle``:
     run_process's landmark oracle, if any."""
-    folder = out / "frames" / f"synthetic_{e}_{m}_atlas"
-    got, failed = _run_once_more(args, seqs, video, folder, preset, m, f"process_{e}_{m}_atlas_s", timings,
-                                 pythonpath=args.pythonpath, data=data,
+    folder = out / "frames" / f"synthetic_{e}_{model_tag(m)}_atlas"
+    got, failed = _run_once_more(args, seqs, video, folder, preset, m, f"process_{e}_{model_tag(m)}_atlas_s",
+                                 timings, pythonpath=args.pythonpath, data=data,
                                  extra_args=(*args.process_args, "--atlas", "on"), **oracle)
     if failed:
         return failed
     first = next(iter(seqs))
-    save_atlas_crops(seqs[first], e, frames, got, rows, out / f"crops_atlas_{e}_{m}.png")
+    save_atlas_crops(seqs[first], e, frames, got, rows, out / f"crops_atlas_{e}_{model_tag(m)}.png")
     if not args.keep_frames:
         shutil.rmtree(folder)
     return {t: score_sequence(seq, e, got, scored, truth_shifts[t]) for t, seq in seqs.items()}
 
 
+def model_tag(model: str) -> str:
+    """A model's name in rows and file names: a ``.npz`` model file's stem, else the name itself."""
+    return Path(model).stem if model.endswith(".npz") else model
+
+
 def run_with_depth(args, data, seqs, rgbd, preset, e, m, scored, truth_shifts, liq, rows, out, timings) -> dict:
     """Edit ``e`` with model ``m`` on the RGB-D recording ``rgbd`` of the same input (each fit refined
     on its depth): its scores per truth, and its crops (``crops_EDIT_MODEL_depth.png``)."""
-    folder = out / "frames" / f"synthetic_{e}_{m}_depth"
-    got, failed = _run_once_more(args, seqs, rgbd, folder, preset, m, f"process_{e}_{m}_depth_s", timings, data=data,
+    folder = out / "frames" / f"synthetic_{e}_{model_tag(m)}_depth"
+    got, failed = _run_once_more(args, seqs, rgbd, folder, preset, m, f"process_{e}_{model_tag(m)}_depth_s", timings, data=data,
                                  extra_args=args.process_args)
     if failed:
         return failed
     for t, seq in seqs.items():
-        save_crops(seq, e, f"result ({m} + depth)", got, liq[t], rows,
-                   out / crops_name(e, m + "_depth", t, args.truth_edit))
+        save_crops(seq, e, f"result ({model_tag(m)} + depth)", got, liq[t], rows,
+                   out / crops_name(e, model_tag(m) + "_depth", t, args.truth_edit))
     if not args.keep_frames:
         shutil.rmtree(folder)
     return {t: score_sequence(seq, e, got, scored, truth_shifts[t]) for t, seq in seqs.items()}
@@ -328,8 +333,9 @@ def synthetic(args, data: Path, out: Path) -> dict:
                 for label, frames in ((ORACLE_RENDERER, true), (ORACLE_DEFORMER, solved)):
                     results[t][e][label] = score_sequence(seq, e, frames, scored, truth_shifts[t])
         for m, label, pythonpath in [(m, *v) for m in args.models for v in [("", args.pythonpath), *args.variants]]:
-            row = m if not label else f"{m} [{label}]"
-            folder = out / "frames" / f"synthetic_{e}_{m}{label and '_' + label}"
+            tag = model_tag(m)
+            row = tag if not label else f"{tag} [{label}]"
+            folder = out / "frames" / f"synthetic_{e}_{tag}{label and '_' + label}"
             try:
                 frames, took = run_process(video, folder, presets[e], m, neutral_frames=args.neutral_frames,
                                            pythonpath=pythonpath, data=data, extra_args=args.process_args, **oracle)
@@ -338,7 +344,7 @@ def synthetic(args, data: Path, out: Path) -> dict:
                 for t in seqs:
                     results[t][e][row] = {"error": str(exc)}
                 continue
-            timings[f"process_{e}_{m}{label and '_' + label}_s"] = took
+            timings[f"process_{e}_{tag}{label and '_' + label}_s"] = took
             if len(frames) < args.frames:
                 for t in seqs:
                     results[t][e][row] = {"error": f"process wrote {len(frames)} of {args.frames} frames"}
@@ -346,15 +352,15 @@ def synthetic(args, data: Path, out: Path) -> dict:
             for t, seq in seqs.items():
                 results[t][e][row] = score_sequence(seq, e, frames, scored, truth_shifts[t])
                 save_crops(seq, e, f"result ({row})", frames, liq[t], rows,
-                           out / crops_name(e, m + (label and "_" + label), t, args.truth_edit))
+                           out / crops_name(e, tag + (label and "_" + label), t, args.truth_edit))
             if rgbd is not None and not label:
                 for t, got in run_with_depth(args, data, seqs, rgbd, presets[e], e, m, scored, truth_shifts, liq,
                                              rows, out, timings).items():
-                    results[t][e][f"{m} + depth"] = got
+                    results[t][e][f"{tag} + depth"] = got
             if e in args.atlas_edits and not label:
                 for t, got in run_with_atlas(args, data, seqs, video, presets[e], e, m, frames, scored, truth_shifts,
                                              rows, out, timings, oracle).items():
-                    results[t][e][f"{m} + atlas"] = got
+                    results[t][e][f"{tag} + atlas"] = got
             if not args.keep_frames:
                 shutil.rmtree(folder)
         for t, seq in seqs.items():
@@ -378,8 +384,8 @@ def real_videos(args, data: Path, out: Path, presets: dict) -> list[dict]:
         inputs = read_video(video, args.real_frames)
         for m in args.models:
             for e, preset in presets.items():
-                folder = out / "frames" / f"{name}_{e}_{m}"
-                row = {"video": name, "model": m, "edit": e}
+                folder = out / "frames" / f"{name}_{e}_{model_tag(m)}"
+                row = {"video": name, "model": model_tag(m), "edit": e}
                 try:
                     frames, took = run_process(video, folder, Path(preset), m, args.real_frames, args.neutral_frames,
                                                args.pythonpath, data, args.process_args)

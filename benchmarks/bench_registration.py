@@ -3,6 +3,7 @@ fitted head's rotation with and without a calibration.
 
     python -m benchmarks.bench_registration [--frames 90] [--out DIR] [--models sfm,facemesh]
         [--calibrate FILE] [--calibration FILE] [--oracles] [--photos] [--real-videos d0,d3,s18]
+        [--jitter-videos d0,d3,s18]
 
 The realism benchmark's synthetic scene (:mod:`realism.scene`: the Surrey Face Model with a random
 identity, textured from a real face, turning yaw ±25°, pitch ±10°) is rendered with its true pose
@@ -24,7 +25,8 @@ and vertices, and the project's landmark network is run on every frame. Reported
   and outline vertices' image error.
 
 ``--calibrate FILE`` learns the SFM's landmark calibration (``facesculpt/nodes/fitter/calibration.py``) from
-sequences of its own (:mod:`realism.calibration_scenes`) and writes it; with it (or
+sequences of its own (as `facesculpt model calibrate` does: :mod:`facesculpt.app.landmark_calibration`)
+and writes it; with it (or
 ``--calibration FILE``) the benchmark set is fitted with and without it, ``--photos`` adds the 43
 hand-marked photos' NME, ``--real-videos`` the shared videos fitted frame by frame, ``--oracles``
 the fits without each error source (the set's own offsets, no smoothing, the true points).
@@ -51,9 +53,10 @@ from benchmarks.realism.landmark_oracle import INNER
 from benchmarks.realism.posed import render_all
 from benchmarks.realism.raster import project_pixels
 from benchmarks.realism.scene import FOV_DEG, make_scene
+from facesculpt.app.landmark_calibration import track
 from facesculpt.geometry.head_angles import euler_from_rotation
 from facesculpt.geometry.ibug68 import IBUG68_FROM_MESH, IBUG68_GROUPS
-from facesculpt.nodes.fitter.detector_rotation import RIGID_IDS
+from facesculpt.nodes.fitter.calibration import uncalibrated
 from facesculpt.paths import shared_data_dir
 
 GROUPS = ("right_eyebrow", "left_eyebrow", "nose_bridge", "nose_base", "right_eye", "left_eye",
@@ -63,20 +66,6 @@ GROUPS = ("right_eyebrow", "left_eyebrow", "nose_bridge", "nose_base", "right_ey
 def render(scene, workers: int) -> list:
     """:func:`realism.posed.render_all` of the scene at its own pose: per frame image, vertices."""
     return render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]
-
-
-def detect(frames: list) -> np.ndarray:
-    """(F, 468, 3) the landmark network's points (x, y px, relative depth px) tracked over
-    ``frames``, NaN where no face was found."""
-    from facesculpt.nodes.landmarks.detector import LandmarkDetector
-
-    detector = LandmarkDetector()
-    out = np.full((len(frames), 468, 3), np.nan)
-    for i, frame in enumerate(frames):
-        faces = detector.track(frame)
-        if faces:
-            out[i] = np.asarray(faces[0].points, np.float64)[:, :3]
-    return out
 
 
 def inner_rows(scene) -> tuple[list[int], np.ndarray]:
@@ -243,12 +232,6 @@ def fit_lines(fits: dict) -> list[str]:
     return lines
 
 
-def fixed_names(model) -> list[str]:
-    """The model's iBUG landmarks (1-based names) with a fixed vertex: those a calibration learns."""
-    outline = set(model.outline_landmarks_right) | set(model.outline_landmarks_left)
-    return [n for n in model.landmark_names if n.isdigit() and n not in outline]
-
-
 def sequence_of(scene, points: np.ndarray, names: list[str]) -> dict:
     """A :func:`calibration.learn_calibration` sequence: the scene's poses, the network's points
     (F, 468, 3) for the landmarks ``names`` and the true head's vertices of them."""
@@ -290,47 +273,18 @@ def leave_one_yaw_bin_out(sequences: list[dict]) -> list[dict]:
 
 
 def calibrate(data: Path, frames: int, workers: int, path: Path) -> tuple[dict, list[dict]]:
-    """Render :data:`realism.calibration_scenes.CALIBRATION_SCENES` (``frames`` each), run the
-    network on them, learn the SFM's calibration and write it to ``path``. Returns the learned
+    """Learn the SFM's calibration as `facesculpt model calibrate` does (the same sequences,
+    :mod:`facesculpt.app.landmark_calibration`) and write it to ``path``. Returns the learned
     calibration and the calibration sequences."""
-    import subprocess
-
-    from benchmarks.realism.calibration_scenes import CALIBRATION_SCENES, make_calibration_scene
+    from facesculpt.app import landmark_calibration as lc
     from facesculpt.nodes.fitter import load_model
 
-    model = load_model("sfm")
-    names = fixed_names(model)
-    sequences, slopes = [], []
-    rigid = IBUG68_FROM_MESH[[int(n) - 1 for n in RIGID_IDS]]
-    for entry in CALIBRATION_SCENES:
-        scene = make_calibration_scene(data, entry, frames)
-        points = detect([t["image"] for t in render(scene, workers)])
-        sequences.append(sequence_of(scene, points, names))
-        turn = reg.network_rotation(points, sequences[-1]["R"], 1.0, rigid)
-        slopes.append((turn["pitch_slope"], turn["yaw_slope"]))
-    learned = nodes_calibration.learn_calibration(sequences)
-    # the network's own points turn short of the head: its rotation's gain, pitch and yaw (roll 1)
-    learned["rotation_slopes"] = np.mean(slopes, axis=0)
-    learned["rotation_gain"] = np.r_[1.0 / learned["rotation_slopes"], 1.0]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                            cwd=Path(__file__).resolve().parent).stdout.strip()
-    provenance = (f"benchmarks/bench_registration.py --calibrate (commit {commit or 'unknown'}): the face-mesh "
-                  f"network's points on {len(sequences)} synthetic sequences of {frames} frames "
-                  + "; ".join(f"identity seed {e[0]}, texture {e[1]} frame {e[2]}, background {e[3]}, yaw +-{e[4].yaw_deg:g} "
-                              f"pitch +-{e[4].pitch_deg:g}" for e in CALIBRATION_SCENES)
-                  + " (none of them the realism benchmark's scene)")
-    nodes_calibration.save_calibration(path, model.model_id, names, learned["offsets"], learned["weights"], provenance,
-                                       learned["rotation_gain"])
+    model = uncalibrated(load_model("sfm"))
+    sequences = lc.sequences(model, lc.shared_textures(data), frames, workers)
+    textures = ", ".join(f"{v} frame {i}" for v, i in lc.SHARED_TEXTURES)
+    calibrated, learned = lc.learn(model, sequences, f"the shared data's {textures} (bench_registration.py --calibrate)")
+    lc.save_builtin(calibrated, path)
     return learned, sequences
-
-
-def uncalibrated(model):
-    """``model`` without a landmark calibration (today's fit)."""
-    import dataclasses
-
-    return dataclasses.replace(model, landmark_offsets=np.zeros((0, 3), np.float32),
-                               landmark_weights=np.zeros(0, np.float32), network_rotation_gain=np.zeros(0, np.float32),
-                               calibration="")
 
 
 def calibration_lines(results: dict) -> list[str]:
@@ -392,7 +346,7 @@ def oracle_fits(scene, frames: list, truths: list, points: np.ndarray, sfm, cali
     line stays the network's). Installs the oracle in this process: call it last."""
     from benchmarks.realism import landmark_oracle
 
-    names = fixed_names(sfm)
+    names = nodes_calibration.fixed_landmarks(sfm)
     own = nodes_calibration.learn_calibration([sequence_of(scene, points, names)])
     own_model = nodes_calibration.calibrated(sfm, names, own["offsets"], np.ones(len(names)), "the benchmark set's own")
     rows = {"sfm, the set's own offsets (bound)": fitted_rotation(scene, frames, truths, own_model),
@@ -452,6 +406,23 @@ def real_video(data: Path, video: str, models: dict, count: int) -> dict:
     return out
 
 
+def real_jitter(data: Path, videos: list[str], models: dict, count: int) -> dict:
+    """Each model's fitted-mesh jitter (:func:`realism.jitter.jitter`, px, default settings as
+    ``process`` fits: identity accumulation and smoothing on) over the first ``count`` frames of
+    each shared video: video -> name -> {"jitter_px", "still_frames"}."""
+    from benchmarks.bench_appearance import fitted_pixels
+    from benchmarks.realism.jitter import jitter
+    from benchmarks.realism.sequences import read_video
+
+    out = {}
+    for video in videos:
+        frames = read_video(data / "video" / f"{video}.mp4", count)
+        for name, model in models.items():
+            px, still = jitter(fitted_pixels(frames, model, {}))
+            out.setdefault(video, {})[name] = {"jitter_px": px, "still_frames": still}
+    return out
+
+
 def real_lines(real: dict) -> list[str]:
     """The real videos' figures as markdown lines."""
     lines = ["", "| video | fit | residual px by today's yaw bin, degrees (frames) | r(residual, |yaw|) | identity spread between bins mm |",
@@ -476,6 +447,8 @@ def main(argv=None) -> int:
     p.add_argument("--oracles", action="store_true",
                    help="also the SFM fit without each error source (the set's own offsets, no smoothing, true points)")
     p.add_argument("--real-videos", default="", help="shared videos (e.g. d0,d3,s18) fitted with and without the calibration")
+    p.add_argument("--jitter-videos", default="", help="shared videos (e.g. d0,d3,s18) whose fitted-mesh jitter is "
+                   "measured with and without the calibration (default settings)")
     p.add_argument("--real-frames", type=int, default=150, help="frames of each real video (default 150)")
     p.add_argument("--photos", action="store_true", help="also the NME of the 43 hand-marked photos' landmark fits")
     p.add_argument("--calibration", type=Path, default=None,
@@ -503,13 +476,13 @@ def main(argv=None) -> int:
     scene = make_scene(data, frames=args.frames)
     truths = render(scene, workers)
     frames = [t["image"] for t in truths]
-    points = detect(frames)
+    points = track(frames)
     results["diagnosis"] = diagnose(scene, points)
     sfm = uncalibrated(load_model("sfm"))
     if calibration is not None:
         model = nodes_calibration.load_calibration(calibration, sfm)
         results["provenance"] = model.calibration
-        names = fixed_names(sfm)
+        names = nodes_calibration.fixed_landmarks(sfm)
         index = {n: i for i, n in enumerate(model.landmark_names)}
         bench = sequence_of(scene, points, names)
         results["benchmark_residual"] = {
@@ -531,6 +504,13 @@ def main(argv=None) -> int:
     lines = diagnosis_lines(results["diagnosis"]) + [""] + calibration_lines(results) + fit_lines(results["fits"])
     if "real" in results:
         lines += real_lines(results["real"])
+    if args.jitter_videos and calibration is not None:
+        results["jitter"] = real_jitter(data, [v for v in args.jitter_videos.split(",") if v],
+                                        {"sfm": sfm, "sfm, calibrated": model}, args.real_frames)
+        lines += ["", "| video | fit | jitter px (default settings) | still frames | / today's |", "| --- | --- | --- | --- | --- |"]
+        for video, fits in results["jitter"].items():
+            lines += [f"| {video} | {k} | {v['jitter_px']:.4f} | {v['still_frames']} | "
+                      f"{v['jitter_px'] / fits['sfm']['jitter_px']:.2f} |" for k, v in fits.items()]
     if args.photos:
         results["photo_nme"] = photo_nme(data, {"sfm": sfm} | ({"sfm, calibrated": model} if calibration else {}))
         lines += ["", "| landmark fit of the hand-marked photos | faces | NME, fitted vertices | NME, calibrated points |",

@@ -23,9 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facesculpt.geometry.head_angles import euler_from_rotation
-from facesculpt.geometry.similarity import similarity_procrustes
-from facesculpt.nodes.fitter.calibration import project_model, triangulate  # noqa: F401 (re-exported)
+from facesculpt.nodes.fitter.calibration import network_rotation, project_model, triangulate  # noqa: F401 (re-exported)
 
 
 def poses(scene) -> tuple[np.ndarray, np.ndarray]:
@@ -82,31 +80,6 @@ def rms(errors: np.ndarray) -> float:
     """Root mean square length (px) of the finite rows of ``errors`` (..., 2)."""
     d = np.linalg.norm(np.asarray(errors, np.float64).reshape(-1, 2), axis=1)
     return float(np.sqrt(np.nanmean(d ** 2)))
-
-
-def network_rotation(points3d: np.ndarray, R_true: np.ndarray, depth_scale: float = 1.0,
-                     rows: np.ndarray | None = None) -> dict:
-    """The head's rotation as the network's own 3D points (F, N, 3) (x, y px, z relative depth px,
-    camera axes) give it against the truth ``R_true`` (F, 3, 3): each frame's similarity
-    Procrustes from the frame nearest frontal, composed with that frame's true rotation. Returns
-    per-frame ``yaw``, ``pitch`` (network, degrees), the true ones, and the least-squares
-    ``yaw_slope``, ``pitch_slope`` (network angle per true angle, about the reference frame).
-    ``depth_scale`` multiplies the network's depths first; ``rows`` picks the points used."""
-    P = np.asarray(points3d, np.float64)
-    if rows is not None:
-        P = P[:, rows]
-    P = P * np.array([1.0, 1.0, depth_scale])
-    true = np.array([euler_from_rotation(R)[:2] for R in R_true])
-    ok = np.isfinite(P).all(axis=(1, 2))
-    ref = int(np.argmin(np.where(ok, np.abs(true).sum(1), np.inf)))
-    net = np.full_like(true, np.nan)
-    for i in np.flatnonzero(ok):
-        _, Rr, _ = similarity_procrustes(P[ref], P[i])
-        net[i] = euler_from_rotation(Rr @ R_true[ref])[:2]
-    d_true, d_net = true[ok] - true[ref], net[ok] - true[ref]
-    slopes = [float(d_true[:, k] @ d_net[:, k] / (d_true[:, k] @ d_true[:, k])) for k in range(2)]
-    return {"yaw": net[:, 0], "pitch": net[:, 1], "true_yaw": true[:, 0], "true_pitch": true[:, 1],
-            "yaw_slope": slopes[0], "pitch_slope": slopes[1], "reference": ref}
 
 
 def best_depth_scale(points3d: np.ndarray, R_true: np.ndarray, rows=None,

@@ -15,6 +15,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from facesculpt.app.synthetic_head import (  # noqa: F401 (FACING, BORDER_FADE_MM, rotation: re-exported)
+    BORDER_FADE_MM,
+    FACING,
+    border_alpha,
+    fit_photo,
+    random_identity,
+    rotation,
+)
+from facesculpt.app.synthetic_head import close_holes_with_centres as close_holes
+from facesculpt.app.synthetic_head import intrinsics as head_intrinsics
+
 #: Output frame size (W, H) px, frame rate.
 SIZE = (640, 480)
 FPS = 25
@@ -33,10 +44,6 @@ STILL_YAW_DEG, STILL_PITCH_DEG = 8.0, 3.0
 #: The point the head turns about (model space, mm: behind the face) and its distance (mm).
 PIVOT = np.array([0.0, 0.0, -90.0])
 DISTANCE_MM = 510.0
-#: Width (mm) over which the mesh's border fades to transparent (a soft hair/skin border).
-BORDER_FADE_MM = 8.0
-#: Model space -> camera space of a face looking into the camera (OpenCV: y down, z away).
-FACING = np.diag([1.0, -1.0, -1.0])
 
 
 @dataclass
@@ -90,18 +97,9 @@ def head_pose(i: int, motion: str = "turning") -> tuple[float, float, np.ndarray
     return float(yaw), float(pitch), t
 
 
-def rotation(yaw_deg: float, pitch_deg: float) -> np.ndarray:
-    """Camera-space rotation (3, 3): yaw about the camera's y axis after pitch about its x axis."""
-    a, b = np.radians(yaw_deg), np.radians(pitch_deg)
-    Ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    Rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
-    return Ry @ Rx
-
-
 def intrinsics(size=SIZE, fov_deg: float = FOV_DEG) -> np.ndarray:
-    W, H = size
-    f = W / 2 / np.tan(np.radians(fov_deg) / 2)
-    return np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1.0]])
+    """(3, 3) intrinsics of the scene's camera (:func:`facesculpt.app.synthetic_head.intrinsics`)."""
+    return head_intrinsics(size, fov_deg)
 
 
 def source_frame(data: Path) -> np.ndarray:
@@ -122,83 +120,14 @@ def background_from(frame: np.ndarray, size=SIZE) -> np.ndarray:
     return cv2.resize(crop, (W, H), interpolation=cv2.INTER_CUBIC)
 
 
-def fit_photo(model, photo: np.ndarray) -> np.ndarray:
-    """Pixel positions (V, 2) of the model's vertices on the face in ``photo``: the project's
-    landmark detector and SFM fitter (several iterations, no smoothing) on the still image."""
-    from facesculpt.geometry import to_ibug68
-    from facesculpt.nodes.fitter import FitterConfig, make_fitter
-    from facesculpt.nodes.landmarks.detector import LandmarkDetector
-
-    faces = LandmarkDetector().detect(photo)
-    if not faces:
-        raise RuntimeError("no face found in the texture photo")
-    h, w = photo.shape[:2]
-    config = FitterConfig(iterations=10, smoothing=False, accumulate_identity=False)
-    fitter = make_fitter(model, config, (w, h), intrinsics((w, h)))
-    pts = to_ibug68(faces[0].points[:, :2].astype(np.float64))
-    fit = fitter.fit(pts, [str(i) for i in range(1, 69)])
-    return np.asarray(fit.projected, np.float64)
-
-
-def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
-    """The open mesh's boundary loops, each (n,) vertex indices in order, longest first."""
-    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    present = {(int(a), int(b)) for a, b in directed}
-    nxt = {a: b for a, b in present if (b, a) not in present}
-    loops, seen = [], set()
-    for start in nxt:
-        if start in seen:
-            continue
-        loop, v = [], start
-        while v not in seen and v in nxt:
-            seen.add(v)
-            loop.append(v)
-            v = nxt[v]
-        loops.append(np.array(loop, np.int64))
-    return sorted(loops, key=len, reverse=True)
-
-
-def close_holes(rest: np.ndarray, triangles: np.ndarray, texcoords: np.ndarray):
-    """The mesh with every boundary loop but the outer one (the mouth) closed by a fan around a
-    new centre vertex: (rest, triangles, texcoords, outer loop)."""
-    loops = boundary_loops(triangles)
-    rest, tris, tex = [rest], [triangles], [texcoords]
-    n = len(rest[0])
-    for loop in loops[1:]:
-        rest.append(rest[0][loop].mean(axis=0, keepdims=True))
-        tex.append(texcoords[loop].mean(axis=0, keepdims=True))
-        # the hole's orientation is the reverse of the loop's boundary edges
-        tris.append(np.column_stack([np.roll(loop, -1), loop, np.full(len(loop), n)]))
-        n += 1
-    return np.concatenate(rest), np.concatenate(tris), np.concatenate(tex), loops[0]
-
-
-def border_alpha(rest: np.ndarray, border: np.ndarray, fade_mm: float = BORDER_FADE_MM) -> np.ndarray:
-    """(V,) alpha: 0 on the ``border`` vertices (the mesh's outer loop), rising smoothly to 1 at
-    ``fade_mm`` from them."""
-    from scipy.spatial import cKDTree
-
-    d, _ = cKDTree(rest[border]).query(rest)
-    s = np.clip(d / fade_mm, 0.0, 1.0)
-    return s * s * (3 - 2 * s)
-
-
-def random_identity(model, seed: int, sigma: float = 0.8, components: int = 20) -> np.ndarray:
-    """Rest vertices (V, 3) mm: the model's mean plus the first ``components`` shape components
-    with coefficients drawn from N(0, sigma²) standard deviations."""
-    rng = np.random.default_rng(seed)
-    alpha = np.zeros(model.num_shape)
-    alpha[:components] = rng.normal(0.0, sigma, components)
-    return np.asarray(model.instance(alpha), np.float64)
-
-
 def make_scene(data: Path, frames: int = 90, seed: int = 7, motion: str = "turning") -> Scene:
     """The benchmark's scene from the shared data folder ``data`` (../shared/data), the head moving
     as ``motion`` says (:data:`MOTIONS`)."""
     head_pose(0, motion)   # an unknown motion fails here, before the texture's fit
     from facesculpt.nodes.fitter import load_model
+    from facesculpt.nodes.fitter.calibration import uncalibrated
 
-    model = load_model("sfm")
+    model = uncalibrated(load_model("sfm"))   # the texture's fit: the same with or without a calibration
     frame = source_frame(data)
     rest = np.asarray(random_identity(model, seed), np.float64).reshape(-1, 3)
     rest, tris, tex, outer = close_holes(rest, np.asarray(model.triangles, np.int64), fit_photo(model, frame))

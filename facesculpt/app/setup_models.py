@@ -19,8 +19,11 @@ tessellation (read as data), converts the networks with the project's own conver
     facemesh_triangles.npy                     (T, 3) int32 triangles of the 468-point mesh
     manifest.json                              versions and the sha256 of every file
     downloads/<wheel>                          the wheel, so a re-run never needs the network
+    calibration/sfm_shape_3448.npz             with --calibrate: the Surrey model's landmark calibration
+                                               (when the shared data holds the model; `model calibrate`)
 
-It is idempotent: when the manifest matches the files, nothing is downloaded or rewritten.
+It is idempotent: when the manifest matches the files, nothing is downloaded or rewritten, and
+the calibration is built only when it is not there.
 Nothing at run time downloads; the runtime only reads these files.
 """
 
@@ -258,12 +261,43 @@ def run_setup(home: Path | None = None, wheel: Path | None = None, force: bool =
     return manifest
 
 
+def sfm_calibration(home: Path, force: bool = False) -> Path | None:
+    """Build the Surrey model's landmark calibration into ``home``/calibration/ (where
+    ``load_model("sfm")`` reads it; :mod:`facesculpt.app.landmark_calibration`, about a minute of
+    CPU) when the shared data folder that holds the model is there and the file is not (or
+    ``force``). Returns the file, or None when there is no shared data."""
+    from facesculpt.paths import shared_data_dir
+
+    data = shared_data_dir()
+    if data is None or not (data / "sfm" / "sfm_shape_3448.bin").is_file():
+        log.info("no shared data folder with the Surrey model: its landmark calibration is not built "
+                 "(`facesculpt model calibrate` builds it later)")
+        return None
+    path = home / "calibration" / "sfm_shape_3448.npz"
+    if path.is_file() and not force:
+        return path
+    from facesculpt.app.landmark_calibration import build_sfm_calibration
+
+    start = time.perf_counter()
+    log.info("building the Surrey model's landmark calibration (renders of its own; about a minute of CPU)")
+    build_sfm_calibration(data, path)
+    log.info("wrote %s (%.0f s)", path, time.perf_counter() - start)
+    return path
+
+
 def _main(args: argparse.Namespace) -> int:
     try:
         run_setup(args.home, args.wheel, args.force)
     except SetupError as exc:
         print(f"facesculpt setup: {exc}", file=sys.stderr)
         return 1
+    # only where load_model("sfm") reads it: the models folder of this environment
+    if args.calibrate and (args.home is None or args.home.expanduser().resolve() == model_home().resolve()):
+        try:
+            sfm_calibration(model_home(), args.force)
+        except (RuntimeError, ValueError, OSError) as exc:
+            print(f"facesculpt setup: the Surrey model's landmark calibration was not built: {exc}", file=sys.stderr)
+            return 1
     return 0
 
 
@@ -271,10 +305,15 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "setup", help="download and convert the face and hand networks (run once)",
         description="Download the pinned mediapipe wheel, convert its face and hand networks to ONNX and write "
-                    "them with the face-mesh triangles into the model directory.")
+                    "them with the face-mesh triangles into the model directory; with --calibrate, where the shared data "
+                    "folder holds the Surrey model, build its landmark calibration there too.")
     p.add_argument("--home", type=Path, default=None,
                    help="model directory (default: $FACESCULPT_HOME or ~/.cache/facesculpt)")
     p.add_argument("--wheel", type=Path, default=None,
                    help=f"use this already-downloaded {WHEEL_NAME} (hash-checked) instead of pip")
     p.add_argument("--force", action="store_true", help="convert again even when the directory is up to date")
+    p.add_argument("--calibrate", action="store_true",
+                   help="also build the Surrey model's landmark calibration into the models folder that load_model "
+                   "reads, where the shared data folder holds the model (`facesculpt model calibrate`; about a minute "
+                   "of CPU; not by default: it did not win on real faces, docs/results/registration.md)")
     p.set_defaults(func=_main)

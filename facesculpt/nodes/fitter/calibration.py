@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facesculpt.geometry.head_angles import euler_from_rotation
+from facesculpt.geometry.similarity import similarity_procrustes
 from facesculpt.nodes.fitter.model import ModelFormatError, MorphableModel
 
 CALIBRATION_FORMAT = "facesculpt-landmark-calibration"
@@ -62,6 +64,65 @@ def triangulate(K: np.ndarray, R: np.ndarray, c: np.ndarray, observed: np.ndarra
     return out
 
 
+def network_rotation(points3d: np.ndarray, R_true: np.ndarray, depth_scale: float = 1.0,
+                     rows: np.ndarray | None = None) -> dict:
+    """The head's rotation as the network's own 3D points (F, N, 3) (x, y px, z relative depth px,
+    camera axes) give it against the truth ``R_true`` (F, 3, 3): each frame's similarity
+    Procrustes from the frame nearest frontal, composed with that frame's true rotation. Returns
+    per-frame ``yaw``, ``pitch`` (network, degrees), the true ones, and the least-squares
+    ``yaw_slope``, ``pitch_slope`` (network angle per true angle, about the reference frame).
+    ``depth_scale`` multiplies the network's depths first; ``rows`` picks the points used."""
+    P = np.asarray(points3d, np.float64)
+    if rows is not None:
+        P = P[:, rows]
+    P = P * np.array([1.0, 1.0, depth_scale])
+    true = np.array([euler_from_rotation(R)[:2] for R in R_true])
+    ok = np.isfinite(P).all(axis=(1, 2))
+    ref = int(np.argmin(np.where(ok, np.abs(true).sum(1), np.inf)))
+    net = np.full_like(true, np.nan)
+    for i in np.flatnonzero(ok):
+        _, Rr, _ = similarity_procrustes(P[ref], P[i])
+        net[i] = euler_from_rotation(Rr @ R_true[ref])[:2]
+    d_true, d_net = true[ok] - true[ref], net[ok] - true[ref]
+    slopes = [float(d_true[:, k] @ d_net[:, k] / (d_true[:, k] @ d_true[:, k])) for k in range(2)]
+    return {"yaw": net[:, 0], "pitch": net[:, 1], "true_yaw": true[:, 0], "true_pitch": true[:, 1],
+            "yaw_slope": slopes[0], "pitch_slope": slopes[1], "reference": ref}
+
+
+def view_direction(R: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(F, 3) unit vectors, model space: from the model's origin toward the camera, at the poses
+    R (F, 3, 3), c (F, 3) (a perspective camera at the origin of camera space)."""
+    d = -np.einsum("fji,fj->fi", R, c)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def triangulate_posed(K: np.ndarray, R: np.ndarray, c: np.ndarray, observed: np.ndarray,
+                      ridge_px: float = 1.0) -> np.ndarray:
+    """(P, 3, 3) per point its model-space position (row 0, mm) and how it moves with the view
+    (rows 1, 2: mm per unit of the view direction's x and y, :func:`view_direction`): the point
+    ``X + d_x A + d_y B`` whose projections best match ``observed`` (F, P, 2) px in linear least
+    squares, each equation scaled to pixels at its frame's depth, A and B pulled toward 0 with
+    ``ridge_px`` px per mm. NaN for a point seen in fewer than 4 frames."""
+    f = np.array([K[0, 0], K[1, 1]])
+    d = view_direction(R, c)
+    out = np.full((observed.shape[1], 3, 3), np.nan)
+    ridge = np.hstack([np.zeros((6, 3)), ridge_px * np.eye(6)])
+    for p in range(observed.shape[1]):
+        ok = np.isfinite(observed[:, p]).all(1)
+        if ok.sum() < 4:
+            continue
+        u = observed[ok, p] + 0.5 - K[:2, 2]
+        Rk, ck, dk = R[ok], c[ok], d[ok]
+        z = ck[:, 2:3]
+        rows = (u[:, :, None] * Rk[:, 2:3, :] - f[None, :, None] * Rk[:, :2, :]) / z[:, :, None]   # (n, 2, 3)
+        design = np.concatenate([rows, dk[:, 0, None, None] * rows, dk[:, 1, None, None] * rows], axis=2)
+        rhs = -(u * ck[:, 2:3] - f * ck[:, :2]) / z
+        A = np.vstack([design.reshape(-1, 9), ridge])
+        b = np.concatenate([rhs.reshape(-1), np.zeros(6)])
+        out[p] = np.linalg.lstsq(A, b, rcond=None)[0].reshape(3, 3)
+    return out
+
+
 def learn_calibration(sequences: list[dict]) -> dict:
     """The calibration of L landmarks from sequences, each a dict with ``K``, ``R``, ``c`` (the
     poses, as the module docstring says), ``observed`` (F, L, 2) px (the network's points, NaN
@@ -81,6 +142,19 @@ def learn_calibration(sequences: list[dict]) -> dict:
     weights = 1.0 / np.maximum(sigma, 1e-3) ** 2
     weights = np.clip(weights / weights.mean(), *WEIGHT_RANGE)
     return {"offsets": offsets, "sigma": sigma, "weights": weights / weights.mean()}
+
+
+def uncalibrated(model: MorphableModel) -> MorphableModel:
+    """A copy of ``model`` without a landmark calibration (each landmark at its vertex, weight 1)."""
+    return replace(model, landmark_offsets=np.zeros((0, 3), np.float32), landmark_weights=np.zeros(0, np.float32),
+                   network_rotation_gain=np.zeros(0, np.float32), calibration="")
+
+
+def fixed_landmarks(model: MorphableModel) -> list[str]:
+    """The model's iBUG landmarks (1-based names, "1".."68") with a fixed vertex (not on the
+    outline, whose correspondence moves with the pose): the landmarks a calibration learns."""
+    outline = set(model.outline_landmarks_right) | set(model.outline_landmarks_left)
+    return [n for n in model.landmark_names if n.isdigit() and 1 <= int(n) <= 68 and n not in outline]
 
 
 def calibrated(model: MorphableModel, names: list[str], offsets: np.ndarray, weights: np.ndarray,
