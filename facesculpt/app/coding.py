@@ -34,6 +34,7 @@ from facesculpt.coding.fsc import (
     write_stream,
 )
 from facesculpt.geometry.similarity import similarity_vector
+from facesculpt.nodes.camera.intrinsics import FOV_DEG
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.reenact.expression_basis import expression_basis, expression_coefficients
 
@@ -61,7 +62,7 @@ class Analysis:
     triangles: np.ndarray
 
 
-def analyse(frames, fps: float, neutral_frames: int = FitterConfig.neutral_frames, fov_deg: float = 60.0,
+def analyse(frames, fps: float, neutral_frames: int = FitterConfig.neutral_frames, fov_deg: float = FOV_DEG,
             progress=None) -> Analysis:
     """Fit every frame of a video; ValueError without a face. ``frames``: a list of (H, W, 3)
     uint8 BGR, or a callable returning a fresh iterator over them (called twice: the neutral's

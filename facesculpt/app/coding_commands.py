@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from facesculpt.app.option_arguments import add_option_argument
+from facesculpt.nodes.camera.intrinsics import IntrinsicsOptions
 from facesculpt.nodes.fitter.config import FitterConfig
 
 
@@ -34,7 +35,7 @@ def register(sub) -> None:
     add_option_argument(p, FitterConfig(), "neutral_frames", "--neutral-frames", metavar="N",
                         extra_help="the person's neutral face is learned from them")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="code only the first N frames (0: all)")
-    p.add_argument("--fov", type=float, default=60.0, metavar="DEG", help="assumed horizontal field of view")
+    add_option_argument(p, IntrinsicsOptions(), "fov_deg", "--fov", metavar="DEG")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_encode)
     d = sub.add_parser("decode", help="render a .fsc stream back to a video",

@@ -38,7 +38,7 @@ from facesculpt.geometry.pose_offset import (
     PoseOffset,
     check_face_camera,
 )
-from facesculpt.nodes.camera.intrinsics import intrinsics_from_fov
+from facesculpt.nodes.camera.intrinsics import FOV_DEG, intrinsics_from_fov
 from facesculpt.nodes.deformer import DeformerError, EditStack
 from facesculpt.nodes.deformer.preset_format import PRESET_FORMAT, merge_presets, preset_pose, validate_preset
 from facesculpt.nodes.fitter import (
@@ -183,7 +183,7 @@ class Pipeline:
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, fit: FitterConfig | None = None,
-                 render: CompositorOptions | None = None, threads: int = 1, fov_deg: float = 60.0,
+                 render: CompositorOptions | None = None, threads: int = 1, fov_deg: float = FOV_DEG,
                  min_score: float = 0.5, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS,

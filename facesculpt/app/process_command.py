@@ -7,6 +7,7 @@ import sys
 
 from facesculpt.app.option_arguments import add_option_argument
 from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_SMOOTHING_S
+from facesculpt.nodes.camera.intrinsics import IntrinsicsOptions
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions
 from facesculpt.nodes.renderer.compositor_options import CompositorOptions
@@ -22,8 +23,7 @@ def _add_fit_arguments(p) -> None:
                         "non-commercial) or a .npz from `facesculpt model import-eos`")
     add_option_argument(p, FITTER, "neutral_frames", "--neutral-frames", metavar="N",
                         extra_help="the first pass learns the neutral face from them, before the edits are solved")
-    p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
-                   help="horizontal field of view assumed for the camera (default 60)")
+    add_option_argument(p, IntrinsicsOptions(), "fov_deg", "--fov", metavar="DEG")
     add_option_argument(p, FITTER, "refine", "--refine")
     add_option_argument(p, FITTER, "rotation_prior_px", "--rotation-prior", metavar="PX",
                         extra_help="with --model sfm (docs/guide/face-models.md)")

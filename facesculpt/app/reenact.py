@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from facesculpt.app.option_arguments import add_option_argument
+from facesculpt.nodes.camera.intrinsics import IntrinsicsOptions
 from facesculpt.nodes.fitter.config import FitterConfig
 
 
@@ -44,7 +45,7 @@ def register(sub) -> None:
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N driving frames (0: all)")
     p.add_argument("--codec", default=None, metavar="NAME", help="video encoder (as for process)")
     p.add_argument("--crf", type=int, default=18, metavar="Q", help="H.264/H.265 quality (default 18)")
-    p.add_argument("--fov", type=float, default=60.0, metavar="DEG", help="assumed horizontal field of view")
+    add_option_argument(p, IntrinsicsOptions(), "fov_deg", "--fov", metavar="DEG")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_reenact)
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.projection import project
+from facesculpt.nodes.camera.intrinsics import FOV_DEG
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.renderer.mouth_interior import (
     CLOSED_MOUTH_PX,
@@ -68,7 +69,7 @@ class SourceFace:
     neutral: np.ndarray
 
 
-def fit_source(image: np.ndarray, model="facemesh", fov_deg: float = 60.0, threads: int = 1) -> SourceFace:
+def fit_source(image: np.ndarray, model="facemesh", fov_deg: float = FOV_DEG, threads: int = 1) -> SourceFace:
     """Fit the source frame (H, W, 3) uint8 BGR; its neutral is learned from this frame alone.
     ValueError when no face is found."""
     from facesculpt.app.pipeline import Pipeline

@@ -40,10 +40,10 @@ import numpy as np
 from facesculpt.geometry.halving import halve, halved_intrinsics, halvings
 from facesculpt.msgs import FrameDone, Image
 from facesculpt.runtime.node import Node
-from facesculpt.runtime.parameters import ConfigurationError, Param
+from facesculpt.runtime.parameters import ConfigurationError, Param, option_params
 from facesculpt.runtime.qos import EVERY_MESSAGE
 
-from .intrinsics import intrinsics_from_fov
+from .intrinsics import IntrinsicsOptions, intrinsics_from_fov
 from .rgbd_sources import RGBDFrame, depth_fields, resized_intrinsics
 from .source_opening import open_source
 from .sources import RESIZE_MODES, SourceError, resize_frame
@@ -72,7 +72,7 @@ class CameraNode(Node):
         "fps": Param(0.0, "pacing, frames/s; 0: the source's own rate; -1: as fast as possible", range=(-1.0, 1000.0)),
         "loop": Param(False, "restart a video or bag at its end"),
         "motion": Param(False, "still image: move a virtual camera over it"),
-        "fov_deg": Param(60.0, "horizontal field of view for K, degrees, unless K is given", range=(1.0, 179.0)),
+        **option_params(IntrinsicsOptions(), ("fov_deg",)),
         "K": Param([], "9 numbers, row-major, for the output size (empty: from fov_deg)"),
         "max_frames": Param(0, "stop after this many frames (0: no limit)", range=(0, None)),
         "wait_subscribers": Param(0, "hold the first frame until this many subscribers listen (recording)",

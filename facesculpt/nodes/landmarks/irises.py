@@ -20,7 +20,7 @@ points of :class:`~facesculpt.nodes.landmarks.detector.Face`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from facesculpt.geometry.bgr_image import as_bgr_uint8
 from facesculpt.geometry.crops import crop_to_image, network_input
 from facesculpt.geometry.eye_points import MESH_EYE_LIDS
 from facesculpt.networks import load_networks
+from facesculpt.options import option
 
 IRIS_SIZE = 64
 #: The face mesh's eye corners: (start, end) of the crop's axis, per eye (right, left).
@@ -45,9 +46,9 @@ _FILES = ("iris_landmark.onnx",)
 class IrisOptions:
     """Whether the irises are found (the landmarks node's ``irises``, ``process --gaze``)."""
 
-    irises: bool = field(default=False, metadata={
-        "help": "run the iris network on each face's eyes: face/landmarks then carries irises and eye_lids, "
-                "and the fitter publishes face/gaze (costs about two face-mesh networks a face)"})
+    irises: bool = option(False, "run the iris network on each face's eyes: face/landmarks then carries irises and "
+                                 "eye_lids, and the fitter publishes face/gaze (costs about two face-mesh networks "
+                                 "a face)")
 
 
 IRIS_OPTIONS = IrisOptions()
