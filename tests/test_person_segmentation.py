@@ -81,7 +81,7 @@ def test_the_plate_learns_nothing_of_the_person(segmenter, models_dir, data_dir)
     for people in (True, False):
         with Pipeline("facemesh", plate="on", models_dir=models_dir, fit=FitterConfig(neutral_frames=8)) as pipe:
             if not people:
-                pipe.compositor_options.pop("segmenter")
+                pipe.segmenter = None
             pipe.calibrate(frames[:8], 25.0)
             pipe.set_edits(read_preset(preset_file("cheeks")))
             for i, frame in enumerate(frames):
