@@ -23,6 +23,7 @@ from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions
 from facesculpt.nodes.fitter.node import FITTER_PARAMS, FitterNode
 from facesculpt.nodes.fitter.result import FitError
+from facesculpt.nodes.fitter.stage import StageOptions
 from facesculpt.nodes.hands.detector import HAND_ALIASES, HAND_OPTIONS
 from facesculpt.nodes.hands.node import HandsNode
 from facesculpt.nodes.landmarks.detector import FACE_ALIASES, FACE_OPTIONS
@@ -34,8 +35,10 @@ from facesculpt.options import check_options, described_fields, option_problem
 from facesculpt.runtime.parameters import Renamed, declared, resolve_params
 
 OPTIONS_CLASSES = (DetectorOptions, FitterConfig, CompositorOptions, DeformerOptions, ExpressionLabelOptions,
-                   IntrinsicsOptions, IrisOptions)
-# node -> (the options instance its defaults come from, aliases: node name -> field)
+                   IntrinsicsOptions, IrisOptions, StageOptions)
+# node -> (the options instance its defaults come from, aliases: node name -> field); a second
+# options class of the same node in SECOND_OPTIONS
+SECOND_OPTIONS = [(FitterNode, StageOptions(), {})]
 NODE_OPTIONS = {
     LandmarksNode: (FACE_OPTIONS, FACE_ALIASES),
     HandsNode: (HAND_OPTIONS, HAND_ALIASES),
@@ -76,9 +79,9 @@ def _agrees(param_default, field_default) -> bool:
     return param_default == field_default
 
 
-@pytest.mark.parametrize("node", list(NODE_OPTIONS), ids=lambda n: n.NAME)
-def test_node_parameters_agree_with_their_options(node):
-    options, aliases = NODE_OPTIONS[node]
+@pytest.mark.parametrize("node, options, aliases", [(n, *NODE_OPTIONS[n]) for n in NODE_OPTIONS] + SECOND_OPTIONS,
+                         ids=lambda v: getattr(v, "NAME", type(v).__name__))
+def test_node_parameters_agree_with_their_options(node, options, aliases):
     fields = {f.name: f for f in dataclasses.fields(options)}
     shared = 0
     for name, param in declared(node.PARAMS).items():
@@ -142,6 +145,7 @@ def test_the_process_flags_take_their_defaults_from_the_options():
     fit, render = FitterConfig(), CompositorOptions()
     assert args.neutral_frames == fit.neutral_frames and args.rotation_prior == fit.rotation_prior_px
     assert args.refine == "off" and fit.refine is None and args.fov == IntrinsicsOptions().fov_deg
+    assert args.threads == FACE_OPTIONS.threads
     assert (args.inpaint, args.interpolation, args.outline_band) == (render.inpaint, render.interpolation,
                                                                      render.outline_band)
 

@@ -58,10 +58,14 @@ from facesculpt.nodes.fitter.expression_labels import (
     has_expression_blendshapes,
 )
 from facesculpt.nodes.fitter.gaze import EyeballLearning, estimate_gaze, eye_lid_vertices
+from facesculpt.nodes.fitter.stage import MIN_SCORE
 from facesculpt.nodes.landmarks import LandmarkDetector
+from facesculpt.nodes.landmarks.detector import FACE_OPTIONS
 from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
 from facesculpt.nodes.renderer.compositor_options import CompositorOptions
 
+#: onnxruntime threads per network, the landmarks node's default (:class:`DetectorOptions`).
+DETECTOR_THREADS = FACE_OPTIONS.threads
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
 STAGES = ("landmarks", "fit", "merge", "render")
 
@@ -183,8 +187,8 @@ class Pipeline:
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, fit: FitterConfig | None = None,
-                 render: CompositorOptions | None = None, threads: int = 1, fov_deg: float = FOV_DEG,
-                 min_score: float = 0.5, models_dir: str | Path | None = None,
+                 render: CompositorOptions | None = None, threads: int = DETECTOR_THREADS, fov_deg: float = FOV_DEG,
+                 min_score: float = MIN_SCORE, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS,
                  pose: PoseOffset | None = None, face_camera: float = 0.0, keyframes: str = "auto",

@@ -10,6 +10,7 @@ from facesculpt.geometry.pose_offset import FACE_CAMERA_LIMIT_DEG, FACE_CAMERA_S
 from facesculpt.nodes.camera.intrinsics import IntrinsicsOptions
 from facesculpt.nodes.fitter.config import FitterConfig
 from facesculpt.nodes.fitter.expression_labels import ExpressionLabelOptions
+from facesculpt.nodes.landmarks.detector import FACE_OPTIONS
 from facesculpt.nodes.renderer.compositor_options import CompositorOptions
 
 #: The defaults of the flags that are fitter and compositor options (declared in those classes).
@@ -107,7 +108,7 @@ def register(sub) -> None:
     p.add_argument("--no-audio", action="store_true", help="do not copy the input's sound into the output video")
     p.add_argument("--width", type=int, default=0, metavar="W", help="resize frames to this width first (aspect kept)")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N frames (0: all)")
-    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads per network (default 1)")
+    add_option_argument(p, FACE_OPTIONS, "threads", "--threads", metavar="N")
     p.add_argument("--atlas", choices=("on", "off"), default="off",
                    help="keep a texture memory (UV atlas) of the face over the frames and take colours from it "
                         "where the frame sees the edited surface badly: stretched or hidden (default off)")

@@ -32,6 +32,7 @@ from facesculpt.geometry import merge_deformation
 from facesculpt.geometry.projection import project
 from facesculpt.nodes.camera.intrinsics import FOV_DEG
 from facesculpt.nodes.fitter.config import FitterConfig
+from facesculpt.nodes.landmarks.detector import FACE_OPTIONS
 from facesculpt.nodes.renderer.mouth_interior import (
     CLOSED_MOUTH_PX,
     INNER_LIP_FACEMESH,
@@ -69,7 +70,7 @@ class SourceFace:
     neutral: np.ndarray
 
 
-def fit_source(image: np.ndarray, model="facemesh", fov_deg: float = FOV_DEG, threads: int = 1) -> SourceFace:
+def fit_source(image: np.ndarray, model="facemesh", fov_deg: float = FOV_DEG, threads: int = FACE_OPTIONS.threads) -> SourceFace:
     """Fit the source frame (H, W, 3) uint8 BGR; its neutral is learned from this frame alone.
     ValueError when no face is found."""
     from facesculpt.app.pipeline import Pipeline

@@ -46,6 +46,7 @@ from .gaze import EyeballLearning, Gaze, estimate_gaze, eye_lid_vertices
 from .model import MorphableModel
 from .model_loading import load_model
 from .result import FitError
+from .stage import StageOptions
 
 
 def valid_intrinsics(K) -> bool:
@@ -75,7 +76,7 @@ class FitterNode(Node):
                                 range=(0.0, 3600.0)),
         "model_change_mm": Param(2.0, "sparse, once learned (2 x neutral_frames frames): republish when a "
                                       "landmark vertex moved this much, mm", range=(0.0, None)),
-        "min_score": Param(0.5, "faces below this landmark score are not fitted", range=(0.0, 1.0)),
+        **option_params(StageOptions(), ("min_score",)),
         "faces": Param("largest", "which faces to fit: largest, all, or a face number from 1 (numbered from the "
                                   "left as first seen; the landmarks node's max_faces must cover them)"),
         "depth": Param("off", "on: refine each fit on its frame's aligned depth image (camera/image of an RGB-D "

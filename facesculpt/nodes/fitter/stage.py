@@ -16,9 +16,21 @@ import numpy as np
 from facesculpt.geometry import to_ibug68
 from facesculpt.nodes.fitter.fitter import Fitter
 from facesculpt.nodes.fitter.result import FitError, FitResult
+from facesculpt.options import option
 
 #: iBUG-68 landmark ids of a sparse model, in :func:`to_ibug68`'s order.
 IBUG68_IDS = [str(i) for i in range(1, 69)]
+
+
+@dataclass(frozen=True)
+class StageOptions:
+    """Which found faces the stage fits (the fitter node's and the pipeline's)."""
+
+    min_score: float = option(0.5, "faces below this landmark score are not fitted", range=(0.0, 1.0))
+
+
+#: The least landmark score of a face that is fitted (:class:`StageOptions`).
+MIN_SCORE = StageOptions.min_score
 
 
 @dataclass
@@ -32,7 +44,7 @@ class LandmarksFit:
     error: str = ""
 
 
-def fit_landmarks(fitter: Fitter, points, scores, stamp_s: float, min_score: float = 0.5,
+def fit_landmarks(fitter: Fitter, points, scores, stamp_s: float, min_score: float = MIN_SCORE,
                   corrections: dict | None = None, image: np.ndarray | None = None, depth=None) -> LandmarksFit:
     """Fit one frame's landmarks. points (F, N, 2 or 3) px: N = 468 face-mesh points per face
     (a sparse model also takes N = 68 iBUG points); scores (F,) face presence in [0, 1] (when
