@@ -101,16 +101,22 @@ def geometry(frames, model_name: str):
 
 
 def baseline_compositor(rev: str):
-    """The Compositor class of ``facesculpt/nodes/renderer/compositor.py`` at git revision ``rev`` (its
+    """The Compositor class of ``facesculpt/nodes/renderer/compositor.py`` (``nodes/...`` before the
+    layout move) at git revision ``rev`` (its
     relative imports resolved in today's package), or None when git cannot show it."""
     import importlib.util
     import subprocess
     import tempfile
 
-    try:
-        source = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:nodes/renderer/compositor.py"],
-                                capture_output=True, text=True, check=True).stdout
-    except (OSError, subprocess.CalledProcessError):
+    source = None
+    for path in ("facesculpt/nodes/renderer/compositor.py", "nodes/renderer/compositor.py"):  # after, before the move
+        try:
+            source = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:{path}"],
+                                    capture_output=True, text=True, check=True).stdout
+            break
+        except (OSError, subprocess.CalledProcessError):
+            continue
+    if source is None:
         return None
     with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
         f.write(source)
