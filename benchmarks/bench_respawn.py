@@ -43,10 +43,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _launch_file(checkout: Path, video: Path, out: Path) -> Path:
-    demo = yaml.safe_load((next(d for d in (checkout / "facesculpt" / "launch", checkout / "launch") if d.is_dir()) / "demo.yaml").read_text())
+def forever_graph(demo_launch: Path, video: Path) -> list[dict]:
+    """The nodes of the launch file ``demo_launch`` (the demo's) made to run until stopped: its
+    gesture script left out (scripted edits end), every node respawned and none required, the
+    camera looping ``video`` with no frame limit, the renderer writing no file. The chaos test's
+    graph too."""
     nodes = []
-    for entry in demo["nodes"]:
+    for entry in yaml.safe_load(Path(demo_launch).read_text())["nodes"]:
         if entry["name"] == "script":
             continue
         entry = dict(entry, respawn=True, required=False)
@@ -55,7 +58,12 @@ def _launch_file(checkout: Path, video: Path, out: Path) -> Path:
         if entry["name"] == "renderer":
             entry["params"] = dict(entry["params"], output="")
         nodes.append(entry)
-    out.write_text(yaml.safe_dump({"nodes": nodes}))
+    return nodes
+
+
+def _launch_file(checkout: Path, video: Path, out: Path) -> Path:
+    launch = next(d for d in (checkout / "facesculpt" / "launch", checkout / "launch") if d.is_dir())  # after, before the move
+    out.write_text(yaml.safe_dump({"nodes": forever_graph(launch / "demo.yaml", video)}))
     return out
 
 

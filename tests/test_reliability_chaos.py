@@ -17,6 +17,7 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
+from benchmarks.bench_respawn import forever_graph
 from facesculpt.msgs import FaceState, Image
 from facesculpt.runtime.node import Node
 
@@ -25,19 +26,8 @@ VICTIMS = ["camera", "landmarks", "fitter", "deformer", "renderer"]
 
 
 def _chaos_launch(tmp_path, video) -> str:
-    demo = yaml.safe_load((REPO_ROOT / "facesculpt" / "launch" / "demo.yaml").read_text())
-    nodes = []
-    for entry in demo["nodes"]:
-        if entry["name"] == "script":
-            continue  # scripted edits end; the chaos run needs a graph that runs forever
-        entry = dict(entry, respawn=True, required=False)
-        if entry["name"] == "camera":
-            entry["params"] = dict(entry["params"], source=str(video), loop=True, max_frames=0, wait_subscribers=0)
-        if entry["name"] == "renderer":
-            entry["params"] = dict(entry["params"], output="")
-        nodes.append(entry)
     path = tmp_path / "chaos.yaml"
-    path.write_text(yaml.safe_dump({"nodes": nodes}))
+    path.write_text(yaml.safe_dump({"nodes": forever_graph(REPO_ROOT / "facesculpt" / "launch" / "demo.yaml", video)}))
     return str(path)
 
 
