@@ -64,8 +64,6 @@ from facesculpt.nodes.landmarks.detector import FACE_OPTIONS
 from facesculpt.nodes.landmarks.working_resolution import ANALYSIS_PIXELS, track_at_working_resolution
 from facesculpt.nodes.renderer.compositor_options import CompositorOptions
 
-#: onnxruntime threads per network, the landmarks node's default (:class:`DetectorOptions`).
-DETECTOR_THREADS = FACE_OPTIONS.threads
 #: Per-frame stages timed by :meth:`Pipeline.process` (ms), in order.
 STAGES = ("landmarks", "fit", "merge", "render")
 
@@ -187,7 +185,7 @@ class Pipeline:
     """
 
     def __init__(self, model: str | MorphableModel = "facemesh", *, fit: FitterConfig | None = None,
-                 render: CompositorOptions | None = None, threads: int = DETECTOR_THREADS, fov_deg: float = FOV_DEG,
+                 render: CompositorOptions | None = None, threads: int = FACE_OPTIONS.threads, fov_deg: float = FOV_DEG,
                  min_score: float = MIN_SCORE, models_dir: str | Path | None = None,
                  faces: str | int = "largest", detector: LandmarkDetector | None = None, atlas: str = "off",
                  plate: str = "off", analysis_pixels: int = ANALYSIS_PIXELS,
