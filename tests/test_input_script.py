@@ -166,6 +166,9 @@ def _record_bag(video, path, frames: int) -> None:
     cap.release()
 
 
+DRAG_WINDOW_NS = 3_000_000_000  # the drag's 0.5 s and up to 2.5 s of the graph's lag on a busy machine
+
+
 def _face_px(state: FaceState) -> float:
     """The size of a fitted face in its frame: RMS distance of its projected vertices from their mean, px."""
     p = state.projected.astype(np.float64)
@@ -217,9 +220,13 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
     names = list(model[-1].landmark_names)
     nose = int(model[-1].landmark_vertices[names.index("nose_tip")])
     displacement = deformations[-1].displacement
-    # The drag is turned into millimetres on the face as it was then; d3 leans in and out, so a
-    # later frame shows those millimetres as more or fewer pixels: scale by the face's size.
-    ref = states[max([s for s in states if s <= deformations[-1].stamp] or [min(states)])]
+    # The drag is turned into millimetres on the face as the deformer last saw it, event by event;
+    # d3 leans in and out and the bag loops (a jump in size), so a later frame shows those
+    # millimetres as more or fewer pixels. Which states the deformer used is not published: the
+    # face's size is bounded by the states of the drag's seconds (its 0.5 s and the graph's lag).
+    end = deformations[-1].stamp
+    window = [s for s in states if end - DRAG_WINDOW_NS <= s <= end] or [max(s for s in states if s <= end)]
+    sizes = [_face_px(states[s]) for s in window]
     r = 10  # nose patch half-size, px
     checked = 0
     for stamp in sorted(s for s in renders if s > after and s in frames and s in states):
@@ -228,8 +235,8 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
                         st.projection)
         mesh_shift = drawn - st.projected
         tip = mesh_shift[nose]
-        expected = scripted * _face_px(st) / _face_px(ref)
-        assert abs(tip[0] - expected) <= 0.2 * expected and abs(tip[1]) <= 0.2 * expected, f"tip moved {tip}, {expected}"
+        low, high = (scripted * _face_px(st) / size for size in (max(sizes), min(sizes)))
+        assert 0.8 * low <= tip[0] <= 1.2 * high and abs(tip[1]) <= 0.2 * low, f"tip moved {tip}, {low}..{high}"
         x, y = (int(round(c)) for c in st.projected[nose])
         in_patch = np.all(np.abs(st.projected - st.projected[nose]) <= r, axis=1)
         patch = frames[stamp].image[y - r:y + r + 1, x - r:x + r + 1]
