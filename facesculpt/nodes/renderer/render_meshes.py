@@ -39,6 +39,23 @@ class RenderMesh:
     key: tuple
 
 
+def original_triangles(mesh: RenderMesh, active: np.ndarray) -> np.ndarray:
+    """(N, 3) int: triangles of ``mesh`` whose union is the region of its ``active`` (T,) bool
+    coarse triangles' fine children, at a fraction of their number: the active coarse triangles
+    themselves on the fine mesh's first V vertices (watertight among themselves), and the fine
+    children of those on the active set's outline, which carry its rounded curve (the two differ
+    inside by a sliver of a pixel along the edges, which both cover). For a mask of the region only:
+    the children's interpolated attributes differ from the coarse triangles'."""
+    if mesh.levels == 0:
+        return mesh.closed[active]
+    coarse = mesh.closed[active]
+    edges = np.sort(np.stack([coarse, np.roll(coarse, -1, axis=1)], axis=-1), axis=-1)   # (n, 3, 2)
+    code = edges[..., 0] * (int(edges.max(initial=0)) + 1) + edges[..., 1]
+    _, inverse, counts = np.unique(code.ravel(), return_inverse=True, return_counts=True)
+    outline = (counts[inverse] == 1).reshape(code.shape).any(axis=1)
+    return np.concatenate([coarse, mesh.fine[:, np.flatnonzero(active)[outline]].reshape(-1, 3)])
+
+
 class RenderMeshes:
     """RenderMeshes(levels=None, max_fine_edge_px=None): the render meshes of the triangle sets
     seen (the last four), each at the levels asked: ``levels`` fixed (0-3), else chosen per frame

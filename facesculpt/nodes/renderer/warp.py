@@ -74,8 +74,8 @@ def warp_frame(frame: np.ndarray, offsets: np.ndarray, origin: tuple[int, int],
     h, w = offsets.shape[:2]
     x0, y0 = origin
     covered = offsets[..., 0] < 0.5 * UNCOVERED
-    map_x = np.where(covered, offsets[..., 0], 0.0).astype(np.float32)
-    map_y = np.where(covered, offsets[..., 1], 0.0).astype(np.float32)
+    map_x = np.where(covered, offsets[..., 0], np.float32(0.0))   # float32 throughout
+    map_y = np.where(covered, offsets[..., 1], np.float32(0.0))
     map_x += np.arange(x0, x0 + w, dtype=np.float32)[None, :]
     map_y += np.arange(y0, y0 + h, dtype=np.float32)[:, None]
     return sample(frame, map_x, map_y, interpolation, upsampled)
