@@ -54,14 +54,14 @@ from .background_plate import BackgroundPlate
 from .body_motion import body_box, carry_to_body, neck_motion, union_box
 from .camera import estimate_projection, project
 from .compositor_options import OUTLINE_BAND, CompositorOptions  # noqa: F401 (OUTLINE_BAND: its old home)
-from .drag_fill import drag_fill, smooth_drag
+from .drag_fill import drag_fill, dragged_positions, smooth_drag
 from .gl_context import create_headless_context
 from .inpaint import dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes, original_triangles
-from .sinc_sampling import Upsampled, upsampled_around
+from .sinc_sampling import Upsampled, upsampled_over
 from .source_map import UNCOVERED, SourceMapRenderer
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
@@ -73,6 +73,7 @@ from .warp import (
     fold_edges,
     sharpen_silhouette,
     soften,
+    source_positions,
     warp_frame,
 )
 
@@ -192,15 +193,19 @@ class Compositor:
         half of IDENTITY_PX), then the other coarse triangles as they are, on the fine mesh's
         first V vertices (their pixels do not move; drawn for occlusion only). Returns
         ((N, 3) int, how many of them are the moving fine ones, (M, 3) int triangles covering the
-        moving ones' region: :func:`.render_meshes.original_triangles`)."""
+        moving ones' region: :func:`.render_meshes.original_triangles`; None when the mesh is not
+        subdivided)."""
         moving = np.einsum("ij,ij->i", offset, offset) >= (0.5 * IDENTITY_PX) ** 2
         corners = moving[self._mesh.fine]
         active = np.logical_or.reduce(corners[..., 0] | corners[..., 1] | corners[..., 2], axis=0)
         children = self._mesh.fine[:, active].reshape(-1, 3)
+        drawn = np.concatenate([children, self._mesh.closed[~active]])
+        if self._mesh.levels == 0:   # the children are the coarse triangles: nothing fewer to draw
+            return drawn, len(children), None
         key = (self._mesh.key, active.tobytes())   # the moving set changes seldom from frame to frame
         if self._original is None or self._original[0] != key:
             self._original = (key, original_triangles(self._mesh, active))
-        return np.concatenate([children, self._mesh.closed[~active]]), len(children), self._original[1]
+        return drawn, len(children), self._original[1]
 
     def _check(self, frame, fitted, projected, deformed, keep_mask=None):
         if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8
@@ -306,20 +311,20 @@ class Compositor:
         x0, y0, x1, y1 = box
         crop = out[y0:y1, x0:x1]
         write = changed | (covered & (fill != 0))
-        shared = source is not None and dragged is not None   # two samplings of the frame: one upsampling
-        upsampled = (upsampled_around(frame_bgr, box, write | fill.view(bool), offset)
+        block = bounding_slices(write)
+        positions = None if block is None else source_positions(offsets[block], (x0 + block[1].start, y0 + block[0].start))
+        shared = source is not None and dragged is not None and block is not None   # two samplings: one upsampling
+        upsampled = (upsampled_over(frame_bgr, [positions, dragged_positions(fill, dragged, box[:2])])
                      if shared and self.interpolation == "sinc" else None)
         t_up = time.perf_counter() - t4   # the sampling's (the texture stage's), though the fill uses it first
         if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
             self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)),
                        upsampled)
         t5 = time.perf_counter()
-        block = bounding_slices(write)
         warped = None
         if block is not None:
-            rows, cols = block
-            warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
-                                upsampled)
+            warped = warp_frame(frame_bgr, offsets[block], (x0 + block[1].start, y0 + block[0].start),
+                                self.interpolation, upsampled, positions)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
         t6 = time.perf_counter()
         if block is not None:

@@ -40,14 +40,13 @@ class RenderMesh:
 
 
 def original_triangles(mesh: RenderMesh, active: np.ndarray) -> np.ndarray:
-    """(N, 3) int: triangles of ``mesh`` whose union is the region of its ``active`` (T,) bool
-    coarse triangles' fine children, at a fraction of their number: the active coarse triangles
-    themselves on the fine mesh's first V vertices (watertight among themselves), and the fine
-    children of those on the active set's outline, which carry its rounded curve (the two differ
-    inside by a sliver of a pixel along the edges, which both cover). For a mask of the region only:
-    the children's interpolated attributes differ from the coarse triangles'."""
-    if mesh.levels == 0:
-        return mesh.closed[active]
+    """(N, 3) int: triangles of ``mesh`` covering the region of its ``active`` (T,) bool coarse
+    triangles' fine children with a fraction of their number, for a mask of that region (llvmpipe
+    sets up each triangle on the CPU): the active coarse triangles themselves on the fine mesh's
+    first V vertices (watertight among themselves), and the fine children of those on the active
+    set's outline, which carry its rounded curve. Their union is the children's region, and where
+    the outline is concave a sliver of under a pixel more (the coarse edge's chord). On an
+    unsubdivided mesh (``mesh.levels`` 0) nothing is saved: the active triangles, twice over."""
     coarse = mesh.closed[active]
     edges = np.sort(np.stack([coarse, np.roll(coarse, -1, axis=1)], axis=-1), axis=-1)   # (n, 3, 2)
     code = edges[..., 0] * (int(edges.max(initial=0)) + 1) + edges[..., 1]
