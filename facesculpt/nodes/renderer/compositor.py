@@ -82,6 +82,7 @@ FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's
 # anti-aliasing of a filmed silhouette. The wider feather blended the outline over the fill and
 # left a pale band along a narrowed jaw.
 SILHOUETTE_FEATHER_PX = 2.0
+FILL_CONTEXT_PX = 10      # the work box's background past the region the fill may fill (px)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
 
@@ -501,7 +502,9 @@ class Compositor:
             box = head_box(both, self.width, self.height)
             return union_box(box, body_box(both, self.width, self.height)) if head_motion == "body" else box
         near = self._mesh.rings @ moved.astype(np.float32) > 0
-        pad = self.dilate_px + 10 + int(np.ceil(self.feather_px)) + self.band_px(projected)
+        # background around the moved region: for the fill's context (FILL_CONTEXT_PX past what it
+        # fills) and for the motion carried past the outline (the band) with its soft edge
+        pad = self.dilate_px + max(FILL_CONTEXT_PX, int(np.ceil(self.feather_px)) + self.band_px(projected))
         both = np.concatenate([projected[near], dst_px[near]])
         lo, hi = point_bounds(both)
         lo, hi = np.floor(lo).astype(int) - pad, np.ceil(hi).astype(int) + pad + 1
