@@ -60,7 +60,7 @@ from .inpaint import dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
-from .render_meshes import RenderMesh, RenderMeshes, original_triangles
+from .render_meshes import RenderMesh, RenderMeshes
 from .sinc_sampling import Upsampled, upsampled_over
 from .source_map import UNCOVERED, SourceMapRenderer
 from .texture_atlas import TextureAtlas, blend_atlas
@@ -163,7 +163,6 @@ class Compositor:
         self.plate_region: np.ndarray | None = None   # (h, w) float32 plate weight of the last box
         self._plate_learner = PlateLearner(self.plate, segmenter) if o.plate else None
         self._mesh: RenderMesh | None = None   # the render mesh of the last frame
-        self._original: tuple | None = None     # (mesh key and moving set, its original-region triangles)
         self.timings: dict[str, float] = {}
         self.box: tuple[int, int, int, int] | None = None
         self.original_region = self.deformed_region = self.changed_region = self.inpainted_region = None  # last box's
@@ -184,29 +183,20 @@ class Compositor:
         pixels ``px`` (V, 2) choose its levels); ValueError for triangles that are not indices."""
         mesh = self.meshes.get(triangles, n_vertices, px)
         if self._mesh is None or mesh.key != self._mesh.key:
-            # room for the map's triangles and the original region's (:func:`.original_triangles`)
-            self.maps.set_mesh(mesh.S.shape[0], 2 * (mesh.fine.size // 3 + len(mesh.closed)))
+            self.maps.set_mesh(mesh.S.shape[0], mesh.fine.size // 3 + len(mesh.closed))
         self._mesh = mesh
 
-    def _draw_triangles(self, offset: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+    def _draw_triangles(self, offset: np.ndarray) -> tuple[np.ndarray, int]:
         """The triangles to draw, given the fine vertices' ``offset`` (Vf, 2) pixels: the fine
         children of every coarse triangle with a child vertex that moves (|offset| at least
         half of IDENTITY_PX), then the other coarse triangles as they are, on the fine mesh's
         first V vertices (their pixels do not move; drawn for occlusion only). Returns
-        ((N, 3) int, how many of them are the moving fine ones, (M, 3) int triangles covering the
-        moving ones' region: :func:`.render_meshes.original_triangles`; None when the mesh is not
-        subdivided)."""
+        ((N, 3) int, how many of them are the moving fine ones)."""
         moving = np.einsum("ij,ij->i", offset, offset) >= (0.5 * IDENTITY_PX) ** 2
         corners = moving[self._mesh.fine]
         active = np.logical_or.reduce(corners[..., 0] | corners[..., 1] | corners[..., 2], axis=0)
         children = self._mesh.fine[:, active].reshape(-1, 3)
-        drawn = np.concatenate([children, self._mesh.closed[~active]])
-        if self._mesh.levels == 0:   # the children are the coarse triangles: nothing fewer to draw
-            return drawn, len(children), None
-        key = (self._mesh.key, active.tobytes())   # the moving set changes seldom from frame to frame
-        if self._original is None or self._original[0] != key:
-            self._original = (key, original_triangles(self._mesh, active))
-        return drawn, len(children), self._original[1]
+        return np.concatenate([children, self._mesh.closed[~active]]), len(children)
 
     def _check(self, frame, fitted, projected, deformed, keep_mask=None):
         if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8
@@ -301,9 +291,9 @@ class Compositor:
                             "atlas": t_atlas, "plate": t_plate, "total": (time.perf_counter() - t_start) * 1e3}
             return out
         fine = self._mesh.S @ np.column_stack([dst_px, depth, offset] + ([uvq] if uvq is not None else [])).astype(np.float32)
-        draw_tris, n_moving, original = self._draw_triangles(fine[:, 3:5])
+        draw_tris, n_moving = self._draw_triangles(fine[:, 3:5])
         t1 = time.perf_counter()
-        self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine), original)
+        self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
         t2 = time.perf_counter()
         offsets, orig_mask, face, dragged = self._read_map(box, projected, dst_px, head_motion)
         t3 = time.perf_counter()

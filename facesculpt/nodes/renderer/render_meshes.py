@@ -39,22 +39,6 @@ class RenderMesh:
     key: tuple
 
 
-def original_triangles(mesh: RenderMesh, active: np.ndarray) -> np.ndarray:
-    """(N, 3) int: triangles of ``mesh`` covering the region of its ``active`` (T,) bool coarse
-    triangles' fine children with a fraction of their number, for a mask of that region (llvmpipe
-    sets up each triangle on the CPU): the active coarse triangles themselves on the fine mesh's
-    first V vertices (watertight among themselves), and the fine children of those on the active
-    set's outline, which carry its rounded curve. Their union is the children's region, and where
-    the outline is concave a sliver of under a pixel more (the coarse edge's chord). On an
-    unsubdivided mesh (``mesh.levels`` 0) nothing is saved: the active triangles, twice over."""
-    coarse = mesh.closed[active]
-    edges = np.sort(np.stack([coarse, np.roll(coarse, -1, axis=1)], axis=-1), axis=-1)   # (n, 3, 2)
-    code = edges[..., 0] * (int(edges.max(initial=0)) + 1) + edges[..., 1]
-    _, inverse, counts = np.unique(code.ravel(), return_inverse=True, return_counts=True)
-    outline = (counts[inverse] == 1).reshape(code.shape).any(axis=1)
-    return np.concatenate([coarse, mesh.fine[:, np.flatnonzero(active)[outline]].reshape(-1, 3)])
-
-
 class RenderMeshes:
     """RenderMeshes(levels=None, max_fine_edge_px=None): the render meshes of the triangle sets
     seen (the last four), each at the levels asked: ``levels`` fixed (0-3), else chosen per frame

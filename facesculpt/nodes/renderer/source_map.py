@@ -157,8 +157,7 @@ class SourceMapRenderer:
             self.mask_prog, [(self._vbo, "2f 4x 2f", "in_dst", "in_offset")], index_buffer=self._ibo)
 
     def draw(self, dst_px: np.ndarray, depth: np.ndarray, offset: np.ndarray, triangles: np.ndarray,
-             n_original: int, box: tuple[int, int, int, int], extra: np.ndarray | None = None,
-             original: np.ndarray | None = None) -> None:
+             n_original: int, box: tuple[int, int, int, int], extra: np.ndarray | None = None) -> None:
         """Rasterise a mesh in ``box`` (x0, y0, x1, y1 frame pixels), at the origin of the
         targets; :meth:`read` reads it back.
 
@@ -166,13 +165,8 @@ class SourceMapRenderer:
         offset: (V, 2) undeformed minus deformed pixels; triangles: (T, 3) int into them, all
         drawn into the offset map, the first ``n_original`` of them into the original region;
         extra: (V, 4) float per vertex for the extras target (renderers made with ``extras``;
-        None: zeros); original: (N, 3) int, other triangles to draw into the original region instead
-        of the first ``n_original`` (covering the same pixels with fewer triangles: llvmpipe sets up
-        each on the CPU).
+        None: zeros).
         """
-        n_map = len(triangles)
-        if original is not None:
-            triangles, n_original = np.concatenate([triangles, original]), len(original)
         tri = np.ascontiguousarray(triangles, np.uint32)
         if len(tri) > self._max_triangles:
             raise ValueError(f"{len(tri)} triangles, room for {self._max_triangles}")
@@ -201,14 +195,13 @@ class SourceMapRenderer:
         ctx.viewport = viewport
         ctx.enable(moderngl.DEPTH_TEST)
         self.fbo_map.clear(UNCOVERED, UNCOVERED, 0.0, 0.0, depth=1.0)  # every attachment, whole
-        self._vao_map.render(moderngl.TRIANGLES, vertices=3 * n_map)
+        self._vao_map.render(moderngl.TRIANGLES, vertices=3 * len(tri))
         ctx.disable(moderngl.DEPTH_TEST)
         self.fbo_orig.use()
         ctx.viewport = viewport
         self.fbo_orig.clear(0.0)
         if n_original > 0:
-            first = 3 * n_map if original is not None else 0
-            self._vao_mask.render(moderngl.TRIANGLES, vertices=3 * int(n_original), first=first)
+            self._vao_mask.render(moderngl.TRIANGLES, vertices=3 * int(n_original))
 
     def read(self, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
         """The last :meth:`draw`, ``box`` in size: (offset map (h, w, 2) float32, pixels;
