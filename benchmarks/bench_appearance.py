@@ -248,6 +248,33 @@ def real_video_jitter(data: Path, videos: list[str], count: int, models: tuple[s
     return out
 
 
+def cost_on_video(data: Path, video: str, size: tuple[int, int], names: tuple[str, ...], frames: int = 80,
+                  rounds: int = 2, skip: int = 20) -> dict:
+    """The SFM fit's CPU time on ``video`` resized to ``size`` (W, H), per method of :data:`METHODS`
+    (``names``; all without): {method: {"fit_cpu_ms": median of ``Pipeline.fit_faces``' fit alone
+    (landmarks excluded), "frame_cpu_ms": of the whole frame}}, over ``rounds`` rounds that run the
+    methods in turn (so a change of the machine's load falls on all of them alike), each on the
+    first ``frames`` frames, the first ``skip`` left out (the refinement is still learning)."""
+    from benchmarks.realism.sequences import read_video
+    from facesculpt.app.pipeline import Pipeline
+
+    images = [cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in read_video(data / "video" / f"{video}.mp4", frames)]
+    times = {k: ([], []) for k in methods_for("sfm", names)}
+    for _ in range(rounds):
+        for name, options in methods_for("sfm", names).items():
+            fit_cpu, frame_cpu = [], []
+            with Pipeline("sfm", fit=FitterConfig(**options)) as pipe:
+                for i, image in enumerate(images):
+                    if i == 1:
+                        _time_fits(pipe.faces, fit_cpu)
+                    c0 = time.process_time()
+                    pipe.fit_frame(image, i / 25.0)
+                    frame_cpu.append((time.process_time() - c0) * 1e3)
+            times[name][0].extend(fit_cpu[skip - 1:])
+            times[name][1].extend(frame_cpu[skip:])
+    return {k: {"fit_cpu_ms": float(np.median(f)), "frame_cpu_ms": float(np.median(w))} for k, (f, w) in times.items()}
+
+
 def real_table(real: dict) -> list[str]:
     lines = ["", "| video | model | " + " | ".join(f"jitter, {name} (px)" for name in METHODS)
              + " | the face's tracked motion (px) | the same, low-passed as the fit (px) | still frames |",
@@ -304,6 +331,8 @@ def main(argv=None) -> int:
                    help="frames of the still synthetic head for the jitter against the truth (default 120; 0: none)")
     p.add_argument("--methods", default="", help="comma-separated names of METHODS to run (default: all; the "
                                                  "first is the cost's reference)")
+    p.add_argument("--cost-video", default="", help="a shared video (e.g. s18) on which each method's CPU time is "
+                                                    "measured at 856x480 ('' for none)")
     p.add_argument("--jitter-models", default="facemesh,sfm", help="models whose real-video jitter is measured")
     args = p.parse_args(argv)
     data = shared_data_dir()
@@ -335,6 +364,14 @@ def main(argv=None) -> int:
                                  names)
         results["jitter"] = real
         lines += real_table(real)
+    if args.cost_video:
+        cost = cost_on_video(data, args.cost_video, (856, 480), names)
+        results["cost"] = cost
+        first = next(iter(cost.values()))
+        lines += ["", f"CPU time on {args.cost_video} at 856x480, SFM (medians, methods alternated; ratio to the first)",
+                  "", "| method | fit alone ms | ratio | frame ms (landmarks included) | ratio |", "| --- | --- | --- | --- | --- |"]
+        lines += [f"| {k} | {v['fit_cpu_ms']:.1f} | {v['fit_cpu_ms'] / first['fit_cpu_ms']:.2f} | {v['frame_cpu_ms']:.1f} "
+                  f"| {v['frame_cpu_ms'] / first['frame_cpu_ms']:.2f} |" for k, v in cost.items()]
     table = "\n".join(lines)
     (out / "results.md").write_text(table + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=1))

@@ -67,6 +67,9 @@ MOVING_PX = 2.0
 POSE_LEVELS = (0.25, 0.5, 1.0)
 PRIOR_RESIDUAL_PX = 2.0
 PRIOR_MAX_GAIN = 4.0
+#: ... and the weight of a vertex outside the rigid regions (the mouth, the eyes, the jaw: a lighting
+#: gain and bias of their own), relative to one inside them (0: the rigid regions alone).
+OUTSIDE_RIGID_WEIGHT = 0.0
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
 #: The refined shape change applied is the mean of the samples of the last this many frames (the

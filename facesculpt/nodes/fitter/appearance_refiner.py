@@ -159,7 +159,8 @@ class AppearanceRefiner:
         lighting gain and bias per region (the whole face where the model has no regions)."""
         regions = self.regions(model)
         if regions is not None:
-            w = w * (regions >= 0)
+            w = w * np.where(regions >= 0, 1.0, appearance.OUTSIDE_RIGID_WEIGHT)
+            regions = np.where(regions >= 0, regions, regions.max() + 1)
         found = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, start=self.last_theta,
                                        prior_weight=appearance.pose_prior_weight(result.residual_px),
                                        levels=appearance.POSE_LEVELS, regions=regions)
