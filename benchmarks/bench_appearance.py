@@ -323,7 +323,7 @@ def synthetic_table(results: dict) -> list[str]:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
-    p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
+    p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90; 0: none)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--real-videos", default="d0,d3,d12,s18", help="shared videos for the jitter figure ('' for none)")
     p.add_argument("--real-frames", type=int, default=150, help="frames of each real video (default 150)")
@@ -341,19 +341,19 @@ def main(argv=None) -> int:
         return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_appearance_"))
     out.mkdir(parents=True, exist_ok=True)
-    scene = make_scene(data, frames=args.frames)
     workers = args.workers or max(1, min(4, len(os.sched_getaffinity(0))))
-    truths = render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]
-    frames = [t["image"] for t in truths]
-    results = {}
+    results, lines = {}, []
     names = tuple(m for m in args.methods.split(",") if m)
-    methods = {k: v for k, v in METHODS.items() if not names or k in names}
-    for name, options in methods.items():
-        bins, snr, times = run(frames, truths, scene.background, scene, options)
-        overall_row = bins.pop("all")
-        results[name] = {"by_yaw": bins, "all": overall_row, "shape_snr_db": snr, "fit_ms_median": times["ms"],
-                         "cpu_ms_median": times["cpu_ms"], "fit_cpu_ms_median": times["fit_cpu_ms"]}
-    lines = synthetic_table(results)
+    if args.frames:
+        scene = make_scene(data, frames=args.frames)
+        truths = render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]
+        frames = [t["image"] for t in truths]
+        for name, options in methods_for("sfm", names).items():
+            bins, snr, times = run(frames, truths, scene.background, scene, options)
+            overall_row = bins.pop("all")
+            results[name] = {"by_yaw": bins, "all": overall_row, "shape_snr_db": snr, "fit_ms_median": times["ms"],
+                             "cpu_ms_median": times["cpu_ms"], "fit_cpu_ms_median": times["fit_cpu_ms"]}
+        lines = synthetic_table(results)
     if args.still_frames:
         still = still_head_jitter(data, workers, out, args.still_frames, names)
         results["still head jitter"] = still
