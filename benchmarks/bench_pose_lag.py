@@ -67,17 +67,26 @@ VARIANTS = {
 }
 
 
+#: --true-groups: which inner iBUG points (0-based) each name gives true ("inner": all of them).
+TRUE_GROUPS = {"inner": range(17, 68), "brows": range(17, 27), "nose_bridge": range(27, 31),
+               "nose_base": range(31, 36), "eyes": range(36, 48), "lips": range(48, 68)}
+
+
 @contextlib.contextmanager
-def true_points(scene, size: tuple[int, int], on: bool):
+def true_points(scene, size: tuple[int, int], on: bool, group: str = "inner"):
     """With ``on``: every landmark detector of this process gives ``scene``'s true inner iBUG
-    points (:mod:`realism.landmark_oracle`, KEEP 0; the jaw line and the network's depth stay the
-    detector's), counted from this fit's first frame; the detector as it was afterwards."""
+    points of ``group`` (:data:`TRUE_GROUPS`; :mod:`realism.landmark_oracle`, KEEP 0; the other
+    points, the jaw line and the network's depth stay the detector's), counted from this fit's
+    first frame; the detector as it was afterwards."""
     from benchmarks.realism import landmark_oracle
     from facesculpt.nodes.landmarks.detector import LandmarkDetector
 
     saved = LandmarkDetector.track, LandmarkDetector.reset
     if on:
-        landmark_oracle.install(landmark_oracle.true_landmarks(scene), size, 0.0)
+        truth = landmark_oracle.true_landmarks(scene)
+        others = [k for k in range(truth.shape[1]) if k not in TRUE_GROUPS[group]]
+        truth[:, others] = np.nan
+        landmark_oracle.install(truth, size, 0.0)
     try:
         yield
     finally:
@@ -110,6 +119,9 @@ def main(argv=None) -> int:
     p.add_argument("--variants", default=",".join(VARIANTS), help="names of VARIANTS, comma-separated")
     p.add_argument("--oracle", action="store_true",
                    help="the moving sequences fitted to their true inner points (the fitter's own error)")
+    p.add_argument("--true-groups", default="",
+                   help="also fit each sequence with only these groups' points true (names of TRUE_GROUPS, "
+                        "comma-separated): which points carry an error")
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
     data = shared_data_dir()
@@ -139,6 +151,10 @@ def main(argv=None) -> int:
             with true_points(scene, size, args.oracle):
                 results.setdefault(label, {})[v] = fitted_rotation(scene, frames, truths, "sfm", config=VARIANTS[v])
             print(label, v, {k: round(x, 3) for k, x in results[label][v].items()}, flush=True)
+            for g in [g for g in args.true_groups.split(",") if g]:
+                with true_points(scene, size, True, g):
+                    results[label][f"{v}, true {g}"] = fitted_rotation(scene, frames, truths, "sfm", config=VARIANTS[v])
+                print(label, v, "true", g, {k: round(x, 3) for k, x in results[label][f"{v}, true {g}"].items()}, flush=True)
     if args.still_frames:
         for v in variants:
             tracks = still_tracks(still_frames, VARIANTS[v])
