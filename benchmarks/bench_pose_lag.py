@@ -64,6 +64,7 @@ VARIANTS = {
     "no identity accumulation": {"accumulate_identity": False},
     "outline off": {"outline": "off"},
     "no smoothing no rotation prior": {"smoothing": False, "rotation_prior_px": 0.0},
+    "settle 30": {"rotation_prior_settle_frames": 30},
     "no smoothing no rotation prior outline off": {"smoothing": False, "rotation_prior_px": 0.0, "outline": "off"},
 }
 

@@ -56,6 +56,29 @@ def test_the_network_rotation_is_learned_in_the_model_frame():
     assert net.prior(np.eye(3)) is None   # nothing learned: no prior
 
 
+def test_the_offset_can_leave_out_the_first_frames_landmark_pitch():
+    """A landmark fit 7 degrees off in pitch over its first 30 frames (the identity not yet learned)
+    and right afterwards: the fading mean keeps that pitch in the prior long after; with the first
+    frames left out (settle_frames) the prior is the model's rotation."""
+    rng = np.random.default_rng(3)
+    head = rng.normal(0, 30, (13, 3))
+    late = {}
+    for settle in (0, 30):
+        net = DetectorRotation(reference_frames=10, offset_frames=300, settle_frames=settle)
+        errors = []
+        for i in range(120):
+            R_model = rotation_from_euler(20 * np.sin(i / 7), 10 * np.sin(i / 5), 0)
+            pts = head @ R_model.T * 1.3 + [320, 240, 0] + rng.normal(0, 0.3, head.shape)
+            R_network = net.observe(pts)
+            prior = net.prior(R_network)
+            if prior is not None and i >= 90:
+                errors.append(np.degrees(np.linalg.norm(rotation_log(prior.T @ R_model))))
+            landmarks = R_model @ rotation_from_euler(0, 7, 0) if i < 30 else R_model
+            net.learn(R_network, landmarks)
+        late[settle] = float(np.mean(errors))
+    assert late[0] > 1.5 and late[30] < 0.5, late
+
+
 def _nodding_frames(model, frames: int, rng):
     """Detected points of one person nodding and turning: (68, 3) px (x, y; z the relative depth in
     pixels) whose nose points lag the pitch (0.25 px per degree, as the face-mesh network's

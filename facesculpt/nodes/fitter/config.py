@@ -116,6 +116,10 @@ class FitterConfig:
     rotation_prior_px: float = option(100.0, "sparse, perspective: weight holding the fitted pitch toward that of "
                                              "the landmark network's own 3D points; 0: off", "px per radian",
                                       range=(0.0, 10000.0))
+    rotation_prior_settle_frames: int = option(0, "sparse: the first frames, fitted before the person's identity is "
+                                                  "learned, are left out of the offset between the network's head "
+                                                  "frame and the model's (rotation_prior_px)", "frames",
+                                               range=(0, 100000))
     refine: str | None = option(None, "refine each landmark fit on its frame's pixels against the person's learned "
                                       "appearance and corners tracked from the last frame: appearance (pose and "
                                       "shape, whole face) or pose (rigid pose, rigid regions only; "

@@ -39,12 +39,16 @@ class DetectorRotation:
 
     reference_frames (>= 1): frames averaged into the reference of the network's 3D points, and
     offsets learned before a prior is given; offset_frames (> 0): the fading window (frames) of
-    the offset's mean; gain (3,) or None: the network's rotation from its reference, as a rotation
-    vector in camera axes (x: pitch, y: yaw, z: roll), is multiplied by it (a network whose points
+    the offset's mean; settle_frames (>= 0): the first frames' offsets are not learned (fitted
+    before the person's identity is, their landmark-only pitch is biased, and the fading mean
+    would keep that bias for hundreds of frames); gain (3,) or None: the network's rotation from
+    its reference, as a rotation vector in camera axes (x: pitch, y: yaw, z: roll), is multiplied by it (a network whose points
     turn by 1/gain of the head: the model's calibration, :mod:`.calibration`)."""
 
-    def __init__(self, reference_frames: int = 30, offset_frames: float = OFFSET_FRAMES, gain=None):
+    def __init__(self, reference_frames: int = 30, offset_frames: float = OFFSET_FRAMES, gain=None,
+                 settle_frames: int = 0):
         self.reference_frames = int(reference_frames)
+        self.settle_frames = int(settle_frames)
         self.gain = None if gain is None or not len(gain) else np.asarray(gain, np.float64).reshape(3)
         self.decay = 1.0 - 1.0 / float(offset_frames)
         self.reset()
@@ -55,6 +59,7 @@ class DetectorRotation:
         self.reference_count = 0
         self._offset_sum = np.zeros((3, 3))
         self.offsets_learned = 0
+        self.offsets_offered = 0
 
     def observe(self, points: np.ndarray) -> np.ndarray | None:
         """The network's rotation (3, 3) of this frame's head (camera axes: x right, y down, z
@@ -90,6 +95,9 @@ class DetectorRotation:
         """Add one frame's offset: the network's rotation and the rotation (3, 3) fitted to the
         landmarks alone (without the prior)."""
         if R_network is None:
+            return
+        self.offsets_offered += 1
+        if self.offsets_offered <= self.settle_frames:   # the landmark fit's identity is still settling
             return
         self._offset_sum = self.decay * self._offset_sum + np.asarray(R_network, np.float64).T @ R_landmarks
         self.offsets_learned += 1

@@ -62,7 +62,8 @@ class SparseFitter(Fitter):
         self._landmark_weight = dict(zip(m.landmark_names, m.landmark_weights if len(m.landmark_weights) else np.ones(L)))
         self._fixed_offsets = np.zeros((0, 3))
         self.identity = fitting.IdentityAccumulator(S, config.identity_decay, config.identity_max_frames)
-        self.network_rotation = DetectorRotation(config.neutral_frames, gain=m.network_rotation_gain)
+        self.network_rotation = DetectorRotation(config.neutral_frames, gain=m.network_rotation_gain,
+                                                 settle_frames=config.rotation_prior_settle_frames)
         self.reset()
 
     def _prepare_outline(self) -> None:
