@@ -14,8 +14,10 @@ The same frames go through the project's landmarks and both fits (``Pipeline("sf
 ``Pipeline("facemesh")``), and each fit's expression parameters (and the SFM's coefficients)
 through :class:`ExpressionRecogniser`; the held frames are scored: accuracy over the expression
 segments (the blendshape's name is the truth), neutral recognised over the neutral segments,
-per source (SFM: facs, blendshapes, auto; face mesh: facs), with confusion matrices. The
-recogniser is not trained on anything: its FACS table and the blendshapes' names are its rules.
+per source (SFM: learned, facs, blendshapes, rules; face mesh: learned, facs), with confusion
+matrices. The rules (the FACS table, the blendshapes' names) are not trained on anything; the
+learned classifier was trained on renders of other identities, textures, backgrounds, poses
+and weights (:mod:`benchmarks.train_expression_classifier`), none of these frames.
 """
 
 from __future__ import annotations
@@ -63,8 +65,11 @@ def schedule(segs, neutral_frames: int):
 
 #: The recognisers scored: (name, model, source). "exact": the true mesh's parameters and the
 #: true weights, no detector and no fit (what the recogniser reaches with exact parameters).
-RUNS = (("sfm, facs", "sfm", "facs"), ("sfm, blendshapes", "sfm", "blendshapes"), ("sfm, auto", "sfm", "auto"),
+RUNS = (("sfm, learned", "sfm", "learned"), ("facemesh, learned", "facemesh", "learned"),
+        ("sfm, facs", "sfm", "facs"), ("sfm, blendshapes", "sfm", "blendshapes"), ("sfm, rules", "sfm", "rules"),
         ("facemesh, facs", "facemesh", "facs"), ("exact parameters, facs", "exact", "facs"))
+#: The two runs the contact sheet shows.
+SHOWN = ("sfm, learned", "facemesh, learned")
 
 
 def add_exact(records: list[dict], args, model, data) -> None:
@@ -110,15 +115,21 @@ def run_identity(data, seed: int, args, detectors: dict, model, strip: list) -> 
     truth or None when not scored, the true weight, and per model the expression parameters and
     coefficients, None when not fitted)."""
     from benchmarks.realism.scene import make_scene
+
+    scene = make_scene(data, frames=1, seed=seed)
+    plan = schedule(segments(np.random.default_rng(1000 + seed), args.low), args.neutral_frames)
+    return fit_sequence(scene, plan, seed, args.neutral_frames, detectors, model, strip)
+
+
+def fit_sequence(scene, plan, seed: int, neutral_frames: int, detectors: dict, model, strip: list) -> list[dict]:
+    """:func:`run_identity` for a given scene and :func:`schedule` ``plan`` (``seed`` names the
+    identity in the records; up to 24 tiles of the held frames are added to ``strip``)."""
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.nodes.fitter.config import FitterConfig
 
-    scene = make_scene(data, frames=1, seed=seed)
-    rng = np.random.default_rng(1000 + seed)
-    plan = schedule(segments(rng, args.low), args.neutral_frames)
     basis = np.asarray(model.expression_basis, np.float64)
     # a new person: new fitters (they learn afresh), the detectors reused (reset by the pipeline)
-    fit = FitterConfig(neutral_frames=args.neutral_frames)
+    fit = FitterConfig(neutral_frames=neutral_frames)
     pipes = {m: Pipeline(m, fit=fit, detector=d) for m, d in detectors.items()}
     records = []
     for i, (weights, yaw, pitch, truth, _, j) in enumerate(plan):
@@ -154,7 +165,7 @@ def report(records: list[dict], names: dict, thresholds=(0.1, 0.15, 0.2, 0.25)) 
     default = ExpressionLabelOptions().neutral_below
     shown = {}
     for name, m, src in RUNS:
-        for th in sorted({default, *thresholds}):
+        for th in sorted({default, *(() if src == "learned" else thresholds)}):
             labels = label_records(records, m, names[m], source=src, neutral_below=th)
             r = [(x, "none" if lab is None else lab.label) for x, lab in zip(records, labels) if x["truth"]]
             expr = [(x, lab) for x, lab in r if x["truth"] != "neutral"]
@@ -216,10 +227,10 @@ def write_strip(path: str, strip: list, records: list[dict], shown: dict) -> Non
     tiles = []
     for i, seed, frame, truth, w in strip:
         k = index[(seed, i)]
-        labels = {n: (shown[n][k].label if shown[n][k] else "none") for n in ("sfm, auto", "facemesh, facs")}
+        labels = {n: (shown[n][k].label if shown[n][k] else "none") for n in SHOWN}
         tile = cv2.resize(frame[40:440, 120:520], (240, 240), interpolation=cv2.INTER_AREA)
-        tiles.append(captioned(tile, (f"truth {truth} {w:.2f}", f"sfm {labels['sfm, auto']}",
-                                      f"mesh {labels['facemesh, facs']}")))
+        tiles.append(captioned(tile, (f"truth {truth} {w:.2f}", f"sfm {labels[SHOWN[0]]}",
+                                      f"mesh {labels[SHOWN[1]]}")))
     while len(tiles) % 8:
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[k:k + 8]) for k in range(0, len(tiles), 8)]

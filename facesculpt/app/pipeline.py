@@ -233,6 +233,8 @@ class Pipeline:
                 self.model.expression_names):
             raise ValueError("expressions recognised from blendshapes need a model whose blendshapes are named for "
                              "the six basic expressions (the Surrey Face Model's), and this one has none")
+        if self.expression:
+            ExpressionRecogniser(self.label_options)   # a bad weights file: one sentence now, not at the first face
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()

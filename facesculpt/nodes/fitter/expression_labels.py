@@ -38,10 +38,14 @@ import numpy as np
 
 from facesculpt.options import option
 
+from .expression_classifier import feature_vector, load_classifiers
+
 #: The labels, in the order of every scores array: the six basic expressions, then neutral.
 EXPRESSIONS: tuple[str, ...] = ("anger", "disgust", "fear", "happiness", "sadness", "surprise")
 LABELS: tuple[str, ...] = (*EXPRESSIONS, "neutral")
 PHASES: tuple[str, ...] = ("onset", "apex", "offset")
+#: Where the scores come from (:class:`ExpressionLabelOptions`'s ``source``).
+SOURCES: tuple[str, ...] = ("auto", "learned", "rules", "facs", "blendshapes")
 
 _MOUTH_CENTRE_UP = {"upper_lip_raise": -0.5, "jaw_drop": 0.5, "lower_lip_depress": 0.5}
 
@@ -92,14 +96,19 @@ class ExpressionLabelOptions:
     window_s: float = option(0.2, "expressions recognised: the parameters are averaged over this window, and the "
                                    "phase (onset, apex, offset) is their change across it, s",
                               range=(0.0, 5.0))
-    neutral_below: float = option(0.25, "expressions recognised: a best score under this is neutral (score 1: "
-                                         "every prototype action unit clearly marked)", range=(0.0, 1.0))
+    neutral_below: float = option(0.25, "expressions recognised by the rules (facs, blendshapes): a best score "
+                                         "under this is neutral (score 1: every prototype action unit clearly "
+                                         "marked)", range=(0.0, 1.0))
     switch_margin: float = option(0.05, "expressions recognised: a new label must beat the shown one's score by "
                                          "this much", range=(0.0, 1.0))
-    source: str = option("auto", "expressions recognised from: facs (the action-unit table, any model), "
-                                  "blendshapes (a model's blendshapes named for the six expressions), or auto: "
-                                  "both where the model has such blendshapes, else facs",
-                          choices=("auto", "facs", "blendshapes"))
+    source: str = option("auto", "expressions recognised from: learned (a classifier trained on renders: the "
+                                  "parameters, and a model's six expression blendshapes where it has them), facs "
+                                  "(the action-unit table, any model), blendshapes (a model's blendshapes named "
+                                  "for the six expressions), rules (facs and blendshapes where the model has "
+                                  "them, else facs), or auto: learned",
+                          choices=SOURCES)
+    weights: str = option("", "expressions recognised: the learned classifier's weights file (.npz; empty: "
+                              "the packaged ones)")
 
 
 @dataclass(frozen=True)
@@ -176,13 +185,20 @@ class ExpressionRecogniser:
 
     def __init__(self, options: ExpressionLabelOptions | None = None, **values):
         self.options = dataclasses.replace(options or ExpressionLabelOptions(), **values)
-        if self.options.source not in ("auto", "facs", "blendshapes"):
-            raise ValueError(f"expression labels: source must be auto, facs or blendshapes, got "
+        if self.options.source not in SOURCES:
+            raise ValueError(f"expression labels: source must be one of {', '.join(SOURCES)}, got "
                              f"{self.options.source!r}")
-        self.window: deque[tuple[float, np.ndarray]] = deque()   # (stamp s, scores (6,))
+        # the learned classifiers, loaded now: a bad weights file stops the caller at its start
+        self.classifiers = load_classifiers(self.options.weights) if self.learned else {}
+        self.window: deque[tuple[float, np.ndarray]] = deque()   # (stamp s, scores (7,))
         self.label = "neutral"
         self.seen = 0   # frames taken into the baseline
         self.baseline: tuple[np.ndarray, np.ndarray | None] | None = None   # sums, then means
+
+    @property
+    def learned(self) -> bool:
+        """True when the scores are the learned classifier's (source learned, or auto)."""
+        return self.options.source in ("learned", "auto")
 
     def reset(self) -> None:
         """Forget the window and the shown label (a new person)."""
@@ -212,19 +228,28 @@ class ExpressionRecogniser:
         return v, b, False
 
     def scores(self, values: np.ndarray, names, beta=None, expression_names=()) -> np.ndarray:
-        """(6,) one frame's expression scores from the sources the options name (module docstring);
-        ``beta`` and ``expression_names`` are the fit's expression coefficients and the model's names."""
+        """(7,) one frame's scores in :data:`LABELS` order from the source the options name (module
+        docstring); ``beta`` and ``expression_names`` are the fit's expression coefficients and the
+        model's names. The learned classifier's are its probabilities; the rules' neutral score is
+        ``neutral_below`` (a best expression under it is neutral)."""
         blend = beta is not None and has_expression_blendshapes(expression_names)
         src = self.options.source
         if src == "blendshapes" and not blend:
             raise ValueError("expression labels: source=blendshapes needs a model whose blendshapes are named for "
                              f"the six basic expressions ({', '.join(EXPRESSIONS)})")
+        if self.learned:
+            c = self.classifiers.get("blendshapes" if blend else "parameters") or self.classifiers.get("parameters")
+            if c is None:
+                raise ValueError(f"expression labels: the classifier weights {self.options.weights or 'packaged'} "
+                                 "hold no weights for the expression parameters alone")
+            return c.probabilities(feature_vector(c.features, values, names, beta, expression_names))
         if src == "blendshapes":
-            return blendshape_scores(beta, expression_names)
-        facs = facs_scores(values, names)
-        if src == "auto" and blend:
-            return (facs + blendshape_scores(beta, expression_names)) / 2
-        return facs
+            six = blendshape_scores(beta, expression_names)
+        elif src == "rules" and blend:
+            six = (facs_scores(values, names) + blendshape_scores(beta, expression_names)) / 2
+        else:
+            six = facs_scores(values, names)
+        return np.append(six, self.options.neutral_below)
 
     def update(self, stamp_s: float, values: np.ndarray, names, beta=None, expression_names=()) -> ExpressionLabel:
         """The label of the frame at ``stamp_s`` (s) with expression parameters ``values`` (E,)
@@ -239,16 +264,17 @@ class ExpressionRecogniser:
             self.window.popleft()
         history = np.array([s for _, s in self.window])
         mean = history.mean(axis=0)
-        best = int(np.argmax(mean))
+        best = int(np.argmax(mean[:6]))
         shown = EXPRESSIONS.index(self.label) if self.label in EXPRESSIONS else None
-        if mean[best] < o.neutral_below:
+        if mean[best] < mean[6]:
             self.label = "neutral"
-        elif shown is None or mean[shown] < o.neutral_below or mean[best] > mean[shown] + o.switch_margin:
+        elif shown is None or mean[shown] < mean[6] or mean[best] > mean[shown] + o.switch_margin:
             self.label = EXPRESSIONS[best]
         scores = np.zeros(len(LABELS), np.float32)
-        scores[:6] = np.clip(mean, 0.0, 1.0)
+        scores[:6] = np.clip(mean[:6], 0.0, 1.0)
         if self.label == "neutral":
-            intensity = float(np.clip(1.0 - mean[best] / max(o.neutral_below, 1e-6), 0.0, 1.0))
+            rule = 1.0 - mean[best] / max(o.neutral_below, 1e-6)
+            intensity = float(np.clip(mean[6] if self.learned else rule, 0.0, 1.0))
             scores[6] = intensity
         else:
             intensity = float(scores[EXPRESSIONS.index(self.label)])
