@@ -68,8 +68,8 @@ def schedule(segs, neutral_frames: int):
 RUNS = (("sfm, learned", "sfm", "learned"), ("facemesh, learned", "facemesh", "learned"),
         ("sfm, facs", "sfm", "facs"), ("sfm, blendshapes", "sfm", "blendshapes"), ("sfm, rules", "sfm", "rules"),
         ("facemesh, facs", "facemesh", "facs"), ("exact parameters, facs", "exact", "facs"))
-#: The two runs the contact sheet shows.
-SHOWN = ("sfm, learned", "facemesh, learned")
+#: The two runs the contact sheet shows (each model's default source).
+SHOWN = ("sfm, learned", "facemesh, facs")
 
 
 def add_exact(records: list[dict], args, model, data) -> None:
@@ -126,6 +126,7 @@ def fit_sequence(scene, plan, seed: int, neutral_frames: int, detectors: dict, m
     identity in the records; up to 24 tiles of the held frames are added to ``strip``)."""
     from facesculpt.app.pipeline import Pipeline
     from facesculpt.nodes.fitter.config import FitterConfig
+    from facesculpt.nodes.fitter.expression import head_pose
 
     basis = np.asarray(model.expression_basis, np.float64)
     # a new person: new fitters (they learn afresh), the detectors reused (reset by the pipeline)
@@ -138,7 +139,7 @@ def fit_sequence(scene, plan, seed: int, neutral_frames: int, detectors: dict, m
         rec = {"seed": seed, "t": i / 25.0, "truth": truth, "weight": float(weights.max())}
         for m, fit in fits.items():
             ok = fit is not None and fit.expression is not None
-            rec[m] = (np.asarray(fit.expression), np.asarray(fit.beta)) if ok else None
+            rec[m] = (np.asarray(fit.expression), np.asarray(fit.beta), head_pose(fit)) if ok else None
         records.append(rec)
         if truth is not None and j == RAMP + HOLD - 1 and len(strip) < 24:
             strip.append((i, seed, frame, truth, float(weights.max())))
@@ -153,7 +154,8 @@ def label_records(records: list[dict], model_name: str, expression_names, **opti
     for r in records:
         recogniser = rec_of.setdefault(r["seed"], ExpressionRecogniser(**options))
         fit = r[model_name]
-        out.append(None if fit is None else recogniser.update(r["t"], fit[0], NAMES, fit[1], expression_names))
+        pose = fit[2][:2] if fit is not None and len(fit) > 2 else None   # the fit's (yaw, pitch); None: exact
+        out.append(None if fit is None else recogniser.update(r["t"], fit[0], NAMES, fit[1], expression_names, pose))
     return out
 
 
@@ -278,7 +280,8 @@ def real_videos(data, args) -> tuple[list, dict]:
                     values = face_expression(fit, pipe.fitter.model, pipe.fitter.neutral,
                                              pipe.detector.results()[0].points)
                     t2 = time.process_time()
-                    lab = recogniser.update(i / fps, values, NAMES, fit.beta, pipe.model.expression_names)
+                    lab = recogniser.update(i / fps, values, NAMES, fit.beta, pipe.model.expression_names,
+                                            fit.yaw_pitch_roll[:2])
                     t3 = time.process_time()
                     share = timings["fit"] / max(timings["fit"] + timings["landmarks"], 1e-9)
                     cpu["analysis"] += t1 - t0

@@ -307,7 +307,7 @@ class Pipeline:
                     fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
                     recogniser = self.recognisers.setdefault(face.key, ExpressionRecogniser(self.label_options))
                     fit.expression_label = recogniser.update(stamp_s, fit.expression, NAMES, fit.beta,
-                                                             fitter.model.expression_names)
+                                                             fitter.model.expression_names, fit.yaw_pitch_roll[:2])
                 if eyes:
                     t1 = time.perf_counter()
                     learning = self.eyeballs.setdefault(face.key, EyeballLearning())

@@ -40,12 +40,31 @@ class ExpressionClassifier:
     weights: np.ndarray
     bias: np.ndarray
     labels: tuple[str, ...]
+    pose_bias: np.ndarray | None = None
 
-    def probabilities(self, x: np.ndarray) -> np.ndarray:
+    def probabilities(self, x: np.ndarray, pose_change: np.ndarray | None = None) -> np.ndarray:
         """(C,) float64 each label's probability for one feature vector ``x`` (F,) (NaN counts as 0),
-        or (N, C) for (N, F)."""
-        z = (np.nan_to_num(np.asarray(x, np.float64), nan=0.0) - self.mean) / self.scale
-        return softmax(z @ self.weights.T + self.bias)
+        or (N, C) for (N, F). ``pose_change``: the head pose's :func:`pose_terms` less the resting
+        face's ((5,) or (N, 5)); the features' share that follows the pose (``pose_bias`` (5, F),
+        learned on neutral faces: the landmarks' own drift as the head turns) is taken off first."""
+        x = np.nan_to_num(np.asarray(x, np.float64), nan=0.0)
+        if pose_change is not None and self.pose_bias is not None:
+            x = x - np.asarray(pose_change, np.float64) @ self.pose_bias
+        return softmax(((x - self.mean) / self.scale) @ self.weights.T + self.bias)
+
+
+def pose_terms(yaw_deg, pitch_deg) -> np.ndarray:
+    """(5,) (or (N, 5) for arrays) the head pose's terms that the features' drift is fitted on:
+    yaw, pitch, yaw², pitch², yaw x pitch, with the angles in units of 10 degrees."""
+    y, p = np.asarray(yaw_deg, np.float64) / 10.0, np.asarray(pitch_deg, np.float64) / 10.0
+    return np.stack([y, p, y * y, p * p, y * p], axis=-1)
+
+
+def fit_pose_bias(pose_change: np.ndarray, feature_change: np.ndarray, l2: float = 1e-2) -> np.ndarray:
+    """(5, F) the ridge least-squares map from neutral faces' ``pose_change`` (N, 5) (:func:`pose_terms`
+    less the resting face's) to their ``feature_change`` (N, F) (the features less the resting face's)."""
+    A = np.asarray(pose_change, np.float64)
+    return np.linalg.solve(A.T @ A + l2 * len(A) * np.eye(A.shape[1]), A.T @ np.asarray(feature_change, np.float64))
 
 
 def softmax(logits: np.ndarray) -> np.ndarray:
@@ -99,6 +118,8 @@ def save_classifiers(path, classifiers: dict[str, ExpressionClassifier], provena
     for kind, c in classifiers.items():
         arrays.update({f"{kind}.features": np.array(c.features), f"{kind}.mean": c.mean, f"{kind}.scale": c.scale,
                        f"{kind}.weights": c.weights, f"{kind}.bias": c.bias, f"{kind}.labels": np.array(c.labels)})
+        if c.pose_bias is not None:
+            arrays[f"{kind}.pose_bias"] = c.pose_bias
     np.savez_compressed(path, **arrays)
 
 
@@ -120,10 +141,12 @@ def _load(path: str) -> tuple[tuple[str, ExpressionClassifier], ...]:
                 c = ExpressionClassifier(
                     features=tuple(str(f) for f in z[f"{kind}.features"]), mean=z[f"{kind}.mean"].astype(np.float64),
                     scale=z[f"{kind}.scale"].astype(np.float64), weights=z[f"{kind}.weights"].astype(np.float64),
-                    bias=z[f"{kind}.bias"].astype(np.float64), labels=tuple(str(s) for s in z[f"{kind}.labels"]))
+                    bias=z[f"{kind}.bias"].astype(np.float64), labels=tuple(str(s) for s in z[f"{kind}.labels"]),
+                    pose_bias=z[f"{kind}.pose_bias"].astype(np.float64) if f"{kind}.pose_bias" in z.files else None)
                 C, F = c.weights.shape
                 if not (len(c.features) == F == c.mean.shape[0] == c.scale.shape[0] and c.bias.shape == (C,)
-                        and len(c.labels) == C and np.all(c.scale > 0)):
+                        and len(c.labels) == C and np.all(c.scale > 0)
+                        and (c.pose_bias is None or c.pose_bias.shape == (5, F))):
                     raise ValueError(f"its {kind} arrays do not fit together")
                 out.append((kind, c))
     except (OSError, ValueError, KeyError, EOFError) as exc:

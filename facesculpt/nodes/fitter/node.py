@@ -407,7 +407,7 @@ class FitterNode(Node):
             with self.stage("expression_label"):
                 recogniser = self.recognisers.setdefault(f.key, ExpressionRecogniser(self.label_options))
                 label = recogniser.update(msg.stamp * 1e-9, values, NAMES, result.beta,
-                                          fitter.model.expression_names)
+                                          fitter.model.expression_names, result.yaw_pitch_roll[:2])
             self.expression_pub.publish(FaceExpression(
                 stamp=msg.stamp, frame_id=msg.frame_id, face_id=f.key, pose=head_pose(result), names=list(NAMES),
                 values=values, label=label.label, intensity=label.intensity, phase=label.phase,
