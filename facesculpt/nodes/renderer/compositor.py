@@ -54,14 +54,14 @@ from .background_plate import BackgroundPlate
 from .body_motion import body_box, carry_to_body, neck_motion, union_box
 from .camera import estimate_projection, project
 from .compositor_options import OUTLINE_BAND, CompositorOptions  # noqa: F401 (OUTLINE_BAND: its old home)
-from .drag_fill import drag_fill, smooth_drag
+from .drag_fill import drag_fill, dragged_positions, smooth_drag
 from .gl_context import create_headless_context
 from .inpaint import dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
-from .sinc_sampling import Upsampled, upsampled_around
+from .sinc_sampling import Upsampled, upsampled_over
 from .source_map import UNCOVERED, SourceMapRenderer
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
@@ -73,6 +73,7 @@ from .warp import (
     fold_edges,
     sharpen_silhouette,
     soften,
+    source_positions,
     warp_frame,
 )
 
@@ -81,6 +82,7 @@ FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's
 # anti-aliasing of a filmed silhouette. The wider feather blended the outline over the fill and
 # left a pale band along a narrowed jaw.
 SILHOUETTE_FEATHER_PX = 2.0
+FILL_CONTEXT_PX = 10      # the work box's background past the region the fill may fill (px)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
 
@@ -300,20 +302,20 @@ class Compositor:
         x0, y0, x1, y1 = box
         crop = out[y0:y1, x0:x1]
         write = changed | (covered & (fill != 0))
-        shared = source is not None and dragged is not None   # two samplings of the frame: one upsampling
-        upsampled = (upsampled_around(frame_bgr, box, write | fill.view(bool), offset)
+        block = bounding_slices(write)
+        positions = None if block is None else source_positions(offsets[block], (x0 + block[1].start, y0 + block[0].start))
+        shared = source is not None and dragged is not None and block is not None   # two samplings: one upsampling
+        upsampled = (upsampled_over(frame_bgr, [positions, dragged_positions(fill, dragged, box[:2])])
                      if shared and self.interpolation == "sinc" else None)
         t_up = time.perf_counter() - t4   # the sampling's (the texture stage's), though the fill uses it first
         if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
             self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)),
                        upsampled)
         t5 = time.perf_counter()
-        block = bounding_slices(write)
         warped = None
         if block is not None:
-            rows, cols = block
-            warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
-                                upsampled)
+            warped = warp_frame(frame_bgr, offsets[block], (x0 + block[1].start, y0 + block[0].start),
+                                self.interpolation, upsampled, positions)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
         t6 = time.perf_counter()
         if block is not None:
@@ -356,7 +358,9 @@ class Compositor:
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
             if gap is not None:
-                dragged, offsets = smooth_drag(offsets, gap), offsets.copy()
+                dragged = smooth_drag(offsets, gap)   # a new array, unless it changed nothing
+                if dragged is offsets:
+                    offsets = offsets.copy()
                 offsets[gap] = UNCOVERED
         return offsets, orig_mask, face, dragged
 
@@ -488,7 +492,9 @@ class Compositor:
             box = head_box(both, self.width, self.height)
             return union_box(box, body_box(both, self.width, self.height)) if head_motion == "body" else box
         near = self._mesh.rings @ moved.astype(np.float32) > 0
-        pad = self.dilate_px + 10 + int(np.ceil(self.feather_px)) + self.band_px(projected)
+        # background around the moved region: for the fill's context (FILL_CONTEXT_PX past what it
+        # fills) and for the motion carried past the outline (the band) with its soft edge
+        pad = self.dilate_px + max(FILL_CONTEXT_PX, int(np.ceil(self.feather_px)) + self.band_px(projected))
         both = np.concatenate([projected[near], dst_px[near]])
         lo, hi = point_bounds(both)
         lo, hi = np.floor(lo).astype(int) - pad, np.ceil(hi).astype(int) + pad + 1
