@@ -58,7 +58,15 @@ from .drag_fill import drag_fill, smooth_drag
 from .gl_context import create_headless_context
 from .inpaint import dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
-from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
+from .motion_extension import (
+    carry_past_outline,
+    extend_behind_outline,
+    extend_motion,
+    head_box,
+    head_goes_on,
+    head_region,
+    over_behind,
+)
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
 from .sinc_sampling import Upsampled, upsampled_around
@@ -293,7 +301,7 @@ class Compositor:
         t1 = time.perf_counter()
         self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
         t2 = time.perf_counter()
-        offsets, orig_mask, face, dragged = self._read_map(box, projected, dst_px, head_motion)
+        offsets, orig_mask, face, dragged, behind = self._read_map(box, projected, dst_px, head_motion)
         t3 = time.perf_counter()
         covered, changed, fill, source = self._masks(offsets, orig_mask, projected)
         t4 = time.perf_counter()
@@ -315,6 +323,9 @@ class Compositor:
             warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
                                 upsampled)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
+            if behind is not None:  # a pose edit's outline over what lies behind it, with an edit's soft edge
+                alpha = feather_alpha(face.view(np.uint8), self.feather_width(projected))[block]
+                over_behind(warped, frame_bgr, behind[block], alpha, (x0 + cols.start, y0 + rows.start), self.interpolation)
         t6 = time.perf_counter()
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected), fill)
@@ -332,16 +343,15 @@ class Compositor:
         return out
 
     def _read_map(self, box: tuple[int, int, int, int], projected: np.ndarray, dst_px: np.ndarray,
-                  head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+                  head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`),
-        the (h, w) bool deformed face, and for the drag fill the offsets dragged into what the face
-        uncovered (None for other fills); with ``head_motion``, the offsets carried over the head
-        region around the face at ``projected`` and ``dst_px`` (V, 2) px
-        (:func:`.motion_extension.extend_motion`), else over the outline band (:meth:`band_px`;
-        :func:`.motion_extension.carry_past_outline`)."""
+        the (h, w) bool deformed face, the drag fill's offsets dragged into what the face uncovered
+        and a pose edit's of what lies behind its folded outline (each None otherwise); with
+        ``head_motion``, the offsets carried over the head region around the face at ``projected``
+        and ``dst_px`` (V, 2) px (:mod:`.motion_extension`), else over the outline band (:meth:`band_px`)."""
         offsets, orig_mask = self.maps.read(box)
         face = covered_pixels(offsets)
-        dragged = None
+        dragged = behind = None
         if head_motion:
             both = np.concatenate([projected, dst_px])
             if head_motion == "body":  # the head's extension on the head's own box, the body's motion below it
@@ -351,14 +361,15 @@ class Compositor:
                 offsets[part] = extend_motion(offsets[part], head_region(offsets[part].shape[:2], (x0, y0), both))
                 offsets = carry_to_body(offsets, face, box[:2], dst_px, self._neck)
             else:
-                offsets = extend_motion(offsets, head_region(offsets.shape[:2], box[:2], both))
+                region, goes_on = head_region(offsets.shape[:2], box[:2], both), head_goes_on(face.shape, box[:2], dst_px)
+                offsets, behind = extend_behind_outline(offsets, region, self.feather_width(projected), goes_on)
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
             if gap is not None:
                 dragged, offsets = smooth_drag(offsets, gap), offsets.copy()
                 offsets[gap] = UNCOVERED
-        return offsets, orig_mask, face, dragged
+        return offsets, orig_mask, face, dragged, behind
 
     def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
               projected: np.ndarray, drag: tuple, upsampled: Upsampled | None = None) -> None:
