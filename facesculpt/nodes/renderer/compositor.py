@@ -69,6 +69,7 @@ from .motion_extension import (
 )
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
+from .silhouette_source import mend, unseen_by_silhouette
 from .sinc_sampling import Upsampled, upsampled_around
 from .source_map import UNCOVERED, SourceMapRenderer
 from .texture_atlas import TextureAtlas, blend_atlas
@@ -85,9 +86,8 @@ from .warp import (
 )
 
 FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's size
-# Where the face's outline meets what it uncovered, its soft edge is only this wide (px): the
-# anti-aliasing of a filmed silhouette. The wider feather blended the outline over the fill and
-# left a pale band along a narrowed jaw.
+# Where the face's outline meets what it uncovered, its soft edge is only this wide (px): the anti-aliasing
+# of a filmed silhouette. The wider feather blended the outline over the fill: a pale band along a narrowed jaw.
 SILHOUETTE_FEATHER_PX = 2.0
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
@@ -125,9 +125,8 @@ class Compositor:
     it; ``segmenter`` a callable frame -> (H, W) uint8 0/1 mask of people, kept off the plate
     (:class:`.person_segmentation.PersonSegmenter`; None: only the face is); ``keyframes`` keep views of
     the face at other poses and take turned surface from them (:mod:`.keyframe_views`);
-    ``outline_band`` how far past the fitted outline (share of the face's size, 0: not at all) a shape
-    edit's motion is carried (:meth:`_read_map`). ``atlases`` holds one
-    :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
+    ``outline_band`` how far past the fitted outline (share of the face's size, 0: not at all) a shape edit's
+    motion is carried (:meth:`_read_map`). ``atlases``: a :class:`.texture_atlas.TextureAtlas` a face key, ``atlas`` the last.
 
     After each :meth:`render`: ``timings``, the stage times of that frame in ms (:data:`STAGES`;
     plate: the main thread's part of its learning); ``box``, the frame rectangle (x0, y0, x1, y1)
@@ -323,6 +322,8 @@ class Compositor:
             warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
                                 upsampled)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
+            if head_motion is True:  # a pose edit: what the input saw only at its outline mended from beside it
+                mend(warped, unseen_by_silhouette(offsets, face, orig_mask)[block], face[block])
             if behind is not None:  # a pose edit's outline over what lies behind it, with an edit's soft edge
                 alpha = feather_alpha(face.view(np.uint8), self.feather_width(projected))[block]
                 over_behind(warped, frame_bgr, behind[block], alpha, (x0 + cols.start, y0 + rows.start), self.interpolation)
@@ -344,11 +345,10 @@ class Compositor:
 
     def _read_map(self, box: tuple[int, int, int, int], projected: np.ndarray, dst_px: np.ndarray,
                   head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`),
-        the (h, w) bool deformed face, the drag fill's offsets dragged into what the face uncovered
-        and a pose edit's of what lies behind its folded outline (each None otherwise); with
-        ``head_motion``, the offsets carried over the head region around the face at ``projected``
-        and ``dst_px`` (V, 2) px (:mod:`.motion_extension`), else over the outline band (:meth:`band_px`)."""
+        """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`), the (h, w) bool
+        deformed face, the drag fill's offsets into what the face uncovered and a pose edit's behind its folded outline
+        (each None otherwise); with ``head_motion``, the offsets carried over the head region around the face at
+        ``projected`` and ``dst_px`` (V, 2) px (:mod:`.motion_extension`), else over the outline band (:meth:`band_px`)."""
         offsets, orig_mask = self.maps.read(box)
         face = covered_pixels(offsets)
         dragged = behind = None
