@@ -200,6 +200,30 @@ def test_the_face_is_blended_over_what_lies_behind_its_folded_soft_edge_only():
     assert np.abs(out[:, 3, 1].astype(int) - mixed).max() <= 2
 
 
+def test_a_face_stretched_from_the_inputs_outline_is_mended_from_the_face_beside_it():
+    from facesculpt.nodes.renderer.silhouette_source import mend, unseen_by_silhouette
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    h, w = 60, 80
+    ys, xs = np.mgrid[:h, :w]
+    face = (xs >= 10) & (xs < 70) & (ys >= 10) & (ys < 50)
+    region = ((xs >= 20) & (xs < 70) & (ys >= 10) & (ys < 50)).astype(np.uint8)   # the input's face: from x = 20
+    offsets = np.full((h, w, 2), UNCOVERED, np.float32)
+    offsets[face, 0] = 10.0                                   # the inside: read 10 px to the right
+    left = face & (xs < 20)
+    offsets[left, 0] = (20.0 + 0.2 * (xs[left] - 10)) - xs[left]   # the near side: 10 px read from 2 at x = 20..22
+    offsets[face, 1] = 0.0
+    unseen = unseen_by_silhouette(offsets, face, region)
+    assert unseen[20:40, 11:18].all() and not unseen[:, 25:].any()
+    warped = np.zeros((h, w, 3), np.uint8)
+    warped[face] = (60, 90, 160)                              # skin
+    warped[left] = (220, 220, 220)                            # the outline's mix with a pale wall
+    before = warped.copy()
+    mend(warped, unseen, face)
+    assert np.abs(warped[25:35, 12:17].astype(int) - (60, 90, 160)).max() < 25   # skin, not the pale arc
+    assert np.array_equal(warped[:, 25:], before[:, 25:]) and np.array_equal(warped[~face], before[~face])
+
+
 # -- process --pose --------------------------------------------------------------------------------
 def _yaws(frames: list, detector, model) -> list[float]:
     from facesculpt.nodes.fitter import FitterConfig, make_fitter

@@ -39,13 +39,15 @@ def unseen_by_silhouette(offsets: np.ndarray, face: np.ndarray, region: np.ndarr
                          margin_px: float = SILHOUETTE_MARGIN_PX, stretched: float = STRETCHED) -> np.ndarray:
     """(h, w) bool: the ``face`` (h, w) bool pixels of the source map ``offsets`` (h, w, 2) float32
     that span fewer than ``stretched`` input pixels each, or are folded over
-    (:func:`.motion_extension.source_compression`), and read the input within ``margin_px`` of the
+    (:func:`.motion_extension.source_compression`), or are next to one, and read the input within ``margin_px`` of the
     outline of its face ``region`` (h, w) uint8 0/1 (the same crop: where the face was before the
     edit) or outside it."""
     covered = offsets[..., 0] < 0.5 * UNCOVERED
     near = face & covered & (source_compression(offsets, covered) < stretched)
     if not near.any() or not region.any():
         return near
+    # and their neighbours (a pixel whose right or lower neighbour is not covered has no compression of its own)
+    near = cv2.dilate(near.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool) & face & covered
     ys, xs = np.nonzero(near)
     sx = (xs + offsets[ys, xs, 0]).astype(np.float32)[None, :]
     sy = (ys + offsets[ys, xs, 1]).astype(np.float32)[None, :]
