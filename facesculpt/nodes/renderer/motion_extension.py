@@ -9,7 +9,9 @@ grown by ``HEAD_GROWTH`` of its sides: up for forehead and hair, sideways for th
 for the neck) by pull-push interpolation, which continues the face's outline values smoothly,
 and fades them to zero at the ellipse's border (smoothstep of the relative distance between the
 face and the border), so the background beyond the head does not move: the seed's
-"geometry-assisted warp of the surrounding regions".
+"geometry-assisted warp of the surrounding regions". Where a turned face's outline folds away
+from the camera under the hair (:func:`extend_behind_outline`), the extension starts inside the
+face's soft edge and the face is blended over it (:func:`over_behind`), as an edit's outline is.
 
 Offsets are (h, w, 2) float32 pixels with :data:`.source_map.UNCOVERED` where no triangle is.
 """
