@@ -43,6 +43,8 @@ import numpy as np
 
 from facesculpt.app.bench_graph import SIZE
 from facesculpt.app.bench_reference import add_ratios, as_ratio, reference_workload
+from facesculpt.app.option_arguments import add_option_argument
+from facesculpt.nodes.camera.node import CameraNode
 from facesculpt.nodes.fitter.config import FitterConfig
 
 FRONTAL_YAW_DEG = 20.0
@@ -91,9 +93,10 @@ def register(sub) -> None:
     p.add_argument("--warmup", type=float, default=2.0, help="seconds of graph output before the window (default 2)")
     p.add_argument("--camera-fps", type=float, default=60.0,
                    help="camera rate in the graph (default 60; -1: as fast as it reads)")
-    p.add_argument("--pace", type=int, default=2, metavar="N",
+    pace = CameraNode.PARAMS["pace_in_flight"].default
+    p.add_argument("--pace", type=int, default=pace, metavar="N",
                    help="the graph's camera sends a frame while fewer than N wait for the renderer "
-                        "(camera.pace_in_flight, default 2); 0: every frame it reads")
+                        f"(camera.pace_in_flight, default {pace}); 0: every frame it reads")
     p.add_argument("--threads", type=int, default=1,
                    help="OpenBLAS and OpenCV threads per process, in-process and in the graph's nodes "
                         "(default 1; 0: the libraries' own defaults, one per core)")
@@ -108,9 +111,7 @@ def register(sub) -> None:
     p.add_argument("--scenario", action="store_true",
                    help="the graph's window starts with its first frames (the neutral is learnt inside it) and "
                         "holds a preset load, nose drags, a reset and a second load (use --window 60)")
-    p.add_argument("--refine", choices=("off", "appearance"), default="off",
-                   help="the fitter refines each fit on its frame's pixels, in-process and in the graph "
-                        "(fitter.refine; docs/guide/face-models.md)")
+    add_option_argument(p, FitterConfig(), "refine", "--refine", extra_help="in-process and in the graph (fitter.refine)")
     p.add_argument("--memory", choices=("off", "on"), default="off",
                    help="the renderer's background plate and texture atlas on, in-process and in the graph "
                         "(renderer.plate, renderer.atlas; docs/guide/process.md)")
