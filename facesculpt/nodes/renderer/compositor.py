@@ -326,7 +326,7 @@ class Compositor:
                 mend(warped, unseen_by_silhouette(offsets, face, orig_mask)[block], face[block])
             if behind is not None:  # a pose edit's outline over what lies behind it, with an edit's soft edge
                 alpha = feather_alpha(face.view(np.uint8), self.feather_width(projected))[block]
-                over_behind(warped, frame_bgr, behind[block], alpha, (x0 + cols.start, y0 + rows.start), self.interpolation)
+                over_behind(warped, frame_bgr, behind[block], alpha, (x0 + cols.start, y0 + rows.start), "cubic")
         t6 = time.perf_counter()
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected), fill)

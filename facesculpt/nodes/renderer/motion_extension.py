@@ -141,17 +141,22 @@ def extend_motion(offsets: np.ndarray, head: np.ndarray) -> np.ndarray:
     return extend_behind_outline(offsets, head, 0.0)[0]
 
 
-def source_compression(offsets: np.ndarray, covered: np.ndarray) -> np.ndarray:
+def source_compression(offsets: np.ndarray, covered: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
     """(h, w) float32: how many input pixels each output pixel of the source map ``offsets``
     (h, w, 2) float32 spans (the determinant of the map p -> p + d(p), forward differences; 1: the
     input's own scale, above: a surface seen more foreshortened than in the input, below 0: folded
-    over), 1 where a pixel or its right or lower neighbour is not ``covered`` (h, w) bool."""
-    o = np.where(covered[..., None], offsets, 0.0).astype(np.float32)
-    det = np.ones(covered.shape, np.float32)
-    dx, dy = o[:-1, 1:] - o[:-1, :-1], o[1:, :-1] - o[:-1, :-1]   # d(offset)/dx, d(offset)/dy
-    jac = (1.0 + dx[..., 0]) * (1.0 + dy[..., 1]) - dy[..., 0] * dx[..., 1]
-    ok = covered[:-1, :-1] & covered[:-1, 1:] & covered[1:, :-1]
-    det[:-1, :-1] = np.where(ok, jac, 1.0)
+    over), 1 where a pixel or its right or lower neighbour is not ``covered`` (h, w) bool, and
+    outside ``where`` (h, w) bool when given (only those pixels are computed)."""
+    h, w = covered.shape
+    det = np.ones((h, w), np.float32)
+    ok = np.zeros((h, w), bool)
+    ok[:-1, :-1] = covered[:-1, :-1] & covered[:-1, 1:] & covered[1:, :-1]
+    if where is not None:
+        ok &= where
+    ys, xs = np.nonzero(ok)
+    o = offsets[ys, xs]
+    dx, dy = offsets[ys, xs + 1] - o, offsets[ys + 1, xs] - o   # d(offset)/dx, d(offset)/dy
+    det[ys, xs] = (1.0 + dx[:, 0]) * (1.0 + dy[:, 1]) - dy[:, 0] * dx[:, 1]
     return det
 
 
@@ -179,7 +184,7 @@ def extend_behind_outline(offsets: np.ndarray, head: np.ndarray, inset_px: float
     seeds, band = covered, None
     if inset_px > 0:
         rim = covered & (cv2.distanceTransform(covered.view(np.uint8), cv2.DIST_L2, 3) <= inset_px)
-        folded = rim & (source_compression(offsets, covered) > FOLD_COMPRESSION)
+        folded = rim & (source_compression(offsets, covered, rim) > FOLD_COMPRESSION)
         if goes_on is not None:
             folded &= goes_on
         if folded.any():
@@ -202,7 +207,8 @@ def over_behind(warped: np.ndarray, frame: np.ndarray, behind: np.ndarray, alpha
     blended in place toward the ``frame`` (H, W, 3) uint8 sampled at ``behind`` (h, w, 2) float32
     offsets (:func:`extend_behind_outline`'s, UNCOVERED off the soft edge) by ``alpha`` (h, w)
     float32 (the face's share: the compositor's soft edge, 0 outside the face, 1 inside its width;
-    :func:`.warp.feather_alpha`) where ``behind`` is given; ``interpolation`` as :func:`.warp.warp_frame`'s."""
+    :func:`.warp.feather_alpha`) where ``behind`` is given; ``interpolation`` as :func:`.warp.warp_frame`'s (the
+    compositor's: the bicubic, since what lies behind is blended under the face's own colour)."""
     band = behind[..., 0] < 0.5 * UNCOVERED
     part = bounding_slices(band)
     if part is None:

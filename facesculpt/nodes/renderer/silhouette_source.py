@@ -25,6 +25,8 @@ from .source_map import UNCOVERED
 SILHOUETTE_MARGIN_PX = 3.0
 #: An output pixel spanning less than this many input pixels is stretched (the input saw it grazing).
 STRETCHED = 0.5
+#: The mending interpolates from the face within this many pixels of the mended ones.
+MEND_CONTEXT_PX = 48
 
 
 def signed_depth(region: np.ndarray) -> np.ndarray:
@@ -43,17 +45,24 @@ def unseen_by_silhouette(offsets: np.ndarray, face: np.ndarray, region: np.ndarr
     outline of its face ``region`` (h, w) uint8 0/1 (the same crop: where the face was before the
     edit) or outside it."""
     covered = offsets[..., 0] < 0.5 * UNCOVERED
-    near = face & covered & (source_compression(offsets, covered) < stretched)
-    if not near.any() or not region.any():
-        return near
-    # and their neighbours (a pixel whose right or lower neighbour is not covered has no compression of its own)
-    near = cv2.dilate(near.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool) & face & covered
-    ys, xs = np.nonzero(near)
-    sx = (xs + offsets[ys, xs, 0]).astype(np.float32)[None, :]
-    sy = (ys + offsets[ys, xs, 1]).astype(np.float32)[None, :]
-    depth = cv2.remap(signed_depth(region), sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
-    near[ys[depth >= margin_px], xs[depth >= margin_px]] = False
-    return near
+    face = face & covered
+    if not face.any() or not region.any():
+        return np.zeros(face.shape, bool)
+    ys, xs = np.nonzero(face)
+    n, row = len(ys), 1024   # remap takes maps under 32767 a side: the points as rows of 1024
+    sx = np.zeros(-(-n // row) * row, np.float32)
+    sy = np.zeros_like(sx)
+    sx[:n], sy[:n] = xs + offsets[ys, xs, 0], ys + offsets[ys, xs, 1]
+    depth = cv2.remap(signed_depth(region), sx.reshape(-1, row), sy.reshape(-1, row), cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE).ravel()[:n]
+    reads_outline = np.zeros(face.shape, bool)
+    reads_outline[ys[depth < margin_px], xs[depth < margin_px]] = True
+    grow = np.ones((3, 3), np.uint8)
+    # stretched pixels, and their neighbours (a pixel whose right or lower neighbour is not covered has
+    # no compression of its own), among those that read the input's outline
+    near = face & (source_compression(offsets, covered, cv2.dilate(reads_outline.view(np.uint8), grow).view(bool))
+                   < stretched)
+    return cv2.dilate(near.view(np.uint8), grow).view(bool) & reads_outline
 
 
 def mend(warped: np.ndarray, unseen: np.ndarray, face: np.ndarray) -> None:
@@ -66,6 +75,9 @@ def mend(warped: np.ndarray, unseen: np.ndarray, face: np.ndarray) -> None:
     known = (face & ~unseen).astype(np.float32)
     if not known.any():
         return
-    filled = pull_push(warped.astype(np.float32), known)
-    alpha = cv2.GaussianBlur(unseen.astype(np.float32), (3, 3), 0)[..., None] * face[..., None]
-    warped[...] = np.clip(alpha * filled + (1.0 - alpha) * warped, 0, 255).astype(np.uint8)
+    x, y, w, h = cv2.boundingRect(unseen.view(np.uint8))   # the work on a box around them only
+    r = MEND_CONTEXT_PX
+    part = (slice(max(0, y - r), y + h + r), slice(max(0, x - r), x + w + r))
+    filled = pull_push(warped[part].astype(np.float32), known[part])
+    alpha = cv2.GaussianBlur(unseen[part].astype(np.float32), (3, 3), 0)[..., None] * face[part][..., None]
+    warped[part] = np.clip(alpha * filled + (1.0 - alpha) * warped[part], 0, 255).astype(np.uint8)
