@@ -148,6 +148,7 @@ class Compositor:
         self.width, self.height = width, height
         self.inpaint = o.inpaint
         self.feather_px, self.outline_band = float(o.feather_px), float(o.outline_band)
+        self.mend_silhouette = bool(o.mend_silhouette)
         self.dilate_px = int(o.dilate_px)
         self.telea_radius = float(o.telea_radius)
         self.interpolation = o.interpolation
@@ -322,7 +323,7 @@ class Compositor:
             warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
                                 upsampled)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
-            if head_motion is True:  # a pose edit: what the input saw only at its outline mended from beside it
+            if head_motion is True and self.mend_silhouette:  # what the input saw only at its outline, from beside it
                 mend(warped, unseen_by_silhouette(offsets, face, orig_mask)[block], face[block])
             if behind is not None:  # a pose edit's outline over what lies behind it, with an edit's soft edge
                 alpha = feather_alpha(face.view(np.uint8), self.feather_width(projected))[block]
