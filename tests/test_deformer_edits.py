@@ -468,3 +468,20 @@ def test_a_preset_settles_on_its_arap_solution(grip, within_mm):
     assert settled.deformer.last_iterations < 400   # the cap it had before the refined solve mesh
     assert settled.deformer.tolerance == 0.0   # only this solve ran to the tolerance
     assert np.abs(got - long.solve(2000)).max() < within_mm
+
+
+def test_the_shipped_chin_at_strength_2_moves_the_chin_with_its_neighbours_not_to_a_point():
+    """Issue 51: the chin preset pulled one vertex, and at strength 2 ARAP drew a cusp (a pointed V);
+    it now moves the chin's patch of skin as one, so the chin moves about as its ring of neighbours does."""
+    from facesculpt.nodes.deformer.preset_format import find_preset, read_preset_file
+    from facesculpt.nodes.fitter import load_model
+
+    m = load_model("facemesh")
+    s = EditStack(m.mean, m.triangles, m.landmark_names, m.landmark_vertices)
+    s.apply_preset(read_preset_file(find_preset("chin")), 2.0)
+    d = s.solve()
+    chin = s.landmark_vertex("chin")
+    ring = np.setdiff1d(m.triangles[(m.triangles == chin).any(1)], [chin])
+    # the single-vertex chin: its ring lagged by half of the chin's motion
+    assert np.linalg.norm(d[chin] - d[ring].mean(0)) < 0.2 * np.linalg.norm(d[chin])
+    assert np.linalg.norm(d[chin]) > 15.0   # and the chin did move (2 x 10.8 mm)
