@@ -147,8 +147,7 @@ class Compositor:
         self.options = o
         self.width, self.height = width, height
         self.inpaint = o.inpaint
-        self.feather_px, self.outline_band = float(o.feather_px), float(o.outline_band)
-        self.mend_silhouette = bool(o.mend_silhouette)
+        self.feather_px, self.outline_band, self.mend_silhouette = map(float, (o.feather_px, o.outline_band, o.mend_silhouette))
         self.dilate_px = int(o.dilate_px)
         self.telea_radius = float(o.telea_radius)
         self.interpolation = o.interpolation

@@ -33,7 +33,7 @@ HEAD_GROWTH = {"side": 0.22, "up": 0.55, "down": 0.30}
 FIELD_STEP = 2
 #: An outline pixel of a turned face that spans more input pixels than this (the mesh folding away
 #: from the camera: :func:`source_compression`) is not continued over the head (:func:`extend_behind_outline`).
-FOLD_COMPRESSION = 2.0
+FOLD_COMPRESSION = 3.0
 #: A head goes on past the face model's outline (hair, temples, ears: no part of the model) down to
 #: this share of the face's height from its top.
 HEAD_GOES_ON = 0.5
