@@ -107,8 +107,9 @@ def score_frame(fit, truth: dict, i: int, image_size, background: np.ndarray, re
     outline = vis & (dist[px[:, 1], px[:, 0]] <= OUTLINE_PX)
     yaw, pitch, _ = head_pose(i)
     R_true = rotation(yaw, pitch) @ FACING
-    pitch_err = abs(euler_from_rotation(np.asarray(fit.R, np.float64))[1] - euler_from_rotation(R_true)[1])
-    return {"yaw": yaw, "pose_deg": rotation_angle(np.asarray(fit.R, np.float64), R_true), "pitch_deg": pitch_err,
+    signed = euler_from_rotation(np.asarray(fit.R, np.float64))[1] - euler_from_rotation(R_true)[1]
+    return {"yaw": yaw, "pitch": pitch, "pitch_error": signed,
+            "pose_deg": rotation_angle(np.asarray(fit.R, np.float64), R_true), "pitch_deg": abs(signed),
             "all_px": float(err[vis].mean()), "outline_px": float(err[outline].mean()) if outline.any() else np.nan,
             "outline_vertices": int(outline.sum()), "frame_snr_db": shape_snr(np.asarray(fit.model_vertices), rest)}
 
@@ -123,21 +124,51 @@ def by_yaw(rows: list[dict]) -> dict:
     return out
 
 
+def overall(rows: list[dict]) -> dict:
+    """Over all scored frames: the mean pose error (deg), the pitch error's mean (deg, signed: fitted
+    less true) and its correlation with the true pitch, and the mean outline error (px)."""
+    pitch, error = np.array([r["pitch"] for r in rows]), np.array([r["pitch_error"] for r in rows])
+    return {"pose_deg": float(np.mean([r["pose_deg"] for r in rows])), "pitch_error_deg": float(error.mean()),
+            "r_pitch": float(np.corrcoef(error, pitch)[0, 1]), "all_px": float(np.mean([r["all_px"] for r in rows])),
+            "outline_px": float(np.nanmean([r["outline_px"] for r in rows]))}
+
+
+def _time_fits(faces, times: list) -> None:
+    """Appends the CPU time (ms, the process's) of each of ``faces``' (the pipeline's
+    :class:`FaceFitters`) fits, landmarks excluded, to ``times``."""
+    fit = faces.fit
+
+    def timed(*args, **kwargs):
+        c0 = time.process_time()
+        try:
+            return fit(*args, **kwargs)
+        finally:
+            times.append((time.process_time() - c0) * 1e3)
+    faces.fit = timed
+
+
 def run(frames: list, truths: list, background: np.ndarray, scene, fitter_options: dict) -> tuple[dict, float, float]:
-    """The landmark fit (SFM, perspective) over ``frames``: (figures by yaw bin, shape SNR dB, ms a fit)."""
+    """The landmark fit (SFM, perspective) over ``frames``: (figures by yaw bin and over all frames
+    ("all"), shape SNR dB, {"ms": median wall ms a fit, "cpu_ms": median CPU ms a fit (the
+    process's), "fit_cpu_ms": the same of ``Pipeline.fit_faces``' fit alone, landmarks excluded})."""
     from facesculpt.app.pipeline import Pipeline
 
-    rows, took = [], []
+    rows, took, cpu, fit_cpu = [], [], [], []
     size = (frames[0].shape[1], frames[0].shape[0])
     with Pipeline("sfm", fov_deg=FOV_DEG, fit=FitterConfig(**fitter_options)) as pipe:
         for i, frame in enumerate(frames):
-            t0 = time.perf_counter()
+            if i == 1:
+                _time_fits(pipe.faces, fit_cpu)
+            t0, c0 = time.perf_counter(), time.process_time()
             fit = pipe.fit_frame(frame, i / 25.0)
             took.append((time.perf_counter() - t0) * 1e3)
+            cpu.append((time.process_time() - c0) * 1e3)
             if fit is not None:
                 rows.append(score_frame(fit, truths[i], i, size, background, scene.rest, scene.K))
         neutral = np.asarray(pipe.neutral, np.float64)
-    return by_yaw(rows), shape_snr(neutral, scene.rest), float(np.median(took))
+    times = {"ms": float(np.median(took)), "cpu_ms": float(np.median(cpu)),
+             "fit_cpu_ms": float(np.median(fit_cpu)) if fit_cpu else float("nan")}
+    return by_yaw(rows) | {"all": overall(rows)}, shape_snr(neutral, scene.rest), times
 
 
 def fitted_pixels(frames: list, model: str, options: dict, **pipeline) -> np.ndarray:
@@ -162,16 +193,18 @@ METHODS = {
     "landmarks only": {},
     "landmarks only, no network rotation": {"rotation_prior_px": 0.0},
     "refined by appearance": {"refine": "appearance"},
+    "refined pose (rigid regions)": {"refine": "pose"},
 }
 
 
-def methods_for(model: str) -> dict:
-    """The :data:`METHODS` that apply to ``model``: the network's rotation is a sparse fit's prior,
-    so facemesh has no row without it."""
-    return {k: v for k, v in METHODS.items() if model == "sfm" or "rotation_prior_px" not in v}
+def methods_for(model: str, names: tuple[str, ...] = ()) -> dict:
+    """The :data:`METHODS` (those named in ``names``; all without) that apply to ``model``: the
+    network's rotation is a sparse fit's prior, so facemesh has no row without it."""
+    return {k: v for k, v in METHODS.items()
+            if (model == "sfm" or "rotation_prior_px" not in v) and (not names or k in names)}
 
 
-def still_head_jitter(data: Path, workers: int, out: Path, frames: int) -> dict:
+def still_head_jitter(data: Path, workers: int, out: Path, frames: int, names: tuple[str, ...] = ()) -> dict:
     """The synthetic head held nearly still (``make_scene(motion="still")``: its true motion
     smooth, so all jitter is the fit's), under each image condition of :data:`CONDITIONS`:
     condition -> model -> {method: :func:`jitter` (px) of the fitted pixels, "face's tracked
@@ -183,7 +216,7 @@ def still_head_jitter(data: Path, workers: int, out: Path, frames: int) -> dict:
     for condition, (noise, crf) in CONDITIONS.items():
         images = degraded(clean, noise, crf, out)
         for model in ("facemesh", "sfm"):
-            tracks = {k: fitted_pixels(images, model, o, fov_deg=FOV_DEG) for k, o in methods_for(model).items()}
+            tracks = {k: fitted_pixels(images, model, o, fov_deg=FOV_DEG) for k, o in methods_for(model, names).items()}
             row = {k: jitter(t[STILL_SKIP_FRAMES:])[0] for k, t in tracks.items()}
             base = tracks["landmarks only"][STILL_SKIP_FRAMES:]
             motion = tracked_motion(images[STILL_SKIP_FRAMES:STILL_SKIP_FRAMES + len(base)], base)
@@ -192,7 +225,8 @@ def still_head_jitter(data: Path, workers: int, out: Path, frames: int) -> dict:
     return figures
 
 
-def real_video_jitter(data: Path, videos: list[str], count: int) -> dict:
+def real_video_jitter(data: Path, videos: list[str], count: int, models: tuple[str, ...] = ("facemesh", "sfm"),
+                      names: tuple[str, ...] = ()) -> dict:
     """"video model" -> {method: :func:`jitter` px, "face's tracked motion": the jitter of
     :func:`.tracked_motion` started from the landmark fit, "low-passed": that of the same motion
     through the fitter's smoothing of a still head (:func:`.low_passed`), both on the landmark fit's
@@ -202,8 +236,8 @@ def real_video_jitter(data: Path, videos: list[str], count: int) -> dict:
     out = {}
     for video in videos:
         frames = read_video(data / "video" / f"{video}.mp4", count)
-        for model in ("facemesh", "sfm"):
-            tracks = {k: fitted_pixels(frames, model, o) for k, o in methods_for(model).items()}
+        for model in models:
+            tracks = {k: fitted_pixels(frames, model, o) for k, o in methods_for(model, names).items()}
             figures = {k: jitter(t) for k, t in tracks.items()}
             base = tracks["landmarks only"]
             motion, still = tracked_motion(frames[:len(base)], base), still_steps(base)
@@ -212,6 +246,33 @@ def real_video_jitter(data: Path, videos: list[str], count: int) -> dict:
                 "low-passed": jitter(low_passed(motion, FitterConfig().smooth_min_cutoff), still=still)[0],
                 "still_frames": figures["landmarks only"][1]}
     return out
+
+
+def cost_on_video(data: Path, video: str, size: tuple[int, int], names: tuple[str, ...], frames: int = 80,
+                  rounds: int = 2, skip: int = 20) -> dict:
+    """The SFM fit's CPU time on ``video`` resized to ``size`` (W, H), per method of :data:`METHODS`
+    (``names``; all without): {method: {"fit_cpu_ms": median of ``Pipeline.fit_faces``' fit alone
+    (landmarks excluded), "frame_cpu_ms": of the whole frame}}, over ``rounds`` rounds that run the
+    methods in turn (so a change of the machine's load falls on all of them alike), each on the
+    first ``frames`` frames, the first ``skip`` left out (the refinement is still learning)."""
+    from benchmarks.realism.sequences import read_video
+    from facesculpt.app.pipeline import Pipeline
+
+    images = [cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in read_video(data / "video" / f"{video}.mp4", frames)]
+    times = {k: ([], []) for k in methods_for("sfm", names)}
+    for _ in range(rounds):
+        for name, options in methods_for("sfm", names).items():
+            fit_cpu, frame_cpu = [], []
+            with Pipeline("sfm", fit=FitterConfig(**options)) as pipe:
+                for i, image in enumerate(images):
+                    if i == 1:
+                        _time_fits(pipe.faces, fit_cpu)
+                    c0 = time.process_time()
+                    pipe.fit_frame(image, i / 25.0)
+                    frame_cpu.append((time.process_time() - c0) * 1e3)
+            times[name][0].extend(fit_cpu[skip - 1:])
+            times[name][1].extend(frame_cpu[skip:])
+    return {k: {"fit_cpu_ms": float(np.median(f)), "frame_cpu_ms": float(np.median(w))} for k, (f, w) in times.items()}
 
 
 def real_table(real: dict) -> list[str]:
@@ -235,15 +296,44 @@ def still_table(still: dict) -> list[str]:
     return lines
 
 
+def synthetic_table(results: dict) -> list[str]:
+    """The synthetic set's tables: by yaw bin, over all frames, and the cost (CPU time as a ratio
+    to the first method's, measured in the same run)."""
+    lines = ["| method | yaw bin | frames | pose error (deg) | pitch error (deg) | all vertices (px) | outline vertices (px) "
+             "| frame shape SNR (dB) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for name, r in results.items():
+        for b, v in r["by_yaw"].items():
+            lines.append(f"| {name} | {b} | {v['frames']} | {v['pose_deg']:.2f} | {v['pitch_deg']:.2f} | {v['all_px']:.2f} "
+                         f"| {v['outline_px']:.2f} | {v['frame_snr_db']:.2f} |")
+    first = next(iter(results.values()))
+    lines += ["", "| method | pose error mean (deg) | pitch error mean (deg) | r(pitch error, pitch) | all vertices (px) "
+              "| outline vertices (px) | identity SNR (dB, the learned neutral) | fit ms (median wall, landmarks "
+              "included) | CPU ratio, frame (landmarks included) | CPU ratio, fit alone |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for name, r in results.items():
+        a = r["all"]
+        lines.append(f"| {name} | {a['pose_deg']:.2f} | {a['pitch_error_deg']:+.2f} | {a['r_pitch']:+.2f} "
+                     f"| {a['all_px']:.2f} | {a['outline_px']:.2f} | {r['shape_snr_db']:.2f} | {r['fit_ms_median']:.1f} "
+                     f"| {r['cpu_ms_median'] / first['cpu_ms_median']:.2f} "
+                     f"| {r['fit_cpu_ms_median'] / first['fit_cpu_ms_median']:.2f} |")
+    return lines
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
-    p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90)")
+    p.add_argument("--frames", type=int, default=90, help="synthetic frames, 25 fps (default 90; 0: none)")
     p.add_argument("--workers", type=int, default=0, help="processes rendering the synthetic set (0: one per core)")
     p.add_argument("--real-videos", default="d0,d3,d12,s18", help="shared videos for the jitter figure ('' for none)")
     p.add_argument("--real-frames", type=int, default=150, help="frames of each real video (default 150)")
     p.add_argument("--still-frames", type=int, default=120,
                    help="frames of the still synthetic head for the jitter against the truth (default 120; 0: none)")
+    p.add_argument("--methods", default="", help="comma-separated names of METHODS to run (default: all; the "
+                                                 "first is the cost's reference)")
+    p.add_argument("--cost-video", default="", help="a shared video (e.g. s18) on which each method's CPU time is "
+                                                    "measured at 856x480 ('' for none)")
+    p.add_argument("--jitter-models", default="facemesh,sfm", help="models whose real-video jitter is measured")
     args = p.parse_args(argv)
     data = shared_data_dir()
     if data is None:
@@ -251,34 +341,37 @@ def main(argv=None) -> int:
         return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_appearance_"))
     out.mkdir(parents=True, exist_ok=True)
-    scene = make_scene(data, frames=args.frames)
     workers = args.workers or max(1, min(4, len(os.sched_getaffinity(0))))
-    truths = render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]
-    frames = [t["image"] for t in truths]
-    results = {}
-    for name, options in METHODS.items():
-        bins, snr, ms = run(frames, truths, scene.background, scene, options)
-        results[name] = {"by_yaw": bins, "shape_snr_db": snr, "fit_ms_median": ms}
-    lines = ["| method | yaw bin | frames | pose error (deg) | pitch error (deg) | all vertices (px) | outline vertices (px) "
-             "| frame shape SNR (dB) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for name, r in results.items():
-        for b, v in r["by_yaw"].items():
-            lines.append(f"| {name} | {b} | {v['frames']} | {v['pose_deg']:.2f} | {v['pitch_deg']:.2f} | {v['all_px']:.2f} "
-                         f"| {v['outline_px']:.2f} "
-                         f"| {v['frame_snr_db']:.2f} |")
-    lines += ["", "| method | identity SNR (dB, the learned neutral) | fit ms (median, landmarks included) |",
-              "| --- | --- | --- |"]
-    lines += [f"| {name} | {r['shape_snr_db']:.2f} | {r['fit_ms_median']:.1f} |" for name, r in results.items()]
+    results, lines = {}, []
+    names = tuple(m for m in args.methods.split(",") if m)
+    if args.frames:
+        scene = make_scene(data, frames=args.frames)
+        truths = render_all(scene, [(0.0, 0.0)], workers)[(0.0, 0.0)]
+        frames = [t["image"] for t in truths]
+        for name, options in methods_for("sfm", names).items():
+            bins, snr, times = run(frames, truths, scene.background, scene, options)
+            overall_row = bins.pop("all")
+            results[name] = {"by_yaw": bins, "all": overall_row, "shape_snr_db": snr, "fit_ms_median": times["ms"],
+                             "cpu_ms_median": times["cpu_ms"], "fit_cpu_ms_median": times["fit_cpu_ms"]}
+        lines = synthetic_table(results)
     if args.still_frames:
-        still = still_head_jitter(data, workers, out, args.still_frames)
+        still = still_head_jitter(data, workers, out, args.still_frames, names)
         results["still head jitter"] = still
         lines += still_table(still)
     videos = [v for v in args.real_videos.split(",") if v]
     if videos:
-        real = real_video_jitter(data, videos, args.real_frames)
+        real = real_video_jitter(data, videos, args.real_frames, tuple(m for m in args.jitter_models.split(",") if m),
+                                 names)
         results["jitter"] = real
         lines += real_table(real)
+    if args.cost_video:
+        cost = cost_on_video(data, args.cost_video, (856, 480), names)
+        results["cost"] = cost
+        first = next(iter(cost.values()))
+        lines += ["", f"CPU time on {args.cost_video} at 856x480, SFM (medians, methods alternated; ratio to the first)",
+                  "", "| method | fit alone ms | ratio | frame ms (landmarks included) | ratio |", "| --- | --- | --- | --- | --- |"]
+        lines += [f"| {k} | {v['fit_cpu_ms']:.1f} | {v['fit_cpu_ms'] / first['fit_cpu_ms']:.2f} | {v['frame_cpu_ms']:.1f} "
+                  f"| {v['frame_cpu_ms'] / first['frame_cpu_ms']:.2f} |" for k, v in cost.items()]
     table = "\n".join(lines)
     (out / "results.md").write_text(table + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=1))

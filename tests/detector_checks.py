@@ -25,6 +25,7 @@ def collect(graph, models_dir, source, frames: int, *, node: str, topic: str, ms
     graph.spawn("run", node, f"models_dir={models_dir}")
     # The camera waits for both subscribers (collector and detector) before its first frame.
     cam = graph.spawn("run", "camera", f"source={source}", f"fps={fps}", f"max_frames={frames}", "wait_subscribers=2",
+                      "pace_by=",  # no renderer: nothing acknowledges frames; do not wait for one
                       "wait_timeout_s=30")
     graph.spin_until(collector, lambda: cam.poll() is not None and received and received[-1].stamp == max(images),
                      timeout)

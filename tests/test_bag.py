@@ -34,7 +34,8 @@ def _video_frames(path) -> list[np.ndarray]:
 
 def _record(graph, video, bag, count, *extra):
     rec = graph.spawn("bag", "record", "camera/image", "-o", str(bag), "--count", str(count), *extra)
-    cam = graph.spawn("run", "camera", f"source={video}", "fps=60", f"max_frames={count}", "wait_subscribers=1")
+    cam = graph.spawn("run", "camera", f"source={video}", "fps=60", f"max_frames={count}", "wait_subscribers=1",
+                       "pace_by=")  # no renderer to pace by: do not wait for one
     assert rec.wait(60) == 0
     cam.wait(10)
 
@@ -118,7 +119,7 @@ def test_bag_cut_at_random_offsets_recovers_every_complete_record(graph, data_di
 
     collector = _Collector(graph)
     rng = random.Random(2)
-    for offset in sorted(rng.sample(range(len(MAGIC), bag.stat().st_size - 1), 20)):
+    for offset in sorted(rng.sample(range(len(MAGIC), bag.stat().st_size - 1), 12)):
         cut = tmp_path / f"cut-{offset}.mcap"
         with open(bag, "rb") as src, open(cut, "wb") as dst:
             dst.write(src.read(offset))

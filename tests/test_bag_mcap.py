@@ -176,7 +176,7 @@ def test_play_from_a_time_and_a_killed_recorder(graph, data_dir, tmp_path):
     bag = tmp_path / "killed"                                       # no suffix: .mcap is added
     rec = graph.spawn("bag", "record", "camera/image", "-o", str(bag), stderr=subprocess.PIPE)
     cam = graph.spawn("run", "camera", f"source={data_dir / 'video' / 'd0.mp4'}", "fps=20", "max_frames=40",
-                      "wait_subscribers=1")
+                      "wait_subscribers=1", "pace_by=")
     assert cam.wait(60) == 0
     time.sleep(1.5)                                                 # > chunk_s: the last chunk is on disk
     rec.send_signal(signal.SIGKILL)

@@ -83,19 +83,20 @@ def test_the_template_learns_what_the_frame_sees_frontally():
 def test_the_fitter_option_is_checked_and_refines_real_frames(data_dir, models_dir):
     from facesculpt.app.pipeline import Pipeline
 
-    with pytest.raises(FitError, match="refine must be None or 'appearance'"):
+    with pytest.raises(FitError, match="refine must be one of 'appearance', 'pose'"):
         FitterConfig(refine="pixels")
     cap = cv2.VideoCapture(str(data_dir / "video" / "d0.mp4"))
     frames = [cap.read()[1] for _ in range(14)]
     cap.release()
     fits = {}
-    for refine in (None, "appearance"):
+    for refine in (None, "appearance", "pose"):
         with Pipeline("facemesh", fit=FitterConfig(refine=refine)) as pipe:
             fits[refine] = [pipe.fit_frame(f, i / 25.0) for i, f in enumerate(frames)]
             assert pipe.fitter.config.refine == refine
-    moved = [np.abs(a.projected - b.projected).max() for a, b in zip(fits[None], fits["appearance"])]
-    assert moved[0] < 1e-3                 # nothing to track from, nothing learned yet
-    assert 0.0 < max(moved[1:]) < 10.0     # then the pose moves, a little
+    for refine in ("appearance", "pose"):
+        moved = [np.abs(a.projected - b.projected).max() for a, b in zip(fits[None], fits[refine])]
+        assert moved[0] < 1e-3                 # nothing to track from, nothing learned yet
+        assert 0.0 < max(moved[1:]) < 10.0     # then the pose moves, a little
     # a refined fit carries the landmark fit it came from (the expression measures against it)
     assert all(f.landmark_fit is None for f in fits[None])
     last = fits["appearance"][-1].landmark_fit

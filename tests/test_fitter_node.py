@@ -141,6 +141,24 @@ def test_refine_appearance_takes_the_frames_and_fits_without_a_missing_one(monke
     assert 0.0 < max(moved[1:]) < 10.0                    # refined: moved, a little
 
 
+def test_refine_pose_takes_the_frames_too(monkeypatch, tmp_path, captured):
+    """refine=pose (the rigid pose from the pixels) subscribes to the frames as refine=appearance does."""
+    monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
+    node = FitterNode(params={"refine": "pose"})
+    node.setup()
+    out = []
+    original = node.state_pub.publish
+    node.state_pub.publish = lambda msg: (out.append(msg), original(msg))[1]
+    try:
+        for frame, msg in captured:
+            node.on_image(Image(stamp=msg.stamp, image=frame, K=msg.K))
+            node.on_landmarks(msg)
+        assert node.fitter.config.refine == "pose" and node.errors == 0 and len(out) == len(captured)
+        assert "refine_without_frame" not in node.counters and node.fitter.refiner.frames == len(captured)
+    finally:
+        node.close()
+
+
 def test_sfm_node_fits_the_68_point_mapping(monkeypatch, tmp_path, frames, data_dir):
     from facesculpt.nodes.fitter import load_model, save_model
 

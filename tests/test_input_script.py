@@ -175,6 +175,12 @@ def _face_px(state: FaceState) -> float:
     return float(np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean()))
 
 
+def _face_sizes_before(states: dict[int, FaceState], end: int) -> list[float]:
+    """The fitted face's sizes (px) in the DRAG_WINDOW_NS before ``end``; the last one before it if none."""
+    window = [s for s in states if end - DRAG_WINDOW_NS <= s <= end] or [max(s for s in states if s <= end)]
+    return [_face_px(states[s]) for s in window]
+
+
 @pytest.mark.slow
 def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_dir, tmp_path):
     """camera (a bag of d3.mp4) -> landmarks -> fitter -> deformer -> renderer, with the script
@@ -217,16 +223,13 @@ def test_whole_graph_on_a_recorded_bag_pulls_the_nose(graph, data_dir, models_di
     assert script.returncode == 0
     after = time.time_ns() + 300_000_000  # frames captured well after the last drag was solved
     assert graph.spin_until(watcher, lambda: sum(s > after and s in frames and s in states for s in renders) >= 5, 60)
-    names = list(model[-1].landmark_names)
-    nose = int(model[-1].landmark_vertices[names.index("nose_tip")])
+    nose = int(model[-1].landmark_vertices[list(model[-1].landmark_names).index("nose_tip")])
     displacement = deformations[-1].displacement
     # The drag is turned into millimetres on the face as the deformer last saw it, event by event;
     # d3 leans in and out and the bag loops (a jump in size), so a later frame shows those
     # millimetres as more or fewer pixels. Which states the deformer used is not published: the
     # face's size is bounded by the states of the drag's seconds (its 0.5 s and the graph's lag).
-    end = deformations[-1].stamp
-    window = [s for s in states if end - DRAG_WINDOW_NS <= s <= end] or [max(s for s in states if s <= end)]
-    sizes = [_face_px(states[s]) for s in window]
+    sizes = _face_sizes_before(states, deformations[-1].stamp)
     r = 10  # nose patch half-size, px
     checked = 0
     for stamp in sorted(s for s in renders if s > after and s in frames and s in states):

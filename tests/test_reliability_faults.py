@@ -39,7 +39,7 @@ def test_corrupt_and_truncated_videos_are_reported_and_end_cleanly(graph, data_d
     got: list[Image] = []
     watcher = graph.node(Node(name="watcher"))
     watcher.subscribe("camera/image", Image, got.append, qos=EVERY_MESSAGE)
-    cam = graph.spawn("run", "camera", f"source={garbled}", "fps=60", "wait_subscribers=1",
+    cam = graph.spawn("run", "camera", f"source={garbled}", "fps=60", "wait_subscribers=1", "pace_by=",
                       stderr=subprocess.PIPE)
     assert graph.spin_until(watcher, lambda: cam.poll() is not None, 60), "the camera did not end"
     err = cam.stderr.read().decode()
@@ -91,7 +91,7 @@ def test_bag_record_on_a_full_disk_keeps_what_was_written(graph, data_dir, small
     bag = small_disk / "full.bag"
     rec = graph.spawn("bag", "record", "camera/image", "-o", str(bag), "--count", "50", stderr=subprocess.PIPE)
     graph.spawn("run", "camera", f"source={data_dir / 'video' / 'd3.mp4'}", "fps=30", "max_frames=50",
-                "wait_subscribers=1")
+                "wait_subscribers=1", "pace_by=")
     assert rec.wait(60) == 1
     err = rec.stderr.read().decode()
     assert "No space left on device" in err and "records before it are readable" in err, err

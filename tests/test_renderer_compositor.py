@@ -158,6 +158,28 @@ def test_edit_keeps_background_and_fills_what_the_face_uncovered(gl, scene, inpa
         assert np.median(unmoved) >= 4 * max(np.median(mapped), 0.5)
 
 
+def test_the_work_box_holds_everything_the_edit_changes(gl, data_dir, sfm, monkeypatch):
+    """The work box's background (the larger of the fill's context and the carried band, not their
+    sum): a box with far more background around the face renders the same frame."""
+    import facesculpt.nodes.renderer.compositor as compositor
+
+    frame = read_frames(data_dir, "s18")[0]
+    pose = place_marked(sfm, "s18")
+    deformed = merge_deformation(pose.fitted, pose.R, pose.scale, issue_edit(pose))
+    H, W = frame.shape[:2]
+    outs, boxes = [], []
+    for context in (compositor.FILL_CONTEXT_PX, compositor.FILL_CONTEXT_PX + 40):
+        monkeypatch.setattr(compositor, "FILL_CONTEXT_PX", context)
+        comp = Compositor(W, H, ctx=gl)
+        outs.append(comp.render(frame, pose.fitted, pose.projected, pose.triangles, deformed).astype(int))
+        boxes.append(comp.box)
+        comp.release()
+    (x0, y0, x1, y1), (X0, Y0, X1, Y1) = boxes
+    assert (X1 - X0) * (Y1 - Y0) > 1.3 * (x1 - x0) * (y1 - y0)
+    differ = np.abs(outs[0] - outs[1]).max(axis=2)
+    assert differ.max() <= 2 and np.mean(differ > 0) < 1e-4, (differ.max(), np.mean(differ > 0))
+
+
 def test_frame_without_face_passes_through(gl, data_dir, sfm):
     frame = read_frames(data_dir, "s18")[0]
     H, W = frame.shape[:2]

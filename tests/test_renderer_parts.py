@@ -20,7 +20,7 @@ from facesculpt.nodes.renderer.frame_size_defaults import (
 )
 from facesculpt.nodes.renderer.inpaint import fill_by_parts, fill_pushpull, fill_telea, part_boxes, uncovered_mask
 from facesculpt.nodes.renderer.mesh import vertex_rings
-from facesculpt.nodes.renderer.sinc_sampling import Upsampled, sample_sinc, upsample2x
+from facesculpt.nodes.renderer.sinc_sampling import MARGIN_PX, Upsampled, sample_sinc, upsample2x, upsampled_over
 from facesculpt.nodes.renderer.subdivision import MAX_FINE_EDGE_PX, levels_for, median_edge_px
 from facesculpt.nodes.renderer.video_out import VideoOutput
 from facesculpt.nodes.renderer.warp import sample
@@ -87,6 +87,28 @@ def test_sinc_sampling_through_one_upsampling_gives_the_pixels_of_its_own(data_d
     block = (slice(100, 220), slice(40, 130))
     assert np.array_equal(sample_sinc(other, grid_x[block], grid_y[block], shared),
                           sample_sinc(other, grid_x[block], grid_y[block]))
+
+
+def test_one_upsampling_over_the_positions_serves_each_sampling_as_its_own_would(data_dir):
+    """upsampled_over takes the bounding box of every positions' set, as sample_sinc grows it: each
+    set is sampled through it with the pixels of an upsampling of its own; nothing to read, none."""
+    frame = read_frames(data_dir, "d3", start=30)[0]
+    rng = np.random.default_rng(3)
+    face_x, face_y = np.meshgrid(np.arange(150, 260, dtype=np.float32), np.arange(120, 240, dtype=np.float32))
+    face_x += rng.uniform(-3, 3, face_x.shape).astype(np.float32)
+    face_y += rng.uniform(-3, 3, face_y.shape).astype(np.float32)
+    strip_x = rng.uniform(262, 275, 300).astype(np.float32)   # a drag fill's pixels: one row
+    strip_y = rng.uniform(130, 230, 300).astype(np.float32)
+    up = upsampled_over(frame, [(face_x, face_y), (strip_x, strip_y), (np.zeros(0, np.float32),) * 2])
+    assert (up.x_lo, up.y_lo) == (int(np.floor(min(face_x.min(), strip_x.min()))) - MARGIN_PX,
+                                  int(np.floor(min(face_y.min(), strip_y.min()))) - MARGIN_PX)
+    assert (up.x_hi, up.y_hi) == (int(np.ceil(max(face_x.max(), strip_x.max()))) + MARGIN_PX + 1,
+                                  int(np.ceil(max(face_y.max(), strip_y.max()))) + MARGIN_PX + 1)
+    for mx, my in ((face_x, face_y), (strip_x[None, :], strip_y[None, :])):
+        alone = sample_sinc(frame, mx, my)
+        got = sample_sinc(frame, mx, my, up)
+        assert np.abs(got.astype(int) - alone).max() <= 1 and np.mean(got != alone) < 0.01
+    assert upsampled_over(frame, [(np.zeros(0, np.float32),) * 2]) is None
 
 
 def test_the_live_renderers_auto_kernel_is_the_sinc_below_720p():

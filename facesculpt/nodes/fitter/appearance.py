@@ -61,6 +61,15 @@ BLEND = 0.1
 #: ties of corners to the mesh drift as the head turns; a still face keeps the low blend).
 BLEND_MOVING = 0.4
 MOVING_PX = 2.0
+#: The rigid pose refinement (``refine="pose"``, :mod:`.rigid_regions`): its pyramid's scales,
+#: and its landmark prior, PRIOR_WEIGHT's meaning for a landmark fit whose RMS residual is
+#: PRIOR_RESIDUAL_PX, growing as 1 / residual^2 for a closer one (at most PRIOR_MAX_GAIN times).
+POSE_LEVELS = (0.25, 0.5, 1.0)
+PRIOR_RESIDUAL_PX = 2.0
+PRIOR_MAX_GAIN = 4.0
+#: ... and the weight of a vertex outside the rigid regions (the mouth, the eyes, the jaw: a lighting
+#: gain and bias of their own), relative to one inside them (0: the rigid regions alone).
+OUTSIDE_RIGID_WEIGHT = 0.0
 #: Shape components the refinement may change (the leading ones; 0: pose only).
 SHAPE_COMPONENTS = 20
 #: The refined shape change applied is the mean of the samples of the last this many frames (the
@@ -94,6 +103,14 @@ def frontality(vertices: np.ndarray, normals: np.ndarray, perspective: bool) -> 
         np.broadcast_to([0.0, 0.0, -1.0], X.shape)
     cos = np.einsum("ij,ij->i", normals, to_cam)
     return -cos if cos.sum() < 0 else cos
+
+
+def pose_prior_weight(residual_px: float) -> float:
+    """The rigid refinement's landmark prior weight (PRIOR_WEIGHT's meaning) for a landmark fit
+    whose RMS residual is ``residual_px`` px: the closer the landmarks agree with the fit, the
+    more the pose is held where they put it."""
+    gain = (PRIOR_RESIDUAL_PX / max(float(residual_px), 1e-6)) ** 2 if np.isfinite(residual_px) else 1.0
+    return PRIOR_WEIGHT * min(PRIOR_MAX_GAIN, gain)
 
 
 def blend(speed_px: float) -> float:
@@ -244,11 +261,23 @@ def _pyramid_level(grey: np.ndarray, scale: float) -> np.ndarray:
                       cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0])
 
 
+def lighting_basis(template: np.ndarray, regions: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The lighting's linear model of the frame's grey levels at n compared vertices: (A (n, m),
+    ridged (m,) bool: the columns held near 0). template: (n,) grey levels or (n, 1 + c) an
+    appearance model's mean and components; regions: (n,) int, a gain (times the mean) and a bias
+    for each region, or None: one pair for all; then the c components, ridged."""
+    t = np.asarray(template, np.float64).reshape(len(template), -1)
+    groups = [np.ones(len(t), bool)] if regions is None else [regions == r for r in np.unique(regions)]
+    columns = [c for g in groups for c in (t[:, 0] * g, g.astype(np.float64))]
+    ridged = np.r_[np.zeros(len(columns), bool), np.ones(t.shape[1] - 1, bool)]
+    return np.column_stack(columns + [t[:, 1:]]), ridged
+
+
 def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, template: np.ndarray,
                 K: np.ndarray | None, anchors: np.ndarray, prior_weight: float | None = None,
                 basis: np.ndarray | None = None, shape_weight: float | None = None,
                 start: np.ndarray | None = None, temporal_weight: float | None = None,
-                levels: tuple[float, ...] | None = None) -> Refinement:
+                levels: tuple[float, ...] | None = None, regions: np.ndarray | None = None) -> Refinement:
     """The rigid motion (and, with a ``basis``, shape change) that best matches the frame to the template.
 
     grey: (H, W) float32 the frame's grey levels; vertices: (V, 3) float64 the landmark fit's
@@ -260,8 +289,9 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
     displacement of each vertex per standard deviation of k shape components (None: pose only),
     whose change costs ``shape_weight`` (SHAPE_WEIGHT's meaning); start: (6 + k,) the last frame's
     ``theta``, where the search starts and which the landmark vertices' pixels are held near with
-    ``temporal_weight`` (TEMPORAL_WEIGHT's meaning); levels: the pyramid's scales (LEVELS). The
-    weights default to the module's constants."""
+    ``temporal_weight`` (TEMPORAL_WEIGHT's meaning); levels: the pyramid's scales (LEVELS);
+    regions: (V,) int each vertex's region (:mod:`.rigid_regions`), each with a lighting gain and
+    bias of its own (None: one for the whole face). The weights default to the module's constants."""
     prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
     temporal_weight = TEMPORAL_WEIGHT if temporal_weight is None else temporal_weight
     shape_weight = SHAPE_WEIGHT if shape_weight is None else shape_weight
@@ -303,9 +333,8 @@ def refine_pose(grey: np.ndarray, vertices: np.ndarray, weights: np.ndarray, tem
             values = looked_up[:, 0]
             w = weights[use] * inside
             # lighting: the frame's grey = gain * template + bias (+ the components' mix), this step
-            A = np.column_stack([template[use], np.ones(len(use))])
-            ridge = np.zeros(A.shape[1])
-            ridge[1:-1] = COMPONENT_RIDGE * float(w.sum())   # components: held near the mean face
+            A, ridged = lighting_basis(template[use], None if regions is None else regions[use])
+            ridge = np.where(ridged, COMPONENT_RIDGE * float(w.sum()), 0.0)   # components: near the mean face
             coef = np.linalg.solve(A.T @ (A * w[:, None]) + np.diag(ridge) + 1e-9 * np.eye(A.shape[1]),
                                    A.T @ (w * values))
             r = values - A @ coef

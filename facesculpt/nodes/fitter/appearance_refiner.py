@@ -26,17 +26,24 @@ from facesculpt.geometry.vertex_normals import vertex_normals
 from . import appearance
 from .model import MorphableModel, basis_combination
 from .result import FitResult
+from .rigid_regions import has_rigid_regions, rigid_regions
 from .surface_features import surface_features, track_features
 
 
 class AppearanceRefiner:
-    """AppearanceRefiner(K, projection, learn_frames): ``K`` (3, 3) or None (orthographic),
-    ``projection`` the fitter's; the first ``learn_frames`` frames only learn the appearance."""
+    """AppearanceRefiner(K, projection, learn_frames, mode): ``K`` (3, 3) or None (orthographic),
+    ``projection`` the fitter's; the first ``learn_frames`` frames only learn the appearance.
+    ``mode`` "appearance": the pose and the leading shape components from every vertex the frame
+    sees; "pose": the rigid pose alone, from the rigid regions (:mod:`.rigid_regions`), with a
+    lighting gain and bias per region and the landmark prior weighed by the landmark fit's residual
+    (:func:`.appearance.pose_prior_weight`); its corners are taken from those regions too."""
 
-    def __init__(self, K: np.ndarray | None, projection: str, learn_frames: int):
+    def __init__(self, K: np.ndarray | None, projection: str, learn_frames: int, mode: str = "appearance"):
         self.K = K
         self.projection = projection
         self.learn_frames = int(learn_frames)
+        self.mode = mode
+        self._regions: tuple | None = None   # (the model, its (V,) rigid regions or None)
         self.reset()
 
     def reset(self) -> None:
@@ -85,7 +92,11 @@ class AppearanceRefiner:
         front = appearance.frontality(X, normals, perspective)
         projected = np.asarray(result.projected, np.float64)
         self.template.update(grey, projected, front)
-        self.features = surface_features(grey8, projected, front >= appearance.MIN_FRONTALITY, kept=self.kept)
+        usable = front >= appearance.MIN_FRONTALITY
+        regions = self.regions(model) if self.mode == "pose" else None
+        if regions is not None:
+            usable &= regions >= 0
+        self.features = surface_features(grey8, projected, usable, kept=self.kept)
         self.kept = None
         self.previous = grey8
         self.frames += 1
@@ -113,6 +124,8 @@ class AppearanceRefiner:
         front = appearance.frontality(X, normals, self.K is not None)
         w = self.template.confidence * appearance.frontal_weights(front)
         anchors = np.asarray(model.landmark_vertices, np.int64)
+        if self.mode == "pose":
+            return self._rigid_refined(model, result, grey, X, w, anchors)
         k = min(appearance.SHAPE_COMPONENTS, len(result.alpha), model.num_shape)
         if k:
             shape = None
@@ -126,6 +139,31 @@ class AppearanceRefiner:
             X = np.asarray(result.vertices, np.float64)
         found = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, start=self.last_theta,
                                        levels=appearance.POSE_AFTER_SHAPE_LEVELS if k else None)
+        self.last_theta = found.theta
+        return refined_result(result, found, None, self.K, self.projection)
+
+    def regions(self, model: MorphableModel) -> np.ndarray | None:
+        """(V,) int8 ``model``'s rigid regions (:func:`.rigid_regions.rigid_regions` of its mean),
+        kept per model; None for a model that does not name the landmarks they are made from."""
+        if self._regions is None or self._regions[0] is not model:
+            names = model.landmark_index()
+            labels = rigid_regions(model.instance(), names) if has_rigid_regions(names) else None
+            if labels is not None and (labels >= 0).sum() < 20:
+                labels = None
+            self._regions = (model, labels)
+        return self._regions[1]
+
+    def _rigid_refined(self, model: MorphableModel, result: FitResult, grey: np.ndarray, X: np.ndarray,
+                       w: np.ndarray, anchors: np.ndarray) -> FitResult:
+        """``result``'s rigid pose refined against the template on the rigid regions alone, a
+        lighting gain and bias per region (the whole face where the model has no regions)."""
+        regions = self.regions(model)
+        if regions is not None:
+            w = w * np.where(regions >= 0, 1.0, appearance.OUTSIDE_RIGID_WEIGHT)
+            regions = np.where(regions >= 0, regions, regions.max() + 1)
+        found = appearance.refine_pose(grey, X, w, self.template.grey, self.K, anchors, start=self.last_theta,
+                                       prior_weight=appearance.pose_prior_weight(result.residual_px),
+                                       levels=appearance.POSE_LEVELS, regions=regions)
         self.last_theta = found.theta
         return refined_result(result, found, None, self.K, self.projection)
 

@@ -17,6 +17,7 @@ from facesculpt.options import check_options, option
 PROJECTIONS = ("auto", "perspective", "orthographic")
 OUTLINE_MODES = ("ray", "nearest", "off")
 COEFFICIENT_SOLVES = ("joint", "alternate")
+REFINE_MODES = ("appearance", "pose")
 
 
 @dataclass(frozen=True)
@@ -61,9 +62,12 @@ class FitterConfig:
     the network's relative depth ((N, 3)) holds its pitch toward that of the network's own 3D
     points (:mod:`.detector_rotation`) with this weight against the landmarks' RMS pixel error;
     the network's 3D reference is learned over ``neutral_frames`` frames.
-    refine: None, or "appearance": after the landmark fit of a frame given with its ``image``, the
-    pose is refined photometrically against the person's appearance learned from the earlier
-    frames (:mod:`.appearance`, issue 20); ``refine_after`` (>= 1): frames learned first.
+    refine: None, "appearance" or "pose": after the landmark fit of a frame given with its ``image``,
+    the pose is refined photometrically against the person's appearance learned from the earlier
+    frames (:mod:`.appearance`, issue 20): "appearance" the pose and leading shape components from
+    the whole face, "pose" the rigid pose alone from the forehead, nose bridge and cheekbones
+    (:mod:`.rigid_regions`, issue 46) with a lighting gain and bias per region;
+    ``refine_after`` (>= 1): frames learned first.
     """
 
     projection: str = option("auto", "perspective (needs K), orthographic, or auto: perspective when K is given",
@@ -112,17 +116,18 @@ class FitterConfig:
     rotation_prior_px: float = option(100.0, "sparse, perspective: weight holding the fitted pitch toward that of "
                                              "the landmark network's own 3D points; 0: off", "px per radian",
                                       range=(0.0, 10000.0))
-    refine: str | None = option(None, "appearance: refine each landmark fit on its frame's pixels against the "
-                                      "person's learned appearance and corners tracked from the last frame "
-                                      "(docs/guide/face-models.md)", choices=("appearance",), none="landmarks only")
+    refine: str | None = option(None, "refine each landmark fit on its frame's pixels against the person's learned "
+                                      "appearance and corners tracked from the last frame: appearance (pose and "
+                                      "shape, whole face) or pose (rigid pose, rigid regions only; "
+                                      "docs/guide/face-models.md)", choices=REFINE_MODES, none="landmarks only")
     refine_after: int = option(10, "frames learned before refine starts", "frames", range=(1, None))
 
     def __post_init__(self) -> None:
         _choice("projection", self.projection, PROJECTIONS)
         _choice("outline", self.outline, OUTLINE_MODES)
         _choice("coefficients", self.coefficients, COEFFICIENT_SOLVES)
-        if self.refine not in (None, "appearance"):
-            raise FitError(f"refine must be None or 'appearance', got {self.refine!r}")
+        if self.refine is not None:
+            _choice("refine", self.refine, REFINE_MODES)
         _at_least("refine_after", self.refine_after, 1)
         for name in ("iterations", "inner_steps", "neutral_frames"):
             _at_least(name, getattr(self, name), 1)

@@ -45,7 +45,8 @@ class Fitter:
         self.neutral_version = 0  # changes of the neutral (dense: each learned frame)
         self._rigid_smoothing_deferred = False   # fit(): the subclass leaves the pose unsmoothed
         self.refiner = AppearanceRefiner(
-            camera.K if camera.perspective else None, camera.projection, config.refine_after)
+            camera.K if camera.perspective else None, camera.projection, config.refine_after,
+            config.refine or "appearance")
         self.depth_refiner = None  # made by the first frame with a depth image (.depth_fitting)
 
     # ------------------------------------------------------------------ state
@@ -99,7 +100,7 @@ class Fitter:
         px a person placed by hand (seed 002's interactive correction): that landmark is moved
         there and weighs ``config.correction_weight`` times a detected one, so a shape model moves
         the other points with it. image: the frame (H, W, 3) uint8 BGR or (H, W) grey; with
-        ``config.refine="appearance"`` the fit is then refined on its pixels (:mod:`.appearance`).
+        ``config.refine`` ("appearance" or "pose") the fit is then refined on its pixels (:mod:`.appearance`).
         depth: the frame's aligned depth image (:class:`.depth_fitting.DepthImage`); with a
         perspective camera the fit is refined on it (:mod:`.depth_fitting`), without one nothing changes."""
         pts, ids, w, finite = self._parse(points2d, ids, weights)
@@ -110,7 +111,7 @@ class Fitter:
             self._pose = None  # too long since the last frame (or time went back): start cold
             self.smoother.reset()
             self.refiner.forget_frame()
-        refining = self.config.refine == "appearance"
+        refining = self.config.refine is not None
         # the refinement measures the pose better: the pose is smoothed after it, not before (and
         # in the same units for a frame without an image, which is not refined)
         self._rigid_smoothing_deferred = refining and self.config.smoothing

@@ -1,6 +1,6 @@
 """The fitter node: ``face/landmarks`` -> ``face/state``, ``face/expression`` and ``face/gaze``, and ``face/model``
 (latched).
-With ``refine=appearance`` it also takes ``camera/image``: each fit is refined on its frame's
+With ``refine=appearance or pose`` it also takes ``camera/image``: each fit is refined on its frame's
 pixels (:mod:`.appearance_refiner`, issue 20); a fit whose frame did not arrive is not refined.
 With ``depth=on`` it keeps ``camera/image``'s depth images by stamp and refines each fit on its
 frame's (:mod:`.depth_fitting`, issue 49); without one, the fit is the landmarks' alone.
@@ -58,7 +58,7 @@ def valid_intrinsics(K) -> bool:
 FITTER_PARAMS = ("iterations", "tracking_iterations", "projection", "shape_lambda", "expression_lambda", "outline",
                  "smoothing", "smooth_min_cutoff", "neutral_frames", "rotation_prior_px", "refine")
 #: The :class:`ExpressionLabelOptions` fields the node takes, each as ``labels_<field>``.
-_LABEL_FIELDS = ("window_s", "neutral_below", "switch_margin", "source")
+_LABEL_FIELDS = ("window_s", "neutral_below", "switch_margin", "source", "weights")
 _LABEL_PARAMS = tuple(f"labels_{k}" for k in _LABEL_FIELDS)
 
 
@@ -84,7 +84,7 @@ class FitterNode(Node):
                        choices=("off", "on")),
         **option_params(ExpressionLabelOptions(), _LABEL_PARAMS, {f"labels_{k}": k for k in _LABEL_FIELDS}),
     }
-    #: Frames kept for the landmarks that have not arrived yet (refine=appearance).
+    #: Frames kept for the landmarks that have not arrived yet (refine=appearance or pose).
     FRAMES_KEPT = 8
 
     def setup(self):
@@ -98,7 +98,7 @@ class FitterNode(Node):
         self.frames: OrderedDict[int, np.ndarray] = OrderedDict()   # stamp -> camera frame (refine)
         self.waiting: FaceLandmarks | None = None   # landmarks whose frame has not come (refine)
         self.depths: OrderedDict[int, DepthImage] = OrderedDict()   # stamp -> depth image (depth=on)
-        if self.params.refine == "appearance" or self.params.depth == "on":
+        if self.params.refine != "off" or self.params.depth == "on":
             # every frame: the one the landmarks come from must not have been replaced by a newer one
             self.subscribe("camera/image", Image, self.on_image, qos=EVERY_MESSAGE)
         self.corrections: dict[int, LandmarkCorrections] = {}  # face key -> its landmark corrections
@@ -127,6 +127,10 @@ class FitterNode(Node):
         if self.params.labels_source == "blendshapes" and not has_expression_blendshapes(self.model.expression_names):
             raise ConfigurationError(f"fitter: labels_source=blendshapes needs a model with blendshapes named for the "
                                      f"six basic expressions, and {self.params.model!r} has none")
+        try:
+            ExpressionRecogniser(self.label_options)   # the learned weights read now, not at the first face
+        except ValueError as exc:
+            raise ConfigurationError(f"fitter: {exc}") from None
         self.publish_model(self.model.mean, stamp=0)
 
     @property
@@ -251,13 +255,13 @@ class FitterNode(Node):
 
     # -- frames --------------------------------------------------------------------------------
     def on_image(self, msg: Image) -> None:
-        """Keep the frame (refine=appearance) and its depth image (depth=on) until its landmarks
+        """Keep the frame (refine=appearance or pose) and its depth image (depth=on) until its landmarks
         come, the newest FRAMES_KEPT."""
         if self.params.depth == "on" and msg.depth is not None and not int(msg.halvings):
             self.depths[int(msg.stamp)] = DepthImage(msg.depth, msg.depth_K, msg.depth_to_color)
             while len(self.depths) > self.FRAMES_KEPT:
                 self.depths.popitem(last=False)
-        if self.params.refine != "appearance":
+        if self.params.refine == "off":
             return
         image = msg.image
         if int(msg.halvings) or not (isinstance(image, np.ndarray) and image.ndim == 3 and image.dtype == np.uint8):
@@ -274,7 +278,7 @@ class FitterNode(Node):
     def frame_for(self, msg: FaceLandmarks, size: tuple[int, int]) -> np.ndarray | None:
         """The camera frame of ``msg`` (W, H = ``size``) when refining and it arrived, else None
         (counted)."""
-        if self.params.refine != "appearance":
+        if self.params.refine == "off":
             return None
         image = self.frames.get(int(msg.stamp))
         if image is None or image.shape[1::-1] != size:
@@ -313,9 +317,9 @@ class FitterNode(Node):
 
     def on_landmarks(self, msg: FaceLandmarks):
         """One face/state per landmarks message: the fit, or an empty state when there is none.
-        With refine=appearance a message whose frame has not come yet waits for it (one at a time:
+        With refine=appearance or pose a message whose frame has not come yet waits for it (one at a time:
         an older waiting one is fitted unrefined)."""
-        if self.params.refine == "appearance" and int(msg.stamp) not in self.frames:
+        if self.params.refine != "off" and int(msg.stamp) not in self.frames:
             if self.waiting is not None:
                 self.handle_landmarks(self.waiting)
             self.waiting = msg
@@ -403,7 +407,7 @@ class FitterNode(Node):
             with self.stage("expression_label"):
                 recogniser = self.recognisers.setdefault(f.key, ExpressionRecogniser(self.label_options))
                 label = recogniser.update(msg.stamp * 1e-9, values, NAMES, result.beta,
-                                          fitter.model.expression_names)
+                                          fitter.model.expression_names, result.yaw_pitch_roll[:2])
             self.expression_pub.publish(FaceExpression(
                 stamp=msg.stamp, frame_id=msg.frame_id, face_id=f.key, pose=head_pose(result), names=list(NAMES),
                 values=values, label=label.label, intensity=label.intensity, phase=label.phase,

@@ -48,29 +48,22 @@ import numpy as np
 from facesculpt.geometry import point_bounds
 from facesculpt.options import check_options
 
+from . import motion_extension as extension
 from .atlas_memory import AtlasMemory
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate
 from .body_motion import body_box, carry_to_body, neck_motion, union_box
 from .camera import estimate_projection, project
 from .compositor_options import OUTLINE_BAND, CompositorOptions  # noqa: F401 (OUTLINE_BAND: its old home)
-from .drag_fill import drag_fill, smooth_drag
+from .drag_fill import drag_fill, dragged_positions, smooth_drag
 from .gl_context import create_headless_context
 from .inpaint import dilate, fill_by_parts, uncovered_mask
 from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
-from .motion_extension import (
-    carry_past_outline,
-    extend_behind_outline,
-    extend_motion,
-    head_box,
-    head_goes_on,
-    head_region,
-    over_behind,
-)
+from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
 from .silhouette_source import mend, unseen_by_silhouette
-from .sinc_sampling import Upsampled, upsampled_around
+from .sinc_sampling import Upsampled, upsampled_over
 from .source_map import UNCOVERED, SourceMapRenderer
 from .texture_atlas import TextureAtlas, blend_atlas
 from .warp import (
@@ -82,6 +75,7 @@ from .warp import (
     fold_edges,
     sharpen_silhouette,
     soften,
+    source_positions,
     warp_frame,
 )
 
@@ -89,6 +83,7 @@ FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's
 # Where the face's outline meets what it uncovered, its soft edge is only this wide (px): the anti-aliasing
 # of a filmed silhouette. The wider feather blended the outline over the fill: a pale band along a narrowed jaw.
 SILHOUETTE_FEATHER_PX = 2.0
+FILL_CONTEXT_PX = 10      # the work box's background past the region the fill may fill (px)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
 STAGES = ("plate", "camera", "atlas", "draw", "readback", "masks", "inpaint", "texture", "composite", "total")
 
@@ -307,26 +302,26 @@ class Compositor:
         x0, y0, x1, y1 = box
         crop = out[y0:y1, x0:x1]
         write = changed | (covered & (fill != 0))
-        shared = source is not None and dragged is not None   # two samplings of the frame: one upsampling
-        upsampled = (upsampled_around(frame_bgr, box, write | fill.view(bool), offset)
+        block = bounding_slices(write)
+        positions = None if block is None else source_positions(offsets[block], (x0 + block[1].start, y0 + block[0].start))
+        shared = source is not None and dragged is not None and block is not None   # two samplings: one upsampling
+        upsampled = (upsampled_over(frame_bgr, [positions, dragged_positions(fill, dragged, box[:2])])
                      if shared and self.interpolation == "sinc" else None)
         t_up = time.perf_counter() - t4   # the sampling's (the texture stage's), though the fill uses it first
         if source is not None:  # in place: the crop becomes the background (the face is blended over it below)
             self._fill(crop, fill, source, box, projected, (frame_bgr, dragged, orig_mask | face.view(np.uint8)),
                        upsampled)
         t5 = time.perf_counter()
-        block = bounding_slices(write)
         warped = None
         if block is not None:
-            rows, cols = block
-            warped = warp_frame(frame_bgr, offsets[block], (x0 + cols.start, y0 + rows.start), self.interpolation,
-                                upsampled)
+            at = (x0 + block[1].start, y0 + block[0].start)   # the block's top-left frame pixel
+            warped = warp_frame(frame_bgr, offsets[block], at, self.interpolation, upsampled, positions)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
             if head_motion is True and self.mend_silhouette:  # what the input saw only at its outline, from beside it
                 mend(warped, unseen_by_silhouette(offsets, face, orig_mask)[block], face[block])
             if behind is not None:  # a pose edit's outline over what lies behind it, with an edit's soft edge
                 alpha = feather_alpha(face.view(np.uint8), self.feather_width(projected))[block]
-                over_behind(warped, frame_bgr, behind[block], alpha, (x0 + cols.start, y0 + rows.start), "cubic")
+                extension.over_behind(warped, frame_bgr, behind[block], alpha, at, "cubic")
         t6 = time.perf_counter()
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected), fill)
@@ -361,13 +356,16 @@ class Compositor:
                 offsets[part] = extend_motion(offsets[part], head_region(offsets[part].shape[:2], (x0, y0), both))
                 offsets = carry_to_body(offsets, face, box[:2], dst_px, self._neck)
             else:
-                region, goes_on = head_region(offsets.shape[:2], box[:2], both), head_goes_on(face.shape, box[:2], dst_px)
-                offsets, behind = extend_behind_outline(offsets, region, self.feather_width(projected), goes_on)
+                region = head_region(offsets.shape[:2], box[:2], both)
+                goes_on = extension.head_goes_on(face.shape, box[:2], dst_px)
+                offsets, behind = extension.extend_behind_outline(offsets, region, self.feather_width(projected), goes_on)
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
             if gap is not None:
-                dragged, offsets = smooth_drag(offsets, gap), offsets.copy()
+                dragged = smooth_drag(offsets, gap)   # a new array, unless it changed nothing
+                if dragged is offsets:
+                    offsets = offsets.copy()
                 offsets[gap] = UNCOVERED
         return offsets, orig_mask, face, dragged, behind
 
@@ -499,7 +497,9 @@ class Compositor:
             box = head_box(both, self.width, self.height)
             return union_box(box, body_box(both, self.width, self.height)) if head_motion == "body" else box
         near = self._mesh.rings @ moved.astype(np.float32) > 0
-        pad = self.dilate_px + 10 + int(np.ceil(self.feather_px)) + self.band_px(projected)
+        # background around the moved region: for the fill's context (FILL_CONTEXT_PX past what it
+        # fills) and for the motion carried past the outline (the band) with its soft edge
+        pad = self.dilate_px + max(FILL_CONTEXT_PX, int(np.ceil(self.feather_px)) + self.band_px(projected))
         both = np.concatenate([projected[near], dst_px[near]])
         lo, hi = point_bounds(both)
         lo, hi = np.floor(lo).astype(int) - pad, np.ceil(hi).astype(int) + pad + 1

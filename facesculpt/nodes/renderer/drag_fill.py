@@ -81,6 +81,15 @@ def lands_on(mask: np.ndarray, dragged: np.ndarray, ys: np.ndarray, xs: np.ndarr
     return hit
 
 
+def dragged_positions(fill: np.ndarray, dragged: np.ndarray, origin: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Where the ``fill`` pixels (h, w, nonzero: to fill) of a box whose top-left pixel is ``origin``
+    (x, y) with a set ``dragged`` offset (h, w, 2) may sample the frame: (x, y), each (N,) float32
+    frame pixels, those :func:`drag_fill` samples among them."""
+    ys, xs = np.nonzero((fill != 0) & (dragged[..., 0] < 0.5 * UNCOVERED))
+    return ((xs + origin[0] + dragged[ys, xs, 0]).astype(np.float32),
+            (ys + origin[1] + dragged[ys, xs, 1]).astype(np.float32))
+
+
 def drag_fill(crop: np.ndarray, frame: np.ndarray, fill: np.ndarray, dragged: np.ndarray,
               face: np.ndarray, origin: tuple[int, int], interpolation: str = "cubic",
               upsampled: Upsampled | None = None) -> np.ndarray:

@@ -233,7 +233,7 @@ def carry_past_outline(offsets: np.ndarray, outline: np.ndarray, reach_px: float
     wide needs no smoother field than the outline's own. Returns a new (h, w, 2) float32 array."""
     out = offsets.copy()
     covered = offsets[..., 0] < 0.5 * UNCOVERED
-    if not covered.any() or (reach_px <= 0 and gap is None):
+    if (reach_px <= 0 and gap is None) or not cv2.countNonZero(covered.view(np.uint8)):
         return out
     to_outline = None
     target = np.zeros(covered.shape, bool)
@@ -242,14 +242,15 @@ def carry_past_outline(offsets: np.ndarray, outline: np.ndarray, reach_px: float
         target = (to_outline > 0) & (to_outline <= reach_px)
     if gap is not None:
         target |= gap & ~covered
-    if not target.any():
+    at = np.flatnonzero(target)   # the target pixels' flat indices, found once for the three reads below
+    if len(at) == 0:
         return out
     _, nearest = cv2.distanceTransformWithLabels((~covered).view(np.uint8), cv2.DIST_L2, 5,
                                                  labelType=cv2.DIST_LABEL_PIXEL)
     # DIST_LABEL_PIXEL numbers the zero (covered) pixels from 1 in scan order
-    carried = offsets.reshape(-1, 2)[np.flatnonzero(covered)[nearest[target] - 1]]
+    carried = offsets.reshape(-1, 2)[np.flatnonzero(covered)[nearest.ravel()[at] - 1]]
     if to_outline is not None:
-        u = to_outline[target] / np.float32(reach_px)   # 0 in the gap: unfaded
+        u = to_outline.ravel()[at] / np.float32(reach_px)   # 0 in the gap: unfaded
         carried *= _fade_out(u)[:, None]
-    out[target] = carried
+    out.reshape(-1, 2)[at] = carried
     return out

@@ -78,19 +78,21 @@ class Upsampled:
                 and x_hi <= self.x_hi and y_hi <= self.y_hi)
 
 
-def upsampled_around(image: np.ndarray, box: tuple[int, int, int, int], need: np.ndarray,
-                     offset: np.ndarray) -> Upsampled | None:
-    """``image`` (H, W, 3) uint8 upsampled once where the ``need`` pixels (h, w) bool of ``box``
-    (x0, y0, x1, y1) px read it, e.g. for both a drag fill and a face: their bounding box grown by
-    the vertices' ``offset`` (V, 2) px each way (every offset of a source map is a weighted mean of
-    those). None when nothing is needed."""
-    x, y, w, h = cv2.boundingRect(need.view(np.uint8))
-    if w == 0 or h == 0:
+def upsampled_over(image: np.ndarray, positions: list[tuple[np.ndarray, np.ndarray]]) -> Upsampled | None:
+    """``image`` (H, W, 3) uint8 upsampled once where the ``positions`` read it, e.g. both a drag
+    fill's and a face's: each (map_x, map_y) float32 arrays of one shape (pixels; empty ones
+    ignored); the part taken is their bounding box as :func:`sample_sinc` grows it, so each of
+    them is sampled through it exactly as through an upsampling of its own. None when all are empty."""
+    lo, hi = [np.inf, np.inf], [-np.inf, -np.inf]
+    for pos in positions:
+        for k, m in enumerate(pos):
+            if m.size:
+                m_lo, m_hi, _, _ = cv2.minMaxLoc(m.reshape(m.shape[0], -1))
+                lo[k], hi[k] = min(lo[k], m_lo), max(hi[k], m_hi)
+    if not np.isfinite(lo[0]):
         return None
-    lo = np.ceil(np.maximum(-offset.min(axis=0), 0.0)).astype(int) + 1
-    hi = np.ceil(np.maximum(offset.max(axis=0), 0.0)).astype(int) + 1
-    x0, y0 = box[:2]
-    return Upsampled(image, (x0 + x - lo[0], y0 + y - lo[1], x0 + x + w + hi[0], y0 + y + h + hi[1]))
+    return Upsampled(image, (int(np.floor(lo[0])), int(np.floor(lo[1])), int(np.ceil(hi[0])) + 1,
+                             int(np.ceil(hi[1])) + 1))
 
 
 def sample_sinc(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, upsampled: Upsampled | None = None

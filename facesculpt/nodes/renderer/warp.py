@@ -62,22 +62,32 @@ def bounding_slices(mask: np.ndarray) -> tuple[slice, slice] | None:
     return slice(y, y + h), slice(x, x + w)
 
 
+def source_positions(offsets: np.ndarray, origin: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Where each pixel p of a block samples the input, ``p + d(p)``: (map_x, map_y), (h, w)
+    float32 frame pixels, from the block's ``offsets`` (h, w, 2) float32 (UNCOVERED pixels
+    sample themselves) and ``origin``, the frame pixel (x, y) of its top-left pixel."""
+    h, w = offsets.shape[:2]
+    x0, y0 = origin
+    covered = offsets[..., 0] < 0.5 * UNCOVERED
+    map_x = np.where(covered, offsets[..., 0], np.float32(0.0))   # float32 throughout
+    map_y = np.where(covered, offsets[..., 1], np.float32(0.0))
+    map_x += np.arange(x0, x0 + w, dtype=np.float32)[None, :]
+    map_y += np.arange(y0, y0 + h, dtype=np.float32)[:, None]
+    return map_x, map_y
+
+
 def warp_frame(frame: np.ndarray, offsets: np.ndarray, origin: tuple[int, int],
-               interpolation: str = "cubic", upsampled: Upsampled | None = None) -> np.ndarray:
+               interpolation: str = "cubic", upsampled: Upsampled | None = None,
+               positions: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The input frame sampled at ``p + d(p)`` for each pixel p of a block.
 
     frame: (H, W, 3) uint8, the whole input frame (read around the block as the kernel needs,
     edge pixels replicated); offsets: (h, w, 2) float32 of the block, UNCOVERED pixels sample
     themselves; origin: the frame pixel (x, y) of the block's top-left pixel; interpolation:
-    a key of INTERPOLATIONS (``upsampled``: :func:`sample`'s). Returns (h, w, 3) uint8.
+    a key of INTERPOLATIONS (``upsampled``: :func:`sample`'s); positions: the block's
+    :func:`source_positions` when already made. Returns (h, w, 3) uint8.
     """
-    h, w = offsets.shape[:2]
-    x0, y0 = origin
-    covered = offsets[..., 0] < 0.5 * UNCOVERED
-    map_x = np.where(covered, offsets[..., 0], 0.0).astype(np.float32)
-    map_y = np.where(covered, offsets[..., 1], 0.0).astype(np.float32)
-    map_x += np.arange(x0, x0 + w, dtype=np.float32)[None, :]
-    map_y += np.arange(y0, y0 + h, dtype=np.float32)[:, None]
+    map_x, map_y = source_positions(offsets, origin) if positions is None else positions
     return sample(frame, map_x, map_y, interpolation, upsampled)
 
 
