@@ -14,8 +14,10 @@ The same frames go through the project's landmarks and both fits (``Pipeline("sf
 ``Pipeline("facemesh")``), and each fit's expression parameters (and the SFM's coefficients)
 through :class:`ExpressionRecogniser`; the held frames are scored: accuracy over the expression
 segments (the blendshape's name is the truth), neutral recognised over the neutral segments,
-per source (SFM: facs, blendshapes, auto; face mesh: facs), with confusion matrices. The
-recogniser is not trained on anything: its FACS table and the blendshapes' names are its rules.
+per source (SFM: learned, facs, blendshapes, rules; face mesh: learned, facs), with confusion
+matrices. The rules (the FACS table, the blendshapes' names) are not trained on anything; the
+learned classifier was trained on renders of other identities, textures, backgrounds, poses
+and weights (:mod:`benchmarks.train_expression_classifier`), none of these frames.
 """
 
 from __future__ import annotations
@@ -63,8 +65,11 @@ def schedule(segs, neutral_frames: int):
 
 #: The recognisers scored: (name, model, source). "exact": the true mesh's parameters and the
 #: true weights, no detector and no fit (what the recogniser reaches with exact parameters).
-RUNS = (("sfm, facs", "sfm", "facs"), ("sfm, blendshapes", "sfm", "blendshapes"), ("sfm, auto", "sfm", "auto"),
+RUNS = (("sfm, learned", "sfm", "learned"), ("facemesh, learned", "facemesh", "learned"),
+        ("sfm, facs", "sfm", "facs"), ("sfm, blendshapes", "sfm", "blendshapes"), ("sfm, rules", "sfm", "rules"),
         ("facemesh, facs", "facemesh", "facs"), ("exact parameters, facs", "exact", "facs"))
+#: The two runs the contact sheet shows (each model's default source).
+SHOWN = ("sfm, learned", "facemesh, facs")
 
 
 def add_exact(records: list[dict], args, model, data) -> None:
@@ -110,15 +115,22 @@ def run_identity(data, seed: int, args, detectors: dict, model, strip: list) -> 
     truth or None when not scored, the true weight, and per model the expression parameters and
     coefficients, None when not fitted)."""
     from benchmarks.realism.scene import make_scene
-    from facesculpt.app.pipeline import Pipeline
-    from facesculpt.nodes.fitter.config import FitterConfig
 
     scene = make_scene(data, frames=1, seed=seed)
-    rng = np.random.default_rng(1000 + seed)
-    plan = schedule(segments(rng, args.low), args.neutral_frames)
+    plan = schedule(segments(np.random.default_rng(1000 + seed), args.low), args.neutral_frames)
+    return fit_sequence(scene, plan, seed, args.neutral_frames, detectors, model, strip)
+
+
+def fit_sequence(scene, plan, seed: int, neutral_frames: int, detectors: dict, model, strip: list) -> list[dict]:
+    """:func:`run_identity` for a given scene and :func:`schedule` ``plan`` (``seed`` names the
+    identity in the records; up to 24 tiles of the held frames are added to ``strip``)."""
+    from facesculpt.app.pipeline import Pipeline
+    from facesculpt.nodes.fitter.config import FitterConfig
+    from facesculpt.nodes.fitter.expression import head_pose
+
     basis = np.asarray(model.expression_basis, np.float64)
     # a new person: new fitters (they learn afresh), the detectors reused (reset by the pipeline)
-    fit = FitterConfig(neutral_frames=args.neutral_frames)
+    fit = FitterConfig(neutral_frames=neutral_frames)
     pipes = {m: Pipeline(m, fit=fit, detector=d) for m, d in detectors.items()}
     records = []
     for i, (weights, yaw, pitch, truth, _, j) in enumerate(plan):
@@ -127,7 +139,7 @@ def run_identity(data, seed: int, args, detectors: dict, model, strip: list) -> 
         rec = {"seed": seed, "t": i / 25.0, "truth": truth, "weight": float(weights.max())}
         for m, fit in fits.items():
             ok = fit is not None and fit.expression is not None
-            rec[m] = (np.asarray(fit.expression), np.asarray(fit.beta)) if ok else None
+            rec[m] = (np.asarray(fit.expression), np.asarray(fit.beta), head_pose(fit)) if ok else None
         records.append(rec)
         if truth is not None and j == RAMP + HOLD - 1 and len(strip) < 24:
             strip.append((i, seed, frame, truth, float(weights.max())))
@@ -142,7 +154,8 @@ def label_records(records: list[dict], model_name: str, expression_names, **opti
     for r in records:
         recogniser = rec_of.setdefault(r["seed"], ExpressionRecogniser(**options))
         fit = r[model_name]
-        out.append(None if fit is None else recogniser.update(r["t"], fit[0], NAMES, fit[1], expression_names))
+        pose = fit[2][:2] if fit is not None and len(fit) > 2 else None   # the fit's (yaw, pitch); None: exact
+        out.append(None if fit is None else recogniser.update(r["t"], fit[0], NAMES, fit[1], expression_names, pose))
     return out
 
 
@@ -154,7 +167,7 @@ def report(records: list[dict], names: dict, thresholds=(0.1, 0.15, 0.2, 0.25)) 
     default = ExpressionLabelOptions().neutral_below
     shown = {}
     for name, m, src in RUNS:
-        for th in sorted({default, *thresholds}):
+        for th in sorted({default, *(() if src == "learned" else thresholds)}):
             labels = label_records(records, m, names[m], source=src, neutral_below=th)
             r = [(x, "none" if lab is None else lab.label) for x, lab in zip(records, labels) if x["truth"]]
             expr = [(x, lab) for x, lab in r if x["truth"] != "neutral"]
@@ -216,10 +229,10 @@ def write_strip(path: str, strip: list, records: list[dict], shown: dict) -> Non
     tiles = []
     for i, seed, frame, truth, w in strip:
         k = index[(seed, i)]
-        labels = {n: (shown[n][k].label if shown[n][k] else "none") for n in ("sfm, auto", "facemesh, facs")}
+        labels = {n: (shown[n][k].label if shown[n][k] else "none") for n in SHOWN}
         tile = cv2.resize(frame[40:440, 120:520], (240, 240), interpolation=cv2.INTER_AREA)
-        tiles.append(captioned(tile, (f"truth {truth} {w:.2f}", f"sfm {labels['sfm, auto']}",
-                                      f"mesh {labels['facemesh, facs']}")))
+        tiles.append(captioned(tile, (f"truth {truth} {w:.2f}", f"sfm {labels[SHOWN[0]]}",
+                                      f"mesh {labels[SHOWN[1]]}")))
     while len(tiles) % 8:
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[k:k + 8]) for k in range(0, len(tiles), 8)]
@@ -267,7 +280,8 @@ def real_videos(data, args) -> tuple[list, dict]:
                     values = face_expression(fit, pipe.fitter.model, pipe.fitter.neutral,
                                              pipe.detector.results()[0].points)
                     t2 = time.process_time()
-                    lab = recogniser.update(i / fps, values, NAMES, fit.beta, pipe.model.expression_names)
+                    lab = recogniser.update(i / fps, values, NAMES, fit.beta, pipe.model.expression_names,
+                                            fit.yaw_pitch_roll[:2])
                     t3 = time.process_time()
                     share = timings["fit"] / max(timings["fit"] + timings["landmarks"], 1e-9)
                     cpu["analysis"] += t1 - t0

@@ -16,10 +16,14 @@ of the surface it reveals: :mod:`facesculpt.nodes.renderer.pose_limit`). Per fra
 - background in the face: the share of the turned face's region (the deformed face, eroded by
   3 px) that the person segmenter (mediapipe's selfie segmentation, not tuned to here) calls
   background in the output;
-- share: the share of the turn drawn (1 with the limit off).
+- share: the share of the turn drawn (1 with the limit off);
+- face outline: the mean gradient magnitude over a band 3 px either side of the outline of the
+  drawn face mesh (the far silhouette of a turned head included), over the input's on the same band.
 
-Prints a table (means over the frames, worst frame's seam), and with ``--crops DIR`` writes
-``limits_VIDEO_TURN.png``: input | limit off | limit on at the frame whose turn was reduced most.
+``--limits`` picks the runs (default ``off,on``). Prints a table (means over the frames, worst
+frame's seam), and with ``--crops DIR`` writes ``limits_VIDEO_TURN.png``: input | each run's output
+at the frame whose turn was reduced most (the last run with the limit on), else whose face outline
+figure is highest.
 """
 
 from __future__ import annotations
@@ -46,7 +50,7 @@ def _turn_options(turn: str) -> dict:
 
 
 def _run(frames, fps, turn, limit, segmenter):
-    """Per frame (seam ratio, background share, drawn share) and the outputs."""
+    """Per frame (seam ratio, background share, drawn share, frame index, outline ratio) and the outputs."""
     from facesculpt.app.pipeline import Pipeline
 
     rows, outs = [], []
@@ -64,7 +68,9 @@ def _run(frames, fps, turn, limit, segmenter):
             face = cv2.erode(regions["deformed"].view(np.uint8), np.ones((2 * ERODE_PX + 1,) * 2, np.uint8)) > 0
             background = float(((segmenter(out) == 0) & face).sum() / max(face.sum(), 1))
             share = 1.0 if not limit or pipe.pose_limiter is None else pipe.pose_limiter.last.get(min(result.fits), 1.0)
-            rows.append((g_out / max(g_in, 1e-9), background, share, i))
+            rim = seam_band(regions["deformed"], SEAM_HALF_WIDTH_PX)   # the face's own outline, far side included
+            o_in, o_out = gradient_magnitude(frame)[rim].mean(), gradient_magnitude(out)[rim].mean()
+            rows.append((g_out / max(g_in, 1e-9), background, share, i, o_out / max(o_in, 1e-9)))
     return np.array(rows), outs
 
 
@@ -74,28 +80,31 @@ def main() -> None:
     p.add_argument("--turns", default="yaw=15,yaw=-15,face-camera=1")
     p.add_argument("--frames", type=int, default=24)
     p.add_argument("--crops", default="", metavar="DIR")
+    p.add_argument("--limits", default="off,on", help="the pose limit's settings to run (default off,on)")
     args = p.parse_args()
     from facesculpt.nodes.renderer.person_segmentation import PersonSegmenter
     from facesculpt.runtime.process_limits import limit_threads
 
     limit_threads(1)
     segmenter = PersonSegmenter()
-    print("| video | turn | limit | seam (mean) | seam (worst frame) | background in the face (mean, max) | share drawn (mean, min) |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    print("| video | turn | limit | seam (mean) | seam (worst frame) | background in the face (mean, max) "
+          "| share drawn (mean, min) | face outline (mean, worst frame) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for name in args.videos.split(","):
         frames, fps = read_video(name, args.frames)
         for turn in args.turns.split(","):
             outs = {}
-            for limit in (False, True):
+            limits = [x == "on" for x in args.limits.split(",")]
+            for limit in limits:
                 rows, outs[limit] = _run(frames, fps, turn, limit, segmenter)
                 print(f"| {name} | {turn} | {'on' if limit else 'off'} | {rows[:, 0].mean():.3f} | {rows[:, 0].max():.3f} "
-                      f"| {rows[:, 1].mean():.4f}, {rows[:, 1].max():.4f} | {rows[:, 2].mean():.2f}, {rows[:, 2].min():.2f} |",
+                      f"| {rows[:, 1].mean():.4f}, {rows[:, 1].max():.4f} | {rows[:, 2].mean():.2f}, {rows[:, 2].min():.2f} "
+                      f"| {rows[:, 4].mean():.3f}, {rows[:, 4].max():.3f} |",
                       flush=True)
-                if limit:
-                    worst = int(rows[int(np.argmin(rows[:, 2])), 3])
+                worst = int(rows[int(np.argmin(rows[:, 2])), 3]) if limit else int(rows[int(np.argmax(rows[:, 4])), 3])
             if args.crops:
                 Path(args.crops).mkdir(parents=True, exist_ok=True)
-                strip = np.hstack([frames[worst], outs[False][worst], outs[True][worst]])
+                strip = np.hstack([frames[worst]] + [outs[limit][worst] for limit in limits])
                 cv2.imwrite(str(Path(args.crops) / f"limits_{name}_{turn.replace('=', '')}.png"), strip)
 
 

@@ -71,6 +71,37 @@ def test_paced_camera_sends_the_newest_frame_on_each_acknowledgement(graph, tmp_
 
 
 @pytest.mark.slow
+def test_a_renderer_slower_than_the_pace_timeout_is_waited_for(graph, tmp_path):
+    """A "renderer" that takes 0.8 s a frame on a loaded machine, beyond pace_timeout_s (0.5 s):
+    once a few acknowledgements have come, the camera waits for it (the timeout follows their
+    round trips), so no third frame goes in while two are still being rendered."""
+    bag = tmp_path / "numbers.bag"
+    _write_bag(bag, [np.full((48, 64, 3), 4 * i, np.uint8) for i in range(14)])
+    arrivals: list[tuple[float, int, int]] = []   # (monotonic, seq, stamp)
+    acked: dict[int, float] = {}
+    acker = graph.node(Node(name="acker"))
+    done = acker.advertise("render/done", FrameDone, qos=EVERY_MESSAGE)
+    acker.subscribe("camera/image", Image, qos=EVERY_MESSAGE,
+                    callback=lambda m: arrivals.append((time.monotonic(), m.seq, m.stamp)))
+    cam = graph.spawn("run", "camera", f"source=bag:{bag}", "fps=30", "pace_by=render/done", "pace_in_flight=2",
+                      "pace_timeout_s=0.5", "wait_subscribers=1")
+    deadline = time.monotonic() + 60
+    while cam.poll() is None and time.monotonic() < deadline:
+        acker.spin_once(0.01)
+        for t, seq, stamp in list(arrivals):
+            if seq not in acked and time.monotonic() - t >= 0.8:
+                done.publish(FrameDone(stamp=stamp, seq=seq, frame_id="camera", rendered=True))
+                acked[seq] = time.monotonic()
+    assert cam.poll() == 0, "the camera did not end at the end of its bag"
+    assert len(arrivals) == 14
+    # After the first four acknowledgements: at each arrival, at most one older frame unacknowledged.
+    settled = sorted(acked.values())[3]
+    crowded = [seq for t, seq, _ in arrivals if t > settled
+               and sum(1 for t2, q, _ in arrivals if t2 < t and acked.get(q, 1e18) > t) > 1]
+    assert not crowded, f"frames {crowded} went in while two were still being rendered"
+
+
+@pytest.mark.slow
 def test_paced_file_camera_reads_a_frame_only_when_it_may_go_out(graph, tmp_path):
     """A recorded source (here a bag) behind a renderer slower than its rate: no frame is read to be
     dropped (every frame goes out, in order), never more than pace_in_flight wait, and each goes

@@ -130,8 +130,9 @@ def test_each_command_module_adds_the_commands_the_cli_names_for_it():
 
 def test_a_dense_fitter_process_starts_without_the_other_commands_or_scipy(tmp_path):
     """What a respawned `facesculpt run fitter` imports, loads and fits before its first state:
-    not the other commands' modules, and not scipy (only the sparse fitter and the appearance
-    refinement use it)."""
+    not the other commands' modules, not scipy (only the sparse fitter and the appearance
+    refinement use it), not OpenCV (the appearance refinement's) and not PyYAML (a string
+    parameter's parsing)."""
     code = ("import sys, numpy as np\n"
             "from facesculpt import cli\n"
             "cli.build_parser(['run', 'fitter'])\n"
@@ -143,7 +144,8 @@ def test_a_dense_fitter_process_starts_without_the_other_commands_or_scipy(tmp_p
             "p = np.asarray(model.mean, np.float64)[:468]\n"
             "p = np.column_stack([320 + 2 * p[:, 0], 240 - 2 * p[:, 1], -2 * p[:, 2]])[None]\n"
             "assert fit_landmarks(fitter, p, np.ones(1), 0.0).fit is not None\n"
-            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy' or m.startswith('facesculpt.app.')))\n")
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'cv2', 'yaml')\n"
+            "             or m.startswith('facesculpt.app.')))\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "['facesculpt.app.graph_commands']"   # `run`'s own module only

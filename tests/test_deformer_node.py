@@ -377,20 +377,23 @@ def test_preset_param_applies_on_the_first_model_and_follows_model_changes(monke
         assert n.last is None  # nothing before a model
         n.on_model(face_model(sfm))
         n.on_round()
-        assert np.allclose(n.last.displacement[chin], offset, atol=1e-4) and list(n.last.handles) == [chin]
+        # the face mesh's chin patch placed on this model: offsets scaled to its face size and turned to its axes
+        placed = n.last.displacement[chin].copy()
+        assert np.linalg.norm(placed - offset) < 0.1 * np.linalg.norm(offset) and chin in list(n.last.handles)
         assert n.diagnostics()["counters"]["preset_loaded"] == 1
         # a refined neutral of the same mesh (the fitter learning the person): the preset again
         refined = face_model(sfm, version=2)
         refined.vertices = sfm.instance(np.linspace(-1, 1, sfm.num_shape)).astype(np.float32)
         n.on_model(refined)
         n.on_round()
-        assert np.allclose(n.last.displacement[chin], offset, atol=1e-4) and list(n.last.handles) == [chin]
+        placed = n.last.displacement[chin].copy()   # this neutral's face size
+        assert np.linalg.norm(placed - offset) < 0.1 * np.linalg.norm(offset) and chin in list(n.last.handles)
         # the user moves the chin: a later neutral carries the user's edit, not the preset's
         n.on_event(ev("move", landmark="chin", vector=np.array([0.0, 1.0, 0.0], np.float32)))
         n.on_round()
         n.on_model(face_model(sfm, version=3))
         n.on_round()
-        assert np.allclose(n.last.displacement[chin], offset + [0, 1, 0], atol=1e-4)
+        assert np.allclose(n.last.displacement[chin], placed + [0, 1, 0], atol=1e-4)
         assert n.errors == 0 and "preset_rejected" not in n.counters
     finally:
         n.close()

@@ -72,7 +72,9 @@ def test_a_pulled_chin_moves_the_skin_around_the_handle_on_the_face_mesh():
     alone: solved on the mesh itself, the skin within 5 mm of the handle moves well short of the
     pull; solved on the refinement, it moves with it."""
     face = load_model("facemesh")
-    doc = read_preset_file(find_preset("chin"))
+    doc = {"format": "facesculpt-deformer-preset", "version": 1, "units": "mm", "static": [],   # the chin vertex alone
+           "edits": [{"handles": [{"landmark": "chin", "offset": [0.0, -10.0, 4.0]}],
+                      "roi": {"radius": 45.0, "metric": "geodesic"}}]}
     coarse, refined = _stack(face, min_solve_vertices=0, grip=0.2), _stack(face, grip=0.2)
     for s in (coarse, refined):
         s.apply_preset(doc)

@@ -68,7 +68,7 @@ def test_each_prototype_ranks_its_own_expression_first(expression):
 
 
 def test_recogniser_learns_the_resting_face_then_follows_an_expression():
-    rec = ExpressionRecogniser(baseline_frames=5, window_s=0.1, neutral_below=0.25, switch_margin=0.05)
+    rec = ExpressionRecogniser(source="facs", baseline_frames=5, window_s=0.1, neutral_below=0.25, switch_margin=0.05)
     rest = prototype_values("sadness", 0.5)  # a resting face with its corners down is this person's neutral
     t = 0.0
     for _ in range(5):

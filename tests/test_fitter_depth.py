@@ -180,3 +180,32 @@ def test_the_dense_face_mesh_model_takes_its_distance_from_the_depth(models_dir)
                              depth=DepthImage(depth, K) if name == "depth" else None)
             errors[name].append(abs(float(np.median(fit.vertices[:, 2]) - np.median(X[:, 2]))))
     assert np.mean(errors["depth"]) < 5.0 < np.mean(errors["colour"]), errors
+
+
+def test_the_refinement_stops_once_its_steps_are_below_what_it_resolves(models_dir, monkeypatch):
+    """The Gauss-Newton steps end early when they converge, where running them all lands in the
+    same place (the pose within a tenth of a degree and half a millimetre)."""
+    from facesculpt.geometry.head_angles import rotation_from_euler
+    from facesculpt.geometry.projection import project
+    from facesculpt.nodes.fitter import depth_fitting
+    from facesculpt.nodes.fitter.depth_fitting import DepthRefiner, fit_depth
+
+    mesh = load_model("facemesh")
+    ref = DepthRefiner(mesh, 0)
+    R, t = rotation_from_euler(12.0, -5.0, 0.0), np.array([5.0, 10.0, 520.0])
+    X = ref.mean @ R.T + t
+    depth = DepthImage(_depth_image(X, ref.triangles, K, SIZE, np.random.default_rng(2)), K)
+    lm = np.arange(len(X))
+    px = project(X, K) + np.random.default_rng(3).normal(0, 1.0, (len(X), 2))
+
+    def fit():
+        return fit_depth(ref.mean, ref.basis, ref.triangles, rotation_from_euler(14.0, -4.0, 0.0), t + [0, 0, 15.0],
+                         np.zeros(0), 0, np.repeat(lm[:, None], 3, axis=1), np.tile([1.0, 0, 0], (len(lm), 1)), px,
+                         K, depth, outward=ref.outward, normals=ref.normals)
+
+    early = fit()
+    monkeypatch.setattr(depth_fitting, "CONVERGED_RAD", 0.0)
+    full = fit()
+    assert early.points > 0 and early.steps < full.steps == depth_fitting.ITERATIONS
+    assert _rotation_error(early.R, full.R) < 0.1 and np.linalg.norm(early.t - full.t) < 0.5
+    assert _rotation_error(early.R, R) < 0.5 and np.linalg.norm(early.t - t) < 2.0

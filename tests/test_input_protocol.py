@@ -178,6 +178,8 @@ steps:
     rest = player.due(10.0, locate=lambda name: {"chin": (300.0, 400.0)}[name])
     kinds = [e["kind"] for e in rest]
     assert kinds == ["press"] + ["drag"] * 5 + ["release", "press", "drag", "drag", "depth", "command", "command"]
+    # A press at a landmark carries its pixel, and the drag starts from that same pixel.
+    assert rest[7] == {"kind": "press", "landmark": "chin", "handle": 4, "x": 300.0, "y": 400.0}
     assert rest[9] == {"kind": "drag", "x": 300.0, "y": 408.0, "handle": 4}  # from the chin's pixel
     assert rest[10]["depth"] == -3.0
     assert rest[11]["argument"] == str(Path("/tmp/g/presets/smile.json"))  # relative to the script

@@ -137,6 +137,93 @@ def test_the_extended_motion_continues_the_faces_offsets_across_its_outline():
     assert (ext[~head.astype(bool) & ~covered] == UNCOVERED).all()
 
 
+def _folded_face(h: int = 120, w: int = 160):
+    """A face ellipse whose left rim (x < 58) spans 4 input pixels an output pixel (the mesh folding
+    away from the camera), the head region around it."""
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    ys, xs = np.mgrid[:h, :w]
+    covered = (xs - 80) ** 2 / 30 ** 2 + (ys - 60) ** 2 / 40 ** 2 <= 1
+    offsets = np.full((h, w, 2), UNCOVERED, np.float32)
+    offsets[covered] = np.stack([3.0 - 3.0 * np.maximum(0, 58 - xs), -2.0 + 0.01 * ys], -1)[covered]
+    head = ((xs - 80) ** 2 / 70 ** 2 + (ys - 55) ** 2 / 58 ** 2 <= 1).astype(np.uint8)
+    return offsets, covered, head, xs
+
+
+def test_a_folded_outline_is_not_stretched_over_the_head_and_a_plain_one_is_continued():
+    from facesculpt.nodes.renderer.motion_extension import extend_behind_outline, extend_motion, source_compression
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    offsets, covered, head, xs = _folded_face()
+    assert source_compression(offsets, covered)[60, 52] > 3.9 and abs(source_compression(offsets, covered)[60, 80] - 1) < 0.1
+    before = extend_motion(offsets, head)
+    after, behind = extend_behind_outline(offsets, head, 4.0)
+    assert np.array_equal(after[covered], offsets[covered])      # the face's own offsets (its silhouette) kept
+    # the 12 px left of the folded outline: before, they sampled a strip of the input a few pixels wide
+    # (the source running back and forth: the streak); now about a pixel of input a pixel
+    left = np.arange(37, 49)
+    span = {name: np.ptp(left + e[60, left, 0]) for name, e in (("before", before), ("after", after))}
+    assert span["before"] < 4 and span["after"] > 9, span
+    band = behind[..., 0] < 0.5 * UNCOVERED
+    assert band.any() and (band <= covered).all() and xs[band].max() < 64   # only the folded rim has a soft edge
+    ring = cv2.dilate(covered.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~covered
+    assert np.abs(after[ring & (xs > 90)] - before[ring & (xs > 90)]).max() < 0.3   # the plain outline: continued
+    assert extend_behind_outline(offsets, head, 0.0)[1] is None
+    nowhere = np.zeros(covered.shape, bool)       # where the head does not go on past the model, a fold is continued
+    assert extend_behind_outline(offsets, head, 4.0, nowhere)[1] is None
+
+
+def test_the_head_goes_on_past_the_upper_half_of_the_faces_outline():
+    from facesculpt.nodes.renderer.motion_extension import HEAD_GOES_ON, head_goes_on
+
+    pixels = np.array([[30.0, 20.0], [90.0, 20.0], [60.0, 120.0]])
+    rows = head_goes_on((100, 80), (10, 10), pixels).any(axis=1)
+    assert rows.sum() == int(20 + HEAD_GOES_ON * 100) - 10
+
+
+def test_the_face_is_blended_over_what_lies_behind_its_folded_soft_edge_only():
+    from facesculpt.nodes.renderer.motion_extension import over_behind
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    frame = np.zeros((40, 60, 3), np.uint8)
+    frame[:, :, 1] = np.arange(60, dtype=np.uint8)[None, :] * 4   # green: 4 x column
+    warped = np.full((20, 20, 3), 200, np.uint8)
+    behind = np.full((20, 20, 2), UNCOVERED, np.float32)
+    behind[:, :5] = (10.0, 0.0)                   # the soft edge's pixels read the frame 10 px to the right
+    alpha = np.ones((20, 20), np.float32)
+    alpha[:, :5] = np.linspace(0.0, 0.8, 5)[None, :]
+    out = warped.copy()
+    over_behind(out, frame, behind, alpha, (20, 10), "cubic")
+    assert (out[:, 5:] == 200).all()              # no soft edge there: the face's own colour
+    assert np.abs(out[:, 0, 1].astype(int) - 4 * 30).max() <= 1   # alpha 0: what lies behind
+    mixed = 0.6 * 200 + 0.4 * 4 * 33
+    assert np.abs(out[:, 3, 1].astype(int) - mixed).max() <= 2
+
+
+def test_a_face_stretched_from_the_inputs_outline_is_mended_from_the_face_beside_it():
+    from facesculpt.nodes.renderer.silhouette_source import mend, unseen_by_silhouette
+    from facesculpt.nodes.renderer.source_map import UNCOVERED
+
+    h, w = 60, 80
+    ys, xs = np.mgrid[:h, :w]
+    face = (xs >= 10) & (xs < 70) & (ys >= 10) & (ys < 50)
+    region = ((xs >= 20) & (xs < 70) & (ys >= 10) & (ys < 50)).astype(np.uint8)   # the input's face: from x = 20
+    offsets = np.full((h, w, 2), UNCOVERED, np.float32)
+    offsets[face, 0] = 10.0                                   # the inside: read 10 px to the right
+    left = face & (xs < 20)
+    offsets[left, 0] = (20.0 + 0.2 * (xs[left] - 10)) - xs[left]   # the near side: 10 px read from 2 at x = 20..22
+    offsets[face, 1] = 0.0
+    unseen = unseen_by_silhouette(offsets, face, region)
+    assert unseen[20:40, 11:18].all() and not unseen[:, 25:].any()
+    warped = np.zeros((h, w, 3), np.uint8)
+    warped[face] = (60, 90, 160)                              # skin
+    warped[left] = (220, 220, 220)                            # the outline's mix with a pale wall
+    before = warped.copy()
+    mend(warped, unseen, face)
+    assert np.abs(warped[25:35, 12:17].astype(int) - (60, 90, 160)).max() < 25   # skin, not the pale arc
+    assert np.array_equal(warped[:, 25:], before[:, 25:]) and np.array_equal(warped[~face], before[~face])
+
+
 # -- process --pose --------------------------------------------------------------------------------
 def _yaws(frames: list, detector, model) -> list[float]:
     from facesculpt.nodes.fitter import FitterConfig, make_fitter

@@ -81,12 +81,28 @@ def test_a_bag_records_and_replays_the_depth_losslessly(tmp_path, compression):
             w.write(1000 + i, "camera/image", msg.to_frames())
     got = [decode([r.topic.encode()] + r.frames, Image)[1] for r in BagReader(bag)]
     assert [np.array_equal(a.depth, b.depth) for a, b in zip(sent, got)] == [True] * 3
-    if compression != "none":  # the depth is stored as a 16-bit PNG: smaller than its raw bytes
-        assert bag.stat().st_size < sum(m.depth.nbytes for m in sent)
     frames = [f for f, _ in BagImageSource(str(bag), restamp=False).frames()]
     assert all(isinstance(f, RGBDFrame) for f in frames)
     assert np.array_equal(frames[1].depth, sent[1].depth) and np.array_equal(frames[1].depth_K, DEPTH_K)
     assert np.array_equal(frames[1].K, K) and np.array_equal(frames[1].depth_to_color, T)
+
+
+def test_a_bag_written_with_the_depth_as_a_16_bit_png_still_replays():
+    """Bags written before the depth stayed raw hold it as a 16-bit PNG frame (codec 3)."""
+    import struct
+
+    from facesculpt.runtime.bag_frames import CODEC_PNG16, CODEC_RAW, encode_depth, unpack_frames
+
+    msg = _rgbd_image(4)
+    frames = msg.to_frames()
+    header = msgpack.unpackb(frames[0], raw=False)
+    at = 1 + [a[0] for a in header["a"]].index("depth")
+    parts = [struct.pack("<H", len(frames))]
+    for i, frame in enumerate(frames):
+        kind, data = (CODEC_PNG16, encode_depth(bytes(frame), msg.depth.shape)) if i == at else (CODEC_RAW, bytes(frame))
+        parts += [struct.pack("<BI", kind, len(data)), data]
+    _, back = decode([b"camera/image"] + unpack_frames(b"".join(parts)), Image)
+    assert np.array_equal(back.depth, msg.depth) and back.depth.dtype == np.uint16
 
 
 def test_a_folder_of_colour_and_depth_pngs(tmp_path):

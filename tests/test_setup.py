@@ -21,6 +21,7 @@ from facesculpt.app.setup_models import (
     WHEEL_NAME,
     WHEEL_SHA256,
     SetupError,
+    compile_package,
     manifest_is_valid,
     run_setup,
     sha256_file,
@@ -143,3 +144,24 @@ def test_stale_conversion_is_redone_offline_from_the_kept_wheel(wheel, tmp_path)
     assert result.returncode == 0, result.stderr
     assert "using the downloaded wheel" in result.stderr
     assert manifest_is_valid(home)
+
+
+def test_setup_leaves_every_module_of_the_package_compiled():
+    """compile_package: every .py of the package has bytecode Python will read (its recorded
+    source size and time match the file), so a node process starts without compiling its modules
+    even where Python writes no bytecode itself (PYTHONDONTWRITEBYTECODE)."""
+    import importlib.util
+    from pathlib import Path
+
+    import facesculpt
+
+    assert compile_package()
+    package = Path(facesculpt.__file__).resolve().parent
+    sources = sorted(package.rglob("*.py"))
+    assert len(sources) > 100
+    for source in sources:
+        pyc = Path(importlib.util.cache_from_source(str(source)))
+        header = pyc.read_bytes()[:16]   # magic, flags, source mtime, source size (PEP 552)
+        assert header[:4] == importlib.util.MAGIC_NUMBER, source
+        assert int.from_bytes(header[8:12], "little") == int(source.stat().st_mtime) & 0xFFFFFFFF, source
+        assert int.from_bytes(header[12:16], "little") == source.stat().st_size & 0xFFFFFFFF, source

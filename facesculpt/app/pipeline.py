@@ -233,6 +233,8 @@ class Pipeline:
                 self.model.expression_names):
             raise ValueError("expressions recognised from blendshapes need a model whose blendshapes are named for "
                              "the six basic expressions (the Surrey Face Model's), and this one has none")
+        if self.expression:
+            ExpressionRecogniser(self.label_options)   # a bad weights file: one sentence now, not at the first face
         self.keyframes = keyframes
         check_face_camera(face_camera, face_camera_limit_deg, face_camera_smoothing_s)
         self.pose = pose if pose is not None else PoseOffset()
@@ -305,7 +307,7 @@ class Pipeline:
                     fit.expression = face_expression(fit, fitter.model, fitter.neutral, found[face.index].points)
                     recogniser = self.recognisers.setdefault(face.key, ExpressionRecogniser(self.label_options))
                     fit.expression_label = recogniser.update(stamp_s, fit.expression, NAMES, fit.beta,
-                                                             fitter.model.expression_names)
+                                                             fitter.model.expression_names, fit.yaw_pitch_roll[:2])
                 if eyes:
                     t1 = time.perf_counter()
                     learning = self.eyeballs.setdefault(face.key, EyeballLearning())

@@ -241,7 +241,8 @@ def _stage_options(args) -> dict:
     if getattr(args, "outline_band", None) is not None:
         render["outline_band"] = args.outline_band
     labels = ExpressionLabelOptions(baseline_frames=args.neutral_frames,
-                                    source=getattr(args, "expression_source", ExpressionLabelOptions.source))
+                                    source=getattr(args, "expression_source", ExpressionLabelOptions.source),
+                                    weights=getattr(args, "expression_weights", ExpressionLabelOptions.weights))
     return {"fov_deg": args.fov, "fit": fit, "render": CompositorOptions(**render), "expression_labels": labels}
 
 

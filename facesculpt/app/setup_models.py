@@ -23,7 +23,10 @@ tessellation (read as data), converts the networks with the project's own conver
                                                (when the shared data holds the model; `model calibrate`)
 
 It is idempotent: when the manifest matches the files, nothing is downloaded or rewritten, and
-the calibration is built only when it is not there.
+the calibration is built only when it is not there. It also compiles the package's Python files
+to bytecode beside them (:func:`compile_package`), so that a node process, each start and each
+respawn, reads its modules compiled even where Python writes no bytecode itself
+(``PYTHONDONTWRITEBYTECODE``, an install without it).
 Nothing at run time downloads; the runtime only reads these files.
 """
 
@@ -285,7 +288,26 @@ def sfm_calibration(home: Path, force: bool = False) -> Path | None:
     return path
 
 
+def compile_package() -> bool:
+    """Compile the facesculpt package's .py files to bytecode in their ``__pycache__`` folders
+    (:mod:`compileall`: files whose bytecode is up to date are skipped). Python reads bytecode
+    whose recorded source time and size match the file, so an edited file is compiled again at
+    its import, as without this. False, with a log line, where it could not write (a read-only
+    install): nothing else changes."""
+    import compileall
+
+    import facesculpt
+
+    package = Path(facesculpt.__file__).resolve().parent
+    done = compileall.compile_dir(str(package), quiet=2, workers=1)
+    if not done:
+        log.info("the bytecode of %s was not (all) written: node processes compile their modules at each start",
+                 package)
+    return bool(done)
+
+
 def _main(args: argparse.Namespace) -> int:
+    compile_package()
     try:
         run_setup(args.home, args.wheel, args.force)
     except SetupError as exc:
@@ -306,7 +328,8 @@ def register(subparsers) -> None:
         "setup", help="download and convert the face and hand networks (run once)",
         description="Download the pinned mediapipe wheel, convert its face and hand networks to ONNX and write "
                     "them with the face-mesh triangles into the model directory; with --calibrate, where the shared data "
-                    "folder holds the Surrey model, build its landmark calibration there too.")
+                    "folder holds the Surrey model, build its landmark calibration there too. Also compiles the "
+                    "package's Python files to bytecode, so node processes start without compiling them.")
     p.add_argument("--home", type=Path, default=None,
                    help="model directory (default: $FACESCULPT_HOME or ~/.cache/facesculpt)")
     p.add_argument("--wheel", type=Path, default=None,

@@ -7,7 +7,6 @@ application's `.fsc` coder and decoder.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 
@@ -43,6 +42,8 @@ def similarity_vector(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """(7,) float64 the similarity mapping ``source`` (V, 3) onto ``target`` (V, 3), e.g. a fitted
     shape in model mm onto its camera-space mesh: rotation vector (rad), translation (target units),
     natural log of the scale."""
+    import cv2  # here, not at the top: the fitter starts without OpenCV (a respawn's imports)
+
     s, R, t = similarity_procrustes(source, target)
     rvec, _ = cv2.Rodrigues(np.asarray(R, np.float64))
     return np.concatenate([rvec.ravel(), np.asarray(t, np.float64), [np.log(s)]])
@@ -50,5 +51,7 @@ def similarity_vector(source: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 def apply_similarity_vector(vector: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(V, 3) float64 ``points`` (V, 3) under the similarity ``vector`` (7,) of :func:`similarity_vector`."""
+    import cv2
+
     R, _ = cv2.Rodrigues(np.asarray(vector[:3], np.float64))
     return np.exp(vector[6]) * np.asarray(points, np.float64) @ R.T + np.asarray(vector[3:6], np.float64)

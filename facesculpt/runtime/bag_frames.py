@@ -8,8 +8,10 @@ message's data is these frames in the ``facesculpt-frames`` message encoding::
 
 ``codec`` is 0 for a raw frame; an Image's ``image`` array may be stored compressed
 (1 = PNG, lossless; 2 = JPEG), in which case the frame holds the encoded image and is decoded
-back to the raw array bytes on reading. With either, an RGB-D frame's ``depth`` array (uint16 mm)
-is stored as a 16-bit PNG (3, lossless). The channel's schema (encoding ``facesculpt-msgpack``,
+back to the raw array bytes on reading. An RGB-D frame's ``depth`` array (uint16 mm) stays raw
+whatever the codec, left to the bag's chunk compression (lz4 by default): reading it back then
+costs a fraction of decoding a 16-bit PNG, for a somewhat larger file. Bags written before store
+it as a 16-bit PNG (3, lossless), still read. The channel's schema (encoding ``facesculpt-msgpack``,
 named ``facesculpt.msgs.TYPE``) is the message type's field spec as JSON
 (:func:`message_schema`), so a reader knows the type without importing the project.
 """
@@ -54,7 +56,7 @@ class Record:
 
 def pack_frames(frames: list, header: dict, codec: int = CODEC_RAW, jpeg_quality: int = 95) -> bytes:
     """The ``facesculpt-frames`` bytes of ``frames``; ``codec`` applies to an Image's image array
-    only (any codec but raw stores its depth array as a lossless 16-bit PNG)."""
+    only (the depth array of an RGB-D frame stays raw, to the chunk compression)."""
     parts = [_COUNT.pack(len(frames))]
     for i, frame in enumerate(frames):
         kind, data = CODEC_RAW, frame
@@ -62,8 +64,6 @@ def pack_frames(frames: list, header: dict, codec: int = CODEC_RAW, jpeg_quality
             name, _dtype, shape = header["a"][i - 1]
             if name == "image":
                 kind, data = codec, encode_image(bytes(frame), shape, codec, jpeg_quality)
-            elif name == "depth" and len(shape) == 2 and min(shape) > 0:
-                kind, data = CODEC_PNG16, encode_depth(bytes(frame), shape)
         parts.append(_FRAME.pack(kind, len(data)))
         parts.append(data)
     return b"".join(parts)

@@ -26,8 +26,6 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any
 
-import yaml
-
 from facesculpt.runtime.topic_names import topic_problem
 
 # Exit status of a node stopped by a parameter it cannot run with.
@@ -182,6 +180,8 @@ def default_values(params: dict[str, Any]) -> dict[str, Any]:
 def coerce_param(name: str, value: Any, default: Any) -> Any:
     """Convert ``value`` (from YAML or a ``name=value`` string) to the type of ``default``."""
     if isinstance(value, str) and not isinstance(default, str):
+        import yaml  # here: a node's start-up (its parameters come as JSON) does without it
+
         try:
             value = yaml.safe_load(value) if value != "" else None
         except yaml.YAMLError:

@@ -33,7 +33,7 @@ holds at most that many pixels (``facesculpt.geometry.halving``), for the landma
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 
 import numpy as np
 
@@ -55,6 +55,14 @@ LOCKSTEP_TICK_S = 0.01
 # further down (the fitter on landmarks, ...) have connected too (their master links look for
 # new publishers every 0.1 s); one that still missed it gets it again after resend_s, s.
 LOCKSTEP_SETTLE_S = 0.3
+# Paced: a renderer slower than pace_timeout_s (a loaded machine) would see frames given up while
+# it still works on them, and each give-up lets one more frame in to be dropped downstream. The
+# timeout follows the acknowledgements' recent round trips: PACE_TIMEOUT_GAIN times their 90th
+# percentile over the last PACE_RECENT_ACKS, never below pace_timeout_s nor above
+# PACE_TIMEOUT_CAP times it (a renderer that died must not hold the camera for long).
+PACE_TIMEOUT_GAIN = 2.0
+PACE_RECENT_ACKS = 32
+PACE_TIMEOUT_CAP = 4.0
 
 
 class CameraNode(Node):
@@ -103,7 +111,9 @@ class CameraNode(Node):
                                     "source's pace, the newest read goes out; auto: off for a webcam, on otherwise",
                             choices=("auto", "on", "off")),
         "pace_timeout_s": Param(0.5, "with pace_by: a sent frame unacknowledged after this long no longer "
-                                     "holds the next one back, s", range=(0.01, 60.0)),
+                                     "holds the next one back (longer while the acknowledgements come later: "
+                                     "twice their recent round trip, up to 4 times this), s",
+                                range=(0.01, 60.0)),
         "resend_s": Param(2.0, "with wait_for: publish a frame again when its acknowledgement has not come "
                                "after this long (a node that connected late missed it; the renderer ignores "
                                "a copy of a frame it has), s; 0: never", range=(0.0, 3600.0)),
@@ -131,6 +141,8 @@ class CameraNode(Node):
         # Lockstep and paced: seq -> [the Image (paced: None), monotonic time first sent, monotonic
         # time last sent, its stamp].
         self.in_flight: OrderedDict[int, list] = OrderedDict()
+        self.ack_round_trips: deque[float] = deque(maxlen=PACE_RECENT_ACKS)  # paced: s, send to acknowledgement
+        self.given_up: OrderedDict[int, tuple[float, int]] = OrderedDict()  # paced: seq -> (sent, stamp) timed out
         self.next_send_at = 0.0   # lockstep pacing: monotonic time the next frame may go out
         self.ended = False        # lockstep: the source is done; waiting for the last acknowledgements
         self.done_sub = None
@@ -260,11 +272,22 @@ class CameraNode(Node):
         if not self.done_sub.endpoints:
             self.in_flight.clear()
             return True
-        limit = time.monotonic() - self.params.pace_timeout_s
+        limit = time.monotonic() - self.pace_timeout_s()
         while self.in_flight and next(iter(self.in_flight.values()))[1] < limit:
-            self.in_flight.popitem(last=False)
+            seq, (_, first_sent, _, stamp) = self.in_flight.popitem(last=False)
             self.count("pace_timeout")
+            self.given_up[seq] = (first_sent, stamp)  # its late acknowledgement still says how slow
+            while len(self.given_up) > PACE_RECENT_ACKS:
+                self.given_up.popitem(last=False)
         return len(self.in_flight) < self.params.pace_in_flight
+
+    def pace_timeout_s(self) -> float:
+        """Paced: how long a sent frame may hold the next ones back, s (see PACE_TIMEOUT_GAIN)."""
+        least = self.params.pace_timeout_s
+        if not self.ack_round_trips:
+            return least
+        recent = float(np.percentile(np.fromiter(self.ack_round_trips, float), 90))
+        return min(PACE_TIMEOUT_CAP * least, max(least, PACE_TIMEOUT_GAIN * recent))
 
     def _end(self) -> None:
         """No more frames: live, stop now; in lockstep, once the frames in flight are acknowledged."""
@@ -319,7 +342,12 @@ class CameraNode(Node):
         still in it (a node downstream skipped them: they will never be acknowledged)."""
         sent = self.in_flight.get(msg.seq)
         if sent is None or sent[3] != msg.stamp:
-            self.count("ack_unknown")  # after its timeout, or another camera's frame
+            late = self.given_up.pop(msg.seq, None)
+            if late is not None and late[1] == msg.stamp:
+                self.ack_round_trips.append(time.monotonic() - late[0])
+                self.count("ack_late")  # after its timeout: the next timeouts wait longer
+            else:
+                self.count("ack_unknown")  # another camera's frame
             return
         for seq in list(self.in_flight):
             if seq >= msg.seq:
@@ -329,6 +357,7 @@ class CameraNode(Node):
         del self.in_flight[msg.seq]
         self.count("acknowledged")
         if self.paced:
+            self.ack_round_trips.append(time.monotonic() - sent[1])
             if self.pending is not None and self._pace_allows():
                 frame, stamp = self.pending
                 self.pending = None

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from facesculpt.geometry.point_bounds import centroid, point_bounds
@@ -157,6 +156,7 @@ class AppearanceTemplate:
 def sample(image: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bilinear values of ``image`` (H, W) or (H, W, C) float32 at ``pixels`` (N, 2): (N,) or
     (N, C) float64, and which of them lie inside it (N,) bool."""
+    import cv2  # here: the fitter starts without OpenCV (a respawn's imports)
     h, w = image.shape[:2]
     p = np.asarray(pixels, np.float32).reshape(1, -1, 2)
     values = cv2.remap(image, p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -256,6 +256,7 @@ def _pyramid_level(grey: np.ndarray, scale: float) -> np.ndarray:
     """(h, w, 3) float32: ``grey`` (H, W) float32 resized by ``scale`` and smoothed, with its x and
     y gradients (grey levels per pixel of the level) as the second and third channels, so that one
     lookup gives all three."""
+    import cv2  # here: the fitter starts without OpenCV (a respawn's imports)
     small = cv2.GaussianBlur(cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), (0, 0), 1.0)
     return cv2.merge([small, cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
                       cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0])

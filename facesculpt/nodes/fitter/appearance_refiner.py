@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
 
 from facesculpt.geometry.point_bounds import centroid
@@ -72,6 +71,7 @@ class AppearanceRefiner:
         components) refined on ``image`` (H, W, 3) uint8 BGR or (H, W) grey once the appearance
         has been learned, then passed through the complementary filter; the refined fit teaches
         the template, and the frame's corners are kept for the next."""
+        import cv2  # here: the fitter starts without OpenCV (a respawn's imports)
         grey8 = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
         grey8 = np.ascontiguousarray(grey8, np.uint8)
         grey = grey8.astype(np.float32)

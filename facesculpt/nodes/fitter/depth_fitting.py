@@ -59,6 +59,10 @@ COEFFICIENT_PRIOR = 0.3
 DEPTH_RATIO = 0.2
 #: Fewer associated points than this and the depth is not used for the frame.
 MIN_POINTS = 60
+#: The steps stop early, once the vertices matched are chosen for good and all unknowns are
+#: solved, when a step turns the head less than this (rad), moves it less than this (mm) and
+#: changes no coefficient more than this (standard deviations): below what the fit resolves.
+CONVERGED_RAD, CONVERGED_MM, CONVERGED_SD = 0.003, 0.3, 0.05
 #: The shape carried over frames: the share of a frame's evidence of the shape that joins the
 #: memory (its points' errors are correlated, and the model is not the face), and the decay of
 #: that memory per frame.
@@ -101,7 +105,8 @@ class DepthFit:
     """What :func:`fit_depth` returns: R (3, 3), t (3,) mm, alpha (S,), beta (E,) (standard
     deviations), points: depth points associated in the last step (0: the depth was not used),
     rms_mm: their RMS point-to-plane residual, mm; information: what the frame says of the shape
-    alone (:func:`_shape_information`: (S, S), (S,)), for the next frames' ``shape_prior``."""
+    alone (:func:`_shape_information`: (S, S), (S,)), for the next frames' ``shape_prior``;
+    steps: the Gauss-Newton steps taken (fewer than asked when they converged)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -110,6 +115,7 @@ class DepthFit:
     points: int
     rms_mm: float
     information: tuple[np.ndarray, np.ndarray] | None = None
+    steps: int = 0
 
 
 def _candidates(mean, basis, triangles, R, t, c, outward: float, normals=None) -> tuple[np.ndarray, np.ndarray]:
@@ -189,7 +195,7 @@ def fit_depth(mean: np.ndarray, basis: np.ndarray, triangles: np.ndarray, R: np.
     lm_v, lm_w = np.asarray(landmark_vertices, np.int64), np.asarray(landmark_weights, np.float64)
     lm_basis = np.einsum("lk,lkdp->ldp", lm_w, basis[lm_v].astype(np.float64))
     lm_flat, lm_mean = lm_basis.reshape(3 * len(lm_v), P), np.einsum("lk,lkd->ld", lm_w, mean[lm_v])
-    used, rms, H_data = 0, 0.0, None
+    used, rms, H_data, steps = 0, 0.0, None, 0
     for step in range(ITERATIONS if iterations is None else iterations):
         if step in RESELECT:  # the vertices matched, their normals (model space) and basis rows
             cand, n_c = _candidates(mean, basis, triangles, R, t, c, outward, normals)
@@ -229,8 +235,17 @@ def fit_depth(mean: np.ndarray, basis: np.ndarray, triangles: np.ndarray, R: np.
         R, t, c = _rotation(delta[:3]) @ R, t + delta[3:6], c + np.r_[delta[6:], np.zeros(6 + P - k)]
         if bounds is not None and P > S:
             c[S:] = np.clip(c[S:], bounds[0], bounds[1])
-        used, rms = int(valid.sum()), float(np.sqrt(np.mean(r ** 2)))
-    return DepthFit(R, t, c[:S], c[S:], used, rms, _shape_information(H_data, S, c[:S]))
+        used, rms, steps = int(valid.sum()), float(np.sqrt(np.mean(r ** 2))), step + 1
+        if step >= max(RESELECT) and k == 6 + P and _converged(delta):
+            break
+    return DepthFit(R, t, c[:S], c[S:], used, rms, _shape_information(H_data, S, c[:S]), steps)
+
+
+def _converged(delta: np.ndarray) -> bool:
+    """Whether a step ``delta`` (rotation increment rad, translation mm, coefficients) is below
+    ``CONVERGED_RAD``, ``CONVERGED_MM`` and ``CONVERGED_SD``."""
+    return (float(np.linalg.norm(delta[:3])) < CONVERGED_RAD and float(np.linalg.norm(delta[3:6])) < CONVERGED_MM
+            and float(np.abs(delta[6:]).max(initial=0.0)) < CONVERGED_SD)
 
 
 def _along_the_ray(C: np.ndarray, depth: DepthImage) -> np.ndarray:
@@ -276,6 +291,7 @@ class DepthRefiner:
         self.normals = self.outward * n
         has_bounds = len(getattr(m, "expression_lower", [])) == m.num_expression and m.num_expression
         self.bounds = (np.asarray(m.expression_lower), np.asarray(m.expression_upper)) if has_bounds else None
+        self._matched = None   # (key, keep, take) of :meth:`_matching`
         self.reset()
 
     def reset(self) -> None:
@@ -289,9 +305,8 @@ class DepthRefiner:
         depth has too few points on the face). landmark_px (N, 2) px the frame's points with
         ``ids`` (N,); landmark_ids: the landmark of each of the result's correspondences."""
         lm_v, lm_w = self._landmarks(result, landmark_ids)
-        where = {name: i for i, name in enumerate(ids)}
-        keep = [j for j, name in enumerate(landmark_ids) if name in where]
-        px = np.asarray(landmark_px, np.float64)[[where[landmark_ids[j]] for j in keep], :2]
+        keep, take = self._matching(landmark_ids, ids)
+        px = np.asarray(landmark_px, np.float64)[take, :2]
         S = self.num_shape
         coef = np.r_[np.asarray(result.alpha, np.float64)[:S], np.zeros(max(0, S - len(result.alpha))),
                      np.asarray(result.beta, np.float64)]
@@ -313,6 +328,17 @@ class DepthRefiner:
                                    R=fit.R, t=fit.t, alpha=fit.alpha.astype(np.float32),
                                    beta=fit.beta.astype(np.float32), model_vertices=X.astype(np.float32),
                                    residual_px=residual)
+
+    def _matching(self, landmark_ids: list[str], ids: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(K,) the indices of the result's landmarks found among the frame's ``ids`` and (K,) the
+        index of each there; the last answer kept (the ids rarely change between frames)."""
+        key = (tuple(landmark_ids), tuple(ids))
+        if self._matched is None or self._matched[0] != key:
+            where = {name: i for i, name in enumerate(ids)}
+            keep = np.array([j for j, name in enumerate(landmark_ids) if name in where], np.int64)
+            take = np.array([where[landmark_ids[j]] for j in keep], np.int64)
+            self._matched = (key, keep, take)
+        return self._matched[1], self._matched[2]
 
     def _landmarks(self, result, landmark_ids: list[str]):
         """The model points (vertex triples (L, 3), barycentric weights (L, 3)) of the result's

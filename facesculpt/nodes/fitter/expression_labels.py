@@ -2,8 +2,14 @@
 face's expression parameters (:mod:`.expression`) and their motion over a short window (seed 002,
 Le 2014, chapter 7).
 
-Two sources of evidence, both documented and neither learned from the benchmark:
+Three sources of evidence, none learned from the benchmark:
 
+* **The learned classifier** (:mod:`.expression_classifier`; the default for a model with the
+  six expression blendshapes, where it beat the rules; the FACS table stays the default for the
+  others, where it did not): a logistic regression
+  trained on renders of other identities, textures and poses than the benchmark's, from the
+  parameters (and a blendshape model's six coefficients) to the seven labels; its scores are
+  the labels' probabilities, neutral's among them.
 * **The FACS table** (any model). :data:`ACTION_UNITS` measures FACS action units (Ekman &
   Friesen) as linear combinations of the named expression components, each divided by the
   displacement of a clearly marked action (its ``full`` value, %IOD or eye-closure fraction);
@@ -14,14 +20,14 @@ Two sources of evidence, both documented and neither learned from the benchmark:
   contradicting ones.
 * **A model's named blendshapes** (the Surrey Face Model's six are named for the six basic
   expressions): the fitted coefficient of each, 1 being the blendshape at full strength.
-  :func:`blendshape_scores` reads them by name; with both sources the scores are their mean.
+  :func:`blendshape_scores` reads them by name; with both rules ("rules") the scores are their mean.
 
 :class:`ExpressionRecogniser` keeps one face's recent parameters. The first ``baseline_frames``
 are the person's resting face (as the fitter's neutral frames): their mean parameters and
 coefficients are taken from every later frame's (a fit that explains a resting face partly with
 a blendshape, or a resting face with its corners down, is not an expression). The scores are taken on their
-mean over ``window_s`` (the static feature), the label is the best score when it reaches
-``neutral_below`` (else "neutral"), held until another beats it by ``switch_margin`` (labels do
+mean over ``window_s`` (the static feature), the label is the best score when it beats
+neutral's (the classifier's probability; for the rules ``neutral_below``), held until another beats it by ``switch_margin`` (labels do
 not flicker between two close scores), and the top score's change over the window gives the
 phase: "onset" (rising), "offset" (falling) or "apex" (steady), the seed's dynamic features.
 Plain arrays in, a small record out: no sockets, no globals.
@@ -38,10 +44,14 @@ import numpy as np
 
 from facesculpt.options import option
 
+from .expression_classifier import feature_vector, load_classifiers, pose_terms
+
 #: The labels, in the order of every scores array: the six basic expressions, then neutral.
 EXPRESSIONS: tuple[str, ...] = ("anger", "disgust", "fear", "happiness", "sadness", "surprise")
 LABELS: tuple[str, ...] = (*EXPRESSIONS, "neutral")
 PHASES: tuple[str, ...] = ("onset", "apex", "offset")
+#: Where the scores come from (:class:`ExpressionLabelOptions`'s ``source``).
+SOURCES: tuple[str, ...] = ("auto", "learned", "rules", "facs", "blendshapes")
 
 _MOUTH_CENTRE_UP = {"upper_lip_raise": -0.5, "jaw_drop": 0.5, "lower_lip_depress": 0.5}
 
@@ -92,14 +102,20 @@ class ExpressionLabelOptions:
     window_s: float = option(0.2, "expressions recognised: the parameters are averaged over this window, and the "
                                    "phase (onset, apex, offset) is their change across it, s",
                               range=(0.0, 5.0))
-    neutral_below: float = option(0.25, "expressions recognised: a best score under this is neutral (score 1: "
-                                         "every prototype action unit clearly marked)", range=(0.0, 1.0))
+    neutral_below: float = option(0.25, "expressions recognised by the rules (facs, blendshapes): a best score "
+                                         "under this is neutral (score 1: every prototype action unit clearly "
+                                         "marked)", range=(0.0, 1.0))
     switch_margin: float = option(0.05, "expressions recognised: a new label must beat the shown one's score by "
                                          "this much", range=(0.0, 1.0))
-    source: str = option("auto", "expressions recognised from: facs (the action-unit table, any model), "
-                                  "blendshapes (a model's blendshapes named for the six expressions), or auto: "
-                                  "both where the model has such blendshapes, else facs",
-                          choices=("auto", "facs", "blendshapes"))
+    source: str = option("auto", "expressions recognised from: learned (a classifier trained on renders: the "
+                                  "parameters, and a model's six expression blendshapes where it has them), facs "
+                                  "(the action-unit table, any model), blendshapes (a model's blendshapes named "
+                                  "for the six expressions), rules (facs and blendshapes where the model has "
+                                  "them, else facs), or auto: learned for a model with the six blendshapes, "
+                                  "else facs",
+                          choices=SOURCES)
+    weights: str = option("", "expressions recognised: the learned classifier's weights file (.npz; empty: "
+                              "the packaged ones)")
 
 
 @dataclass(frozen=True)
@@ -176,19 +192,24 @@ class ExpressionRecogniser:
 
     def __init__(self, options: ExpressionLabelOptions | None = None, **values):
         self.options = dataclasses.replace(options or ExpressionLabelOptions(), **values)
-        if self.options.source not in ("auto", "facs", "blendshapes"):
-            raise ValueError(f"expression labels: source must be auto, facs or blendshapes, got "
+        if self.options.source not in SOURCES:
+            raise ValueError(f"expression labels: source must be one of {', '.join(SOURCES)}, got "
                              f"{self.options.source!r}")
-        self.window: deque[tuple[float, np.ndarray]] = deque()   # (stamp s, scores (6,))
+        # the learned classifiers, loaded now: a bad weights file stops the caller at its start
+        self.classifiers = load_classifiers(self.options.weights) if self.options.source in ("learned", "auto") else {}
+        self.learned = False   # whether the last scores were the classifier's
+        self.window: deque[tuple[float, np.ndarray]] = deque()   # (stamp s, scores (7,))
         self.label = "neutral"
         self.seen = 0   # frames taken into the baseline
         self.baseline: tuple[np.ndarray, np.ndarray | None] | None = None   # sums, then means
+        self.pose_sum, self.pose_seen = np.zeros(5), 0   # the baseline frames' pose terms (sum), their number
 
     def reset(self) -> None:
         """Forget the window and the shown label (a new person)."""
         self.window.clear()
         self.label = "neutral"
         self.seen, self.baseline = 0, None
+        self.pose_sum, self.pose_seen = np.zeros(5), 0
 
     def _relative(self, values: np.ndarray, beta) -> tuple[np.ndarray, np.ndarray | None, bool]:
         """``values`` and ``beta`` less the baseline's; True while the baseline is still learned."""
@@ -211,44 +232,62 @@ class ExpressionRecogniser:
                 b = b - self.baseline[1]
         return v, b, False
 
-    def scores(self, values: np.ndarray, names, beta=None, expression_names=()) -> np.ndarray:
-        """(6,) one frame's expression scores from the sources the options name (module docstring);
-        ``beta`` and ``expression_names`` are the fit's expression coefficients and the model's names."""
+    def scores(self, values: np.ndarray, names, beta=None, expression_names=(), pose_change=None) -> np.ndarray:
+        """(7,) one frame's scores in :data:`LABELS` order from the source the options name (module
+        docstring); ``beta`` and ``expression_names`` are the fit's expression coefficients and the
+        model's names, ``pose_change`` the head pose's terms less the resting face's (the learned
+        classifier takes the landmarks' drift with the pose off). The learned classifier's scores
+        are its probabilities; the rules' neutral score is ``neutral_below`` (a best expression
+        under it is neutral)."""
         blend = beta is not None and has_expression_blendshapes(expression_names)
         src = self.options.source
         if src == "blendshapes" and not blend:
             raise ValueError("expression labels: source=blendshapes needs a model whose blendshapes are named for "
                              f"the six basic expressions ({', '.join(EXPRESSIONS)})")
+        self.learned = src == "learned" or (src == "auto" and blend)
+        if self.learned:
+            c = self.classifiers.get("blendshapes" if blend else "parameters") or self.classifiers.get("parameters")
+            if c is None:
+                raise ValueError(f"expression labels: the classifier weights {self.options.weights or 'packaged'} "
+                                 "hold no weights for the expression parameters alone")
+            return c.probabilities(feature_vector(c.features, values, names, beta, expression_names), pose_change)
         if src == "blendshapes":
-            return blendshape_scores(beta, expression_names)
-        facs = facs_scores(values, names)
-        if src == "auto" and blend:
-            return (facs + blendshape_scores(beta, expression_names)) / 2
-        return facs
+            six = blendshape_scores(beta, expression_names)
+        elif src == "rules" and blend:   # (auto without blendshapes: facs)
+            six = (facs_scores(values, names) + blendshape_scores(beta, expression_names)) / 2
+        else:
+            six = facs_scores(values, names)
+        return np.append(six, self.options.neutral_below)
 
-    def update(self, stamp_s: float, values: np.ndarray, names, beta=None, expression_names=()) -> ExpressionLabel:
+    def update(self, stamp_s: float, values: np.ndarray, names, beta=None, expression_names=(),
+               pose=None) -> ExpressionLabel:
         """The label of the frame at ``stamp_s`` (s) with expression parameters ``values`` (E,)
         named ``names`` (and, for a blendshape model, its coefficients ``beta`` (E',) named
-        ``expression_names``)."""
+        ``expression_names``); ``pose``: the head's (yaw, pitch) in degrees (the fit's), or None."""
         o = self.options
         values, beta, learning = self._relative(values, beta)
+        terms = None if pose is None else pose_terms(float(pose[0]), float(pose[1]))
         if learning:
+            if terms is not None:
+                self.pose_sum, self.pose_seen = self.pose_sum + terms, self.pose_seen + 1
             return ExpressionLabel("neutral", 1.0, np.eye(len(LABELS), dtype=np.float32)[-1], "apex")
-        self.window.append((float(stamp_s), self.scores(values, names, beta, expression_names)))
+        change = None if terms is None or not self.pose_seen else terms - self.pose_sum / self.pose_seen
+        self.window.append((float(stamp_s), self.scores(values, names, beta, expression_names, change)))
         while len(self.window) > 1 and self.window[-1][0] - self.window[0][0] > o.window_s + 1e-9:
             self.window.popleft()
         history = np.array([s for _, s in self.window])
         mean = history.mean(axis=0)
-        best = int(np.argmax(mean))
+        best = int(np.argmax(mean[:6]))
         shown = EXPRESSIONS.index(self.label) if self.label in EXPRESSIONS else None
-        if mean[best] < o.neutral_below:
+        if mean[best] < mean[6]:
             self.label = "neutral"
-        elif shown is None or mean[shown] < o.neutral_below or mean[best] > mean[shown] + o.switch_margin:
+        elif shown is None or mean[shown] < mean[6] or mean[best] > mean[shown] + o.switch_margin:
             self.label = EXPRESSIONS[best]
         scores = np.zeros(len(LABELS), np.float32)
-        scores[:6] = np.clip(mean, 0.0, 1.0)
+        scores[:6] = np.clip(mean[:6], 0.0, 1.0)
         if self.label == "neutral":
-            intensity = float(np.clip(1.0 - mean[best] / max(o.neutral_below, 1e-6), 0.0, 1.0))
+            rule = 1.0 - mean[best] / max(o.neutral_below, 1e-6)
+            intensity = float(np.clip(mean[6] if self.learned else rule, 0.0, 1.0))
             scores[6] = intensity
         else:
             intensity = float(scores[EXPRESSIONS.index(self.label)])

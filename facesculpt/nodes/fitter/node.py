@@ -58,7 +58,7 @@ def valid_intrinsics(K) -> bool:
 FITTER_PARAMS = ("iterations", "tracking_iterations", "projection", "shape_lambda", "expression_lambda", "outline",
                  "smoothing", "smooth_min_cutoff", "neutral_frames", "rotation_prior_px", "refine")
 #: The :class:`ExpressionLabelOptions` fields the node takes, each as ``labels_<field>``.
-_LABEL_FIELDS = ("window_s", "neutral_below", "switch_margin", "source")
+_LABEL_FIELDS = ("window_s", "neutral_below", "switch_margin", "source", "weights")
 _LABEL_PARAMS = tuple(f"labels_{k}" for k in _LABEL_FIELDS)
 
 
@@ -127,6 +127,10 @@ class FitterNode(Node):
         if self.params.labels_source == "blendshapes" and not has_expression_blendshapes(self.model.expression_names):
             raise ConfigurationError(f"fitter: labels_source=blendshapes needs a model with blendshapes named for the "
                                      f"six basic expressions, and {self.params.model!r} has none")
+        try:
+            ExpressionRecogniser(self.label_options)   # the learned weights read now, not at the first face
+        except ValueError as exc:
+            raise ConfigurationError(f"fitter: {exc}") from None
         self.publish_model(self.model.mean, stamp=0)
 
     @property
@@ -403,7 +407,7 @@ class FitterNode(Node):
             with self.stage("expression_label"):
                 recogniser = self.recognisers.setdefault(f.key, ExpressionRecogniser(self.label_options))
                 label = recogniser.update(msg.stamp * 1e-9, values, NAMES, result.beta,
-                                          fitter.model.expression_names)
+                                          fitter.model.expression_names, result.yaw_pitch_roll[:2])
             self.expression_pub.publish(FaceExpression(
                 stamp=msg.stamp, frame_id=msg.frame_id, face_id=f.key, pose=head_pose(result), names=list(NAMES),
                 values=values, label=label.label, intensity=label.intensity, phase=label.phase,

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from facesculpt.geometry.point_bounds import point_bounds
@@ -64,6 +63,7 @@ def surface_features(grey: np.ndarray, projected: np.ndarray, usable: np.ndarray
     tie to them only); kept: (K, 2) px corners tracked into this frame, kept where they are still
     on the face (new ones are only looked for when fewer than half of ``max_features`` are).
     None when the face offers fewer than 10 corners."""
+    import cv2  # here: the fitter starts without OpenCV (a respawn's imports)
     idx = np.flatnonzero(usable)
     if len(idx) < 10:
         return None
@@ -108,6 +108,7 @@ def track_features(previous: np.ndarray, grey: np.ndarray,
     FORWARD_BACKWARD_PX, so a corner a hand or a blink covered is not trusted; error (P,) float64
     px: how far the way back missed, a measure of each track's noise). Only the face's box (grown
     by the window and the pyramid's reach) is searched."""
+    import cv2  # here: the fitter starts without OpenCV (a respawn's imports)
     reach = WINDOW_PX * 2 ** LEVELS
     x0, y0, x1, y1 = _face_box(features.pixels, grey.shape[:2], reach)
     a, b = previous[y0:y1, x0:x1], grey[y0:y1, x0:x1]

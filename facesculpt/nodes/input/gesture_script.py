@@ -310,12 +310,22 @@ class _Compiler:
                 end = max(end, self.step(branch, branch_node, t))
         return end
 
+def _located(landmark: str, locate: Callable[[str], tuple[float, float]] | None) -> tuple[float, float] | None:
+    """The landmark's pixel from ``locate``; None without one or while it cannot say."""
+    if locate is None:
+        return None
+    try:
+        return tuple(float(c) for c in locate(landmark))
+    except InputError:
+        return None
+
+
 class ScriptPlayer:
     """Plays a compiled script: :meth:`due` returns the events whose time has come.
 
     Times are seconds from the start of the play. Pixel drags start where their pointer is:
     the pressed pixel, or for a press at a landmark the landmark's pixel from ``locate(name)``
-    at the drag's first event.
+    at the press (sent with it), else at the drag's first event.
     """
 
     def __init__(self, script: GestureScript):
@@ -347,8 +357,13 @@ class ScriptPlayer:
     def _event(self, a: Action, locate) -> dict:
         if a.kind == "press":
             if a.landmark:
-                self.pointers[a.handle] = a.landmark
-                return dict(kind="press", landmark=a.landmark, handle=a.handle)
+                # The landmark's pixel as this player sees it goes with the press, and the drags
+                # start from it: the deformer then measures them from the same pixel, not from
+                # its own (later or earlier) frame's, where a moving head would add its motion.
+                xy = _located(a.landmark, locate)
+                self.pointers[a.handle] = a.landmark if xy is None else xy
+                extra = {} if xy is None else {"x": xy[0], "y": xy[1]}
+                return dict(kind="press", landmark=a.landmark, handle=a.handle, **extra)
             self.pointers[a.handle] = a.xy
             return dict(kind="press", x=a.xy[0], y=a.xy[1], handle=a.handle)
         if a.kind == "release":

@@ -48,6 +48,7 @@ import numpy as np
 from facesculpt.geometry import point_bounds
 from facesculpt.options import check_options
 
+from . import motion_extension as extension
 from .atlas_memory import AtlasMemory
 from .atlas_raster import AtlasRasterizer
 from .background_plate import BackgroundPlate
@@ -61,6 +62,7 @@ from .keyframe_views import KeyframeViews, blend_keyframe, keyframe_weights
 from .motion_extension import carry_past_outline, extend_motion, head_box, head_region
 from .plate_learning import PlateLearner
 from .render_meshes import RenderMesh, RenderMeshes
+from .silhouette_source import mend, unseen_by_silhouette
 from .sinc_sampling import Upsampled, upsampled_over
 from .source_map import UNCOVERED, SourceMapRenderer
 from .texture_atlas import TextureAtlas, blend_atlas
@@ -78,9 +80,8 @@ from .warp import (
 )
 
 FEATHER_FRACTION = 0.015  # the soft edge's least width as a share of the face's size
-# Where the face's outline meets what it uncovered, its soft edge is only this wide (px): the
-# anti-aliasing of a filmed silhouette. The wider feather blended the outline over the fill and
-# left a pale band along a narrowed jaw.
+# Where the face's outline meets what it uncovered, its soft edge is only this wide (px): the anti-aliasing
+# of a filmed silhouette. The wider feather blended the outline over the fill: a pale band along a narrowed jaw.
 SILHOUETTE_FEATHER_PX = 2.0
 FILL_CONTEXT_PX = 10      # the work box's background past the region the fill may fill (px)
 PLATE_MARGIN = 0.04       # the background plate learns nothing this close to the face (share of its size)
@@ -119,9 +120,8 @@ class Compositor:
     it; ``segmenter`` a callable frame -> (H, W) uint8 0/1 mask of people, kept off the plate
     (:class:`.person_segmentation.PersonSegmenter`; None: only the face is); ``keyframes`` keep views of
     the face at other poses and take turned surface from them (:mod:`.keyframe_views`);
-    ``outline_band`` how far past the fitted outline (share of the face's size, 0: not at all) a shape
-    edit's motion is carried (:meth:`_read_map`). ``atlases`` holds one
-    :class:`.texture_atlas.TextureAtlas` per face key, ``atlas`` the last one used.
+    ``outline_band`` how far past the fitted outline (share of the face's size, 0: not at all) a shape edit's
+    motion is carried (:meth:`_read_map`). ``atlases``: a :class:`.texture_atlas.TextureAtlas` a face key, ``atlas`` the last.
 
     After each :meth:`render`: ``timings``, the stage times of that frame in ms (:data:`STAGES`;
     plate: the main thread's part of its learning); ``box``, the frame rectangle (x0, y0, x1, y1)
@@ -142,7 +142,7 @@ class Compositor:
         self.options = o
         self.width, self.height = width, height
         self.inpaint = o.inpaint
-        self.feather_px, self.outline_band = float(o.feather_px), float(o.outline_band)
+        self.feather_px, self.outline_band, self.mend_silhouette = map(float, (o.feather_px, o.outline_band, o.mend_silhouette))
         self.dilate_px = int(o.dilate_px)
         self.telea_radius = float(o.telea_radius)
         self.interpolation = o.interpolation
@@ -295,7 +295,7 @@ class Compositor:
         t1 = time.perf_counter()
         self.maps.draw(fine[:, 0:2], fine[:, 2], fine[:, 3:5], draw_tris, n_moving, box, self._extras(fine))
         t2 = time.perf_counter()
-        offsets, orig_mask, face, dragged = self._read_map(box, projected, dst_px, head_motion)
+        offsets, orig_mask, face, dragged, behind = self._read_map(box, projected, dst_px, head_motion)
         t3 = time.perf_counter()
         covered, changed, fill, source = self._masks(offsets, orig_mask, projected)
         t4 = time.perf_counter()
@@ -314,9 +314,14 @@ class Compositor:
         t5 = time.perf_counter()
         warped = None
         if block is not None:
-            warped = warp_frame(frame_bgr, offsets[block], (x0 + block[1].start, y0 + block[0].start),
-                                self.interpolation, upsampled, positions)
+            at = (x0 + block[1].start, y0 + block[0].start)   # the block's top-left frame pixel
+            warped = warp_frame(frame_bgr, offsets[block], at, self.interpolation, upsampled, positions)
             self._blend_memory(warped, block, offsets, changed, box, uvq is not None, (fine, draw_tris, n_moving, chosen))
+            if head_motion is True and self.mend_silhouette:  # what the input saw only at its outline, from beside it
+                mend(warped, unseen_by_silhouette(offsets, face, orig_mask)[block], face[block])
+            if behind is not None:  # a pose edit's outline over what lies behind it, with an edit's soft edge
+                alpha = feather_alpha(face.view(np.uint8), self.feather_width(projected))[block]
+                extension.over_behind(warped, frame_bgr, behind[block], alpha, at, "cubic")
         t6 = time.perf_counter()
         if block is not None:
             self._composite(crop, warped, block, offsets, covered, changed, write, self.feather_width(projected), fill)
@@ -334,16 +339,14 @@ class Compositor:
         return out
 
     def _read_map(self, box: tuple[int, int, int, int], projected: np.ndarray, dst_px: np.ndarray,
-                  head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`),
-        the (h, w) bool deformed face, and for the drag fill the offsets dragged into what the face
-        uncovered (None for other fills); with ``head_motion``, the offsets carried over the head
-        region around the face at ``projected`` and ``dst_px`` (V, 2) px
-        (:func:`.motion_extension.extend_motion`), else over the outline band (:meth:`band_px`;
-        :func:`.motion_extension.carry_past_outline`)."""
+                  head_motion: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """The source map's offsets and original region of ``box`` (:meth:`.SourceMapRenderer.read`), the (h, w) bool
+        deformed face, the drag fill's offsets into what the face uncovered and a pose edit's behind its folded outline
+        (each None otherwise); with ``head_motion``, the offsets carried over the head region around the face at
+        ``projected`` and ``dst_px`` (V, 2) px (:mod:`.motion_extension`), else over the outline band (:meth:`band_px`)."""
         offsets, orig_mask = self.maps.read(box)
         face = covered_pixels(offsets)
-        dragged = None
+        dragged = behind = None
         if head_motion:
             both = np.concatenate([projected, dst_px])
             if head_motion == "body":  # the head's extension on the head's own box, the body's motion below it
@@ -353,7 +356,9 @@ class Compositor:
                 offsets[part] = extend_motion(offsets[part], head_region(offsets[part].shape[:2], (x0, y0), both))
                 offsets = carry_to_body(offsets, face, box[:2], dst_px, self._neck)
             else:
-                offsets = extend_motion(offsets, head_region(offsets.shape[:2], box[:2], both))
+                region = head_region(offsets.shape[:2], box[:2], both)
+                goes_on = extension.head_goes_on(face.shape, box[:2], dst_px)
+                offsets, behind = extension.extend_behind_outline(offsets, region, self.feather_width(projected), goes_on)
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
             offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
@@ -362,7 +367,7 @@ class Compositor:
                 if dragged is offsets:
                     offsets = offsets.copy()
                 offsets[gap] = UNCOVERED
-        return offsets, orig_mask, face, dragged
+        return offsets, orig_mask, face, dragged, behind
 
     def _fill(self, crop: np.ndarray, fill: np.ndarray, source: np.ndarray, box: tuple[int, int, int, int],
               projected: np.ndarray, drag: tuple, upsampled: Upsampled | None = None) -> None:

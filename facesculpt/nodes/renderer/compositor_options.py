@@ -52,6 +52,9 @@ class CompositorOptions:
     plate_register: bool = option(True, "background plate: follow the camera's motion")
     keyframes: bool = option(False, "keep views of the face at other poses and render turned surface from the "
                                     "closest one where it sees it better than the frame")
+    mend_silhouette: bool = option(False, "pose edits: colour the turned face's pixels that the input saw only at "
+                                          "its outline (stretched) from the well-seen face beside them (removes a "
+                                          "pale arc along a near cheek, but leaves a hard cut-out edge there)")
     outline_band: float = option(OUTLINE_BAND, "how far past the fitted outline a shape edit's motion is carried, "
                                                "fading out (a real outline the fit lies inside moves with the face; "
                                                "0: not at all)", "share of the face's size", range=(0.0, 0.5))
