@@ -18,6 +18,7 @@ from __future__ import annotations
 import copy
 import json
 import time
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,8 @@ from .edits import EditStack
 from .errors import DeformerError
 from .picking import pick_vertex
 from .preset_format import find_preset, pose_to_preset, preset_pose, read_preset_file, scale_preset
+
+RECENT_STATES = 32  # fitted states kept by stamp (about a second of frames)
 
 MAX_SETTLE_ROUNDS = 500  # idle rounds that may go on converging the last edit
 
@@ -49,6 +52,10 @@ class FaceEditor:
         self.count, self.stage, self.log = count, stage, log
         self.model: FaceModel | None = None
         self.state: FaceState | None = None
+        # The last few states by their frame's stamp: an event stamped with the frame it was made
+        # on (a pinch seen in that frame) is turned into the model with that frame's pose, not the
+        # newest one, which on a moving head or a busy machine may be frames away.
+        self.recent_states: OrderedDict[int, FaceState] = OrderedDict()
         self.stack: EditStack | None = None
         self.pointers: dict[int, tuple[int, float, float]] = {}  # pointer -> (vertex, last x, last y)
         self.selected: int | None = None  # handle that depth/move/axes act on without a pointer
@@ -220,8 +227,16 @@ class FaceEditor:
         else:  # buttons: mapped to commands by the input nodes
             self.count(f"ignored_{kind}")
 
-    def _need_state(self) -> FaceState:
-        st = self.state
+    def remember(self, state: FaceState) -> None:
+        """A new fitted state of this face: the latest, and one of the RECENT_STATES by stamp."""
+        self.state = state
+        self.recent_states[state.stamp] = state
+        while len(self.recent_states) > RECENT_STATES:
+            self.recent_states.popitem(last=False)
+
+    def _need_state(self, stamp: int = 0) -> FaceState:
+        """The state of the frame stamped ``stamp`` when it is among the recent ones, else the latest."""
+        st = self.recent_states.get(stamp, self.state) if stamp else self.state
         if st is None:
             raise DeformerError("no face/state yet: cannot turn pixels into the model")
         if st.vertices.shape[0] != self.stack.n:
@@ -244,7 +259,7 @@ class FaceEditor:
             return self.stack.landmark_vertex(ev.landmark)
         if not (np.isfinite(ev.x) and np.isfinite(ev.y)):
             raise DeformerError("press without a landmark name needs finite pixel coordinates x, y")
-        st = self._need_state()
+        st = self._need_state(ev.stamp)
         with self.stage("pick"):
             hit = pick_vertex(ev.x, ev.y, st.K, self._current_mesh(st), self.stack.triangles, st.projection)
         if hit is None:
@@ -273,7 +288,7 @@ class FaceEditor:
         if not (np.isfinite(ev.x) and np.isfinite(ev.y)):
             raise DeformerError("drag needs finite pixel coordinates x, y")
         v, x0, y0 = self.pointers[ev.handle]
-        st = self._need_state()
+        st = self._need_state(ev.stamp)
         if not (np.isfinite(x0) and np.isfinite(y0)):  # pressed at a landmark: start from its pixel
             x0, y0 = project(self._handle_cam(v, st)[None], st.K, st.projection)[0]
         self._move(v, drag_delta(self._handle_cam(v, st), (x0, y0), (ev.x, ev.y), st.K, st.R, st.scale, st.projection))

@@ -165,7 +165,7 @@ class DeformerNode(Node):
             if self.model is None:
                 return
             editor = self._new_editor(msg.face_id)
-        editor.state = msg
+        editor.remember(msg)
 
     def on_event(self, msg: InputEvent):
         self.pending.append(msg)
