@@ -75,6 +75,13 @@ def pytest_sessionfinish(session, exitstatus):
 
 
 
+def published_into(pub, messages: list) -> list:
+    """Append every message ``pub`` publishes to ``messages`` (and still publish it); returns ``messages``."""
+    publish = pub.publish
+    pub.publish = lambda msg: (messages.append(msg), publish(msg))[1]
+    return messages
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import published_into
 
 from benchmarks.realism.raster import rasterise
 from benchmarks.synthetic_faces import make_face
@@ -142,9 +143,7 @@ def test_the_fitter_node_fits_on_the_depth_of_the_landmarks_frame(sfm, monkeypat
     for setting in ("off", "on"):
         node = FitterNode(params={"model": "sfm", "depth": setting, "rotation_prior_px": 0.0})
         node.setup()
-        states = []
-        publish = node.state_pub.publish
-        node.state_pub.publish = lambda msg, _p=publish: (states.append(msg), _p(msg))[1]
+        states = published_into(node.state_pub, [])
         try:
             for i, (f, _, depth) in enumerate(frames):
                 stamp = 1_000_000_000 + i * 150_000_000

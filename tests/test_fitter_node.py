@@ -8,6 +8,7 @@ import time
 import cv2
 import numpy as np
 import pytest
+from conftest import published_into
 
 from facesculpt.msgs import FaceLandmarks, FaceModel, FaceState, Image
 from facesculpt.nodes.fitter.node import FitterNode
@@ -50,10 +51,7 @@ def test_facemesh_node_fits_frames_and_publishes_the_learned_neutral(monkeypatch
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     node = FitterNode(params={"neutral_frames": 6, "model_period_s": 0.1})
     node.setup()  # publishes the placeholder neutral (version 1) before any capture
-    out = {"state": [], "model": []}
-    for key, pub in (("state", node.state_pub), ("model", node.model_pub)):
-        original = pub.publish
-        pub.publish = lambda msg, _o=original, _k=key: (out[_k].append(msg), _o(msg))[1]
+    out = {"state": published_into(node.state_pub, []), "model": published_into(node.model_pub, [])}
     try:
         for msg in frames:
             node.on_landmarks(msg)
@@ -113,9 +111,7 @@ def test_refine_appearance_takes_the_frames_and_fits_without_a_missing_one(monke
     for refine in ("off", "appearance"):
         node = FitterNode(params={"refine": refine})
         node.setup()
-        out = states[refine] = []
-        original = node.state_pub.publish
-        node.state_pub.publish = lambda msg, _o=original, _out=out: (_out.append(msg), _o(msg))[1]
+        out = states[refine] = published_into(node.state_pub, [])
         try:
             for i, (frame, msg) in enumerate(captured):
                 image = Image(stamp=msg.stamp, image=frame, K=msg.K)
@@ -146,9 +142,7 @@ def test_refine_pose_takes_the_frames_too(monkeypatch, tmp_path, captured):
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     node = FitterNode(params={"refine": "pose"})
     node.setup()
-    out = []
-    original = node.state_pub.publish
-    node.state_pub.publish = lambda msg: (out.append(msg), original(msg))[1]
+    out = published_into(node.state_pub, [])
     try:
         for frame, msg in captured:
             node.on_image(Image(stamp=msg.stamp, image=frame, K=msg.K))
@@ -166,10 +160,7 @@ def test_sfm_node_fits_the_68_point_mapping(monkeypatch, tmp_path, frames, data_
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     node = FitterNode(params={"model": str(path), "projection": "orthographic", "model_period_s": 0.0})
     node.setup()
-    states, models = [], []
-    o_state, o_model = node.state_pub.publish, node.model_pub.publish
-    node.state_pub.publish = lambda m: (states.append(m), o_state(m))[1]
-    node.model_pub.publish = lambda m: (models.append(m), o_model(m))[1]
+    states, models = published_into(node.state_pub, []), published_into(node.model_pub, [])
     try:
         for msg in frames:
             node.on_landmarks(msg)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import published_into
 from test_landmarks_accuracy import MIN_FACE
 
 from facesculpt.geometry import to_ibug68
@@ -155,8 +156,7 @@ def test_the_fitter_node_takes_a_correction_from_input_events(monkeypatch, tmp_p
     cap.release()
     node = FitterNode(params={"model": "sfm"})
     node.setup()
-    states = []
-    node.state_pub.publish = lambda m, _o=node.state_pub.publish: (states.append(m), _o(m))[1]
+    states = published_into(node.state_pub, [])
     try:
         for m in msgs[:4]:
             node.on_landmarks(m)

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import psutil
 import pytest
-from conftest import free_port
+from conftest import free_port, published_into
 
 from facesculpt.msgs import FaceLandmarks, FaceState, FrameDone, Image, encode
 from facesculpt.runtime.bag import BagWriter
@@ -162,9 +162,7 @@ def test_a_frame_without_a_fit_gets_an_empty_state_of_its_stamp(monkeypatch, tmp
     monkeypatch.setenv("FACESCULPT_RUN_DIR", str(tmp_path / "run"))
     node = FitterNode(params={"model": "facemesh"})
     node.setup()
-    states = []
-    original = node.state_pub.publish
-    node.state_pub.publish = lambda msg: (states.append(msg), original(msg))[1]
+    states = published_into(node.state_pub, [])
     K = np.array([[640.0, 0, 320], [0, 640, 240], [0, 0, 1]])
     try:
         no_face = FaceLandmarks(stamp=11, frame_id="camera", points=np.zeros((0, 468, 3), np.float32),
