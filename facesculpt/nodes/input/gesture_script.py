@@ -310,6 +310,7 @@ class _Compiler:
                 end = max(end, self.step(branch, branch_node, t))
         return end
 
+
 def _located(landmark: str, locate: Callable[[str], tuple[float, float]] | None) -> tuple[float, float] | None:
     """The landmark's pixel from ``locate``; None without one or while it cannot say."""
     if locate is None:
