@@ -116,3 +116,29 @@ def test_dense_bad_input_is_refused(tracked):
     pts[:300] = np.nan
     with pytest.raises(FitError, match="at least 234"):
         fitter.fit(pts)
+
+
+def _lags(frames, size, bound: float) -> list[float]:
+    """Per frame, the mean distance of the smoothed fit's pixels from the points, as a share of the face's size."""
+    fitter = make_fitter("facemesh", FitterConfig(smooth_max_lag=bound), size)
+    lags = []
+    for i, pts in enumerate(frames):
+        r = fitter.fit(pts, stamp=i / 25)
+        side = np.ptp(pts[:, :2], axis=0)
+        lags.append(float(np.linalg.norm(r.projected - pts[:, :2], axis=1).mean() / np.sqrt(side[0] * side[1])))
+    return lags
+
+
+def test_smoothed_fit_follows_a_fast_motion_within_its_lag_bound(tracked):
+    """A head that jumps 40 px between two frames (a fast shake, as on d12): the smoothed fit keeps
+    within ``smooth_max_lag`` of the face's size of the points on every frame; unbounded, it lags
+    far behind. A still head with the points' jitter is smoothed as before (the bound does not bind)."""
+    size, frames = tracked
+    bound = FitterConfig().smooth_max_lag
+    moved = [p + (np.array([40.0, 0.0, 0.0]) if i >= 20 else 0.0) for i, p in enumerate(frames)]
+    assert max(_lags(moved, size, 0.0)[20:23]) > 2 * bound   # the plain filter lags the jump
+    assert max(_lags(moved, size, bound)) < 1.1 * bound     # bounded: every frame, the jump included
+    rng = np.random.default_rng(0)
+    still = [frames[0] + np.c_[rng.normal(0, 0.3, (len(frames[0]), 2)), np.zeros(len(frames[0]))] for _ in range(20)]
+    plain, bounded = _lags(still, size, 0.0), _lags(still, size, bound)
+    assert 0 < max(plain) < bound and np.allclose(bounded, plain)

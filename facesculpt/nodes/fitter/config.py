@@ -52,6 +52,10 @@ class FitterConfig:
     smooth_predict_rotation (>= 0, rad/s) and smooth_predict_mm (>= 0, mm/s; 0: off): the
     rotation's and the translation's filters predict at constant velocity, weighed in as their
     speed clears this (a still head keeps the plain filter).
+    smooth_max_lag (0-1, share of the face's size; 0: off), dense: the smoothed fit's pixels keep
+    within this mean distance of the frame's own points (the smoothed pose and shape are drawn
+    toward the frame's, and the filters go on from there): smoothing takes out the points'
+    jitter, never a motion larger than it (a fit that lags draws an edit beside the feature).
     neutral_frames (>= 1): frames averaged into the learned neutral reference (dense) and into
     the reference of the network's 3D points (sparse, ``rotation_prior_px``).
     warm_start_gap_s (> 0, s): a frame later than this after the previous one (or earlier than
@@ -106,6 +110,10 @@ class FitterConfig:
                                                  "as its speed clears this (0: off)", "rad/s", range=(0.0, None))
     smooth_predict_mm: float = option(0.0, "the translation's filter predicts at constant velocity, weighed in as "
                                            "its speed clears this (0: off)", "mm/s", range=(0.0, None))
+    smooth_max_lag: float = option(0.005, "dense: the smoothed fit keeps within this share of the face's size of "
+                                         "the frame's own points (the mean over the vertices' pixels); a faster "
+                                         "motion is followed, not lagged behind (0: no bound)",
+                                   "share of the face's size", range=(0.0, 1.0))
     neutral_frames: int = option(30, "frames averaged into the learned neutral (dense) and into the landmark "
                                      "network's 3D reference (sparse, rotation_prior_px)", "frames",
                                  range=(1, 100000))

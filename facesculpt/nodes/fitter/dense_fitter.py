@@ -69,9 +69,12 @@ class DenseFitter(Fitter):
         local = ref.copy()
         local[have] = (obs[have] - t) @ R / s
         if self.config.smoothing:
+            frame_fit = (R, t, s, local)
             if not self._rigid_smoothing_deferred:
                 R, t, s = self.smoother.rigid(R, t, s, now)
             local = self.smoother.shape(local, now)
+            if self.config.smooth_max_lag > 0:
+                R, t, s, local = self._within_lag(frame_fit, (R, t, s, local))
         vertices, proj, t_out, s_out = self._posed(local, R, t, s)
         self._pose = (R, t, s)
         return FitResult(
@@ -80,6 +83,27 @@ class DenseFitter(Fitter):
             residual_px=residual, projection=self.projection, K=self.K,
             model_vertices=local.astype(np.float32), landmarks_used=int(have.sum()),
         )
+
+    def _within_lag(self, frame_fit: tuple, smoothed: tuple) -> tuple:
+        """The ``smoothed`` (R, t, s, shape) drawn toward the frame's own ``frame_fit`` until its
+        pixels lie within ``smooth_max_lag`` of the face's size of the frame's (mean over the
+        vertices; the pose and shape blended, the rotation along its geodesic); the filters go on
+        from what is returned. A smoothed fit already within is returned as it is."""
+        R0, t0, s0, local0 = frame_fit
+        R1, t1, s1, local1 = smoothed
+        px0 = self._posed(local0, R0, t0, s0)[1]
+        lag = float(np.linalg.norm(self._posed(local1, R1, t1, s1)[1] - px0, axis=1).mean())
+        side = px0.max(0) - px0.min(0)
+        limit = self.config.smooth_max_lag * float(np.sqrt(max(side[0] * side[1], 0.0)))
+        if lag <= limit:
+            return smoothed
+        keep = limit / lag   # the share of the smoothing's departure from the frame that is kept
+        R = R0 @ pose.rodrigues(keep * pose.rotation_log(R0.T @ R1))
+        t, s, local = t0 + keep * (t1 - t0), s0 + keep * (s1 - s0), local0 + keep * (local1 - local0)
+        if not self._rigid_smoothing_deferred:
+            self.smoother.hold_rigid(R, t, s)
+        self.smoother.hold_shape(local)
+        return R, t, s, local
 
     def _observation(self, pts, ids, w, finite):
         """The observed vertices: positions (V, 3) in a right-handed "pixel space" aligned with

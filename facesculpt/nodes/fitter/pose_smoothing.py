@@ -44,6 +44,16 @@ class PoseSmoother:
         t = self._filters["t"](t / unit, now) * (s_new if self.orthographic else 1.0)
         return pose.rodrigues(rot) @ pose.FRONTAL, t, s_new
 
+    def hold_rigid(self, R: np.ndarray, t: np.ndarray, s: float) -> None:
+        """Make (R, t, s) the last smoothed pose (a bound applied to it outside)."""
+        self._filters["rot"].hold(pose.rotation_log(R @ pose.FRONTAL.T))
+        self._filters["s"].hold(np.array([s]))
+        self._filters["t"].hold(t / (s if self.orthographic else 1.0))
+
+    def hold_shape(self, vertices: np.ndarray) -> None:
+        """Make ``vertices`` (V, 3) mm the last smoothed shape."""
+        self._filters["shape"].hold(vertices)
+
     def expression(self, beta: np.ndarray, now: float) -> np.ndarray:
         """The smoothed expression coefficients (E,) at time ``now`` (s)."""
         return self._filters["beta"](beta, now) if len(beta) else beta

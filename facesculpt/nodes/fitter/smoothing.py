@@ -57,3 +57,9 @@ class OneEuroFilter:
         self._x = base + _alpha(cutoff, dt) * (x - base)
         self._t = float(t)
         return self._x.copy()
+
+    def hold(self, x: np.ndarray) -> None:
+        """Make ``x`` the last output (a bound applied to it outside): the next step starts from
+        there. Nothing happens before the first value."""
+        if self._x is not None:
+            self._x = np.asarray(x, np.float64).reshape(self._x.shape).copy()
