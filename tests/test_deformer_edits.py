@@ -487,3 +487,19 @@ def test_the_shipped_chin_at_strength_2_moves_the_chin_with_its_neighbours_not_t
     # the single-vertex chin: its ring lagged by half of the chin's motion
     assert np.linalg.norm(d[chin] - d[ring].mean(0)) < 0.2 * np.linalg.norm(d[chin])
     assert np.linalg.norm(d[chin]) > 15.0   # and the chin did move (2 x 10.8 mm)
+
+
+def test_the_shipped_cheeks_at_strength_2_leave_the_nose_as_it_is():
+    """Issue 51: with only the nose's tip and bridge pinned, cheeks at strength 2 pulled the alae
+    4 mm in and back (the pinched nose on d0); the whole nose is pinned now, the cheeks still move."""
+    from facesculpt.nodes.deformer.preset_format import find_preset, read_preset_file
+    from facesculpt.nodes.fitter import load_model
+
+    m = load_model("facemesh")
+    s = EditStack(m.mean, m.triangles, m.landmark_names, m.landmark_vertices)
+    s.apply_preset(read_preset_file(find_preset("cheeks")), 2.0)
+    d = s.solve()
+    alae = [48, 64, 98, 278, 294, 327]   # the face mesh's nose wings, both sides
+    assert np.linalg.norm(d[alae], axis=1).max() < 0.5
+    for cheek in ("left_cheek", "right_cheek"):
+        assert np.linalg.norm(d[s.landmark_vertex(cheek)]) > 15.0   # 2 x 8.5 mm

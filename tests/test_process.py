@@ -221,8 +221,10 @@ def test_example_presets_work_on_both_models_by_landmark_name(name, data_dir, mo
         handles = [h for edit in preset["edits"] for h in edit["handles"]]
         named = [h for h in handles if "landmark" in h]
         assert named, "each shipped preset names its main handles by landmark"
-        # exact unless handles placed by position share a vertex with it on a coarser model
-        tol = 1e-6 if len(named) == len(handles) else 0.5
+        # exact unless handles placed by position share a vertex with it on a coarser model, or the
+        # preset carries its landmarks (pins placed by position: on another model its offsets scale
+        # with the face's size, cheeks' 8 mm to 8.2 on the SFM)
+        tol = 1e-6 if len(named) == len(handles) and "landmarks" not in preset else 0.5
         for handle in named:  # the others (nose_longer's nostrils) are placed by position
             v = stack.landmark_vertex(handle["landmark"])
             # exactly on the mesh solved (the face mesh's refinement), and within a millimetre
