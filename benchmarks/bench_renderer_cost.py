@@ -1,19 +1,22 @@
-"""The compositor's cost per frame in CPU time, this checkout against another one (e.g. the
-pre-realism renderer, 22775c8, in a second worktree with its own venv), alternating, in one run.
+"""The compositor's cost per frame in CPU time, this checkout against one or more others (e.g. the
+pre-realism renderer, 22775c8, and the code before a change, each in a worktree with its own venv),
+alternating, in one run.
 
-    python -m benchmarks.bench_renderer_cost --against /work/wt/speed-old [--model facemesh|sfm]
-                                             [--frames 100] [--rounds 3] [--json out.json]
+    python -m benchmarks.bench_renderer_cost --against /work/wt/speed-old [--against DIR ...]
+                                             [--model facemesh|sfm] [--frames 100] [--rounds 3]
+                                             [--json out.json]
 
 The renderer's inputs are captured once, here, from the bench's own pipeline (`facesculpt bench`'s
 frames of s18.mp4 at 856x480, its Fig. 6e edit, the model's fits per frame): the very calls
 ``Pipeline.process`` makes to ``Compositor.render``. Each round then replays them through this
-checkout's compositor and through the other checkout's (its python, ``DIR/.venv/bin/python``, in a
+checkout's compositor and through each other checkout's (its python, ``DIR/.venv/bin/python``, in a
 subprocess running this file with ``--replay``), one after the other. Times are the process's CPU
 time (``time.process_time``, every thread: llvmpipe's too), not the wall clock: on a machine shared
 with other work the wall clock measures the others as much as the renderer. Reported per stage
 (mean ms over the frames after the first 3) and as "renderer" (camera + texture + draw + readback +
 composite: `facesculpt bench`'s "texture + texcoord update + rendering") and "inpainting" (masks +
-inpaint), each checkout's, and their ratios (this / other), per round and the median over rounds.
+inpaint), each checkout's, and their ratios (this / other), per round and the median over rounds,
+for each ``--against`` checkout.
 """
 
 from __future__ import annotations
@@ -104,9 +107,30 @@ def _run(python: str, cwd: Path, path: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def _ratios(this: dict, other: dict) -> dict:
+    return {k: round(this[k] / other[k], 2) for k in ("renderer", "inpainting", "total")}
+
+
+def _summary(label: str, rounds: list[dict]) -> dict:
+    """Print the per-stage medians of this checkout and ``label``'s over ``rounds`` and the median
+    ratios; returns the median ratios."""
+    median = {k: statistics.median(r["ratio"][k] for r in rounds) for k in ("renderer", "inpainting", "total")}
+    stages = sorted({k for r in rounds for k in r["this"]})
+    print(f"against {label}:")
+    print(f"{'stage (CPU ms)':<14}{'this':>9}{'other':>9}")
+    for k in stages:
+        a = statistics.median(r["this"].get(k, 0.0) for r in rounds)
+        b = statistics.median(r["other"].get(k, 0.0) for r in rounds)
+        print(f"{k:<14}{a:>9.2f}{b:>9.2f}")
+    print(f"median ratio this / {label} over {len(rounds)} rounds: "
+          + ", ".join(f"{k} {v:.2f}x" for k, v in median.items()))
+    return median
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--against", type=Path, help="the other checkout (with DIR/.venv)")
+    ap.add_argument("--against", type=Path, action="append",
+                    help="another checkout (with DIR/.venv); repeat it to alternate with several in one run")
     ap.add_argument("--model", default="facemesh", choices=["facemesh", "sfm"])
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--rounds", type=int, default=3)
@@ -116,33 +140,31 @@ def main() -> int:
     if args.replay:
         print(json.dumps(replay(args.replay)))
         return 0
-    if args.against is None or not (args.against / ".venv" / "bin" / "python").is_file():
-        raise SystemExit("--against needs a checkout with its own venv (DIR/.venv/bin/python)")
+    others = args.against or []
+    missing = [str(d) for d in others if not (d / ".venv" / "bin" / "python").is_file()]
+    if not others or missing:
+        raise SystemExit("--against needs a checkout with its own venv (DIR/.venv/bin/python)"
+                         + (f"; none in {', '.join(missing)}" if missing else ""))
     here = Path(__file__).resolve().parent.parent
-    rounds = []
+    rounds: dict[str, list[dict]] = {str(d): [] for d in others}
     with tempfile.TemporaryDirectory() as tmp:
         calls = Path(tmp) / "calls.pkl"
         capture(args.model, args.frames, calls)
         for r in range(args.rounds):
             this = _run(sys.executable, here, calls)
-            other = _run(str(args.against / ".venv" / "bin" / "python"), args.against, calls)
-            rounds.append({"this": this, "other": other,
-                           "ratio": {k: round(this[k] / other[k], 2) for k in ("renderer", "inpainting", "total")}})
-            print(f"round {r + 1}: renderer {this['renderer']:.2f} / {other['renderer']:.2f} ms = "
-                  f"{rounds[-1]['ratio']['renderer']:.2f}x; inpainting {this['inpainting']:.2f} / "
-                  f"{other['inpainting']:.2f} ms = {rounds[-1]['ratio']['inpainting']:.2f}x; "
-                  f"total {this['total']:.2f} / {other['total']:.2f} ms", flush=True)
-    median = {k: statistics.median(r["ratio"][k] for r in rounds) for k in ("renderer", "inpainting", "total")}
-    stages = sorted({k for r in rounds for k in r["this"]})
-    print(f"{'stage (CPU ms)':<14}{'this':>9}{'other':>9}")
-    for k in stages:
-        a = statistics.median(r["this"].get(k, 0.0) for r in rounds)
-        b = statistics.median(r["other"].get(k, 0.0) for r in rounds)
-        print(f"{k:<14}{a:>9.2f}{b:>9.2f}")
-    print(f"median ratio this / other over {len(rounds)} rounds: " + ", ".join(f"{k} {v:.2f}x" for k, v in median.items()))
+            for d in others:
+                other = _run(str(d / ".venv" / "bin" / "python"), d, calls)
+                rounds[str(d)].append({"this": this, "other": other, "ratio": _ratios(this, other)})
+                ratio = rounds[str(d)][-1]["ratio"]
+                print(f"round {r + 1}, against {d}: renderer {this['renderer']:.2f} / {other['renderer']:.2f} ms = "
+                      f"{ratio['renderer']:.2f}x; inpainting {this['inpainting']:.2f} / "
+                      f"{other['inpainting']:.2f} ms = {ratio['inpainting']:.2f}x; "
+                      f"total {this['total']:.2f} / {other['total']:.2f} ms", flush=True)
+    medians = {label: _summary(label, rs) for label, rs in rounds.items()}
     if args.json:
-        args.json.write_text(json.dumps({"model": args.model, "against": str(args.against), "rounds": rounds,
-                                         "median_ratio": median}, indent=1))
+        out = {"model": args.model, "against": {label: {"rounds": rounds[label], "median_ratio": medians[label]}
+                                                for label in rounds}}
+        args.json.write_text(json.dumps(out, indent=1))
     return 0
 
 
