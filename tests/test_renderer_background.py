@@ -251,27 +251,3 @@ def test_the_dragged_offsets_are_smoothed_over_the_gap_only():
     row = out[20, 10:30, 0]
     assert np.all(np.diff(row) >= 0) and np.abs(np.diff(row)).max() < 1.5  # 4 -> 8 in steps, not one jump
     assert abs(row[0] - 4.0) < 0.05 and abs(out[20, 29, 0] - 8.0) < 1.0
-
-
-def test_the_dragged_offsets_smoothing_reads_only_around_the_gap():
-    """The smoothing is worked out on the gap's surroundings only (each part of it on a box of its
-    own, the masks on the gap's box grown by three sigmas): its values are those of the normalised
-    smoothing of the whole box, for gaps at the box's edge and in its middle, far apart."""
-    from facesculpt.nodes.renderer.drag_fill import smooth_drag
-    from facesculpt.nodes.renderer.source_map import UNCOVERED
-
-    rng = np.random.default_rng(3)
-    h, w = 90, 160
-    yy, xx = np.mgrid[:h, :w].astype(np.float32)
-    dragged = np.stack([3.0 * np.sin(xx / 17.0) + 0.5 * yy / h, 2.0 * np.cos(yy / 11.0)], axis=-1).astype(np.float32)
-    dragged[rng.random((h, w)) < 0.3] = UNCOVERED         # unset pixels here and there
-    gap = np.zeros((h, w), bool)
-    gap[30:60, 40:47] = True       # inside the box
-    gap[70:90, 150:160] = True     # far from it, at the box's bottom-right edge
-    out = smooth_drag(dragged, gap, 3.0)
-    known = (dragged[..., 0] < 0.5 * UNCOVERED).astype(np.float32)
-    stack = cv2.merge([dragged[..., 0] * known, dragged[..., 1] * known, known])
-    whole = cv2.blur(cv2.blur(stack, (7, 7), borderType=cv2.BORDER_REPLICATE), (7, 7), borderType=cv2.BORDER_REPLICATE)
-    target = gap & (known != 0)
-    np.testing.assert_allclose(out[target], whole[target][:, :2] / whole[target][:, 2:3], atol=1e-4)
-    np.testing.assert_array_equal(out[~target], dragged[~target])

@@ -361,7 +361,7 @@ class Compositor:
                 offsets, behind = extension.extend_behind_outline(offsets, region, self.feather_width(projected), goes_on)
         elif self.outline_band > 0 or self.inpaint == "drag":  # past both outlines; what the face uncovered is filled
             gap = (orig_mask != 0) & ~face if self.inpaint == "drag" else None
-            offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap, face)
+            offsets = carry_past_outline(offsets, face.view(np.uint8) | orig_mask, self.band_px(projected), gap)
             if gap is not None:
                 dragged = smooth_drag(offsets, gap)   # a new array, unless it changed nothing
                 if dragged is offsets:

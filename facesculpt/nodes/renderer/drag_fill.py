@@ -36,19 +36,13 @@ def smooth_drag(dragged: np.ndarray, gap: np.ndarray, sigma_px: float = SMOOTH_P
     as a staircase, and their seams jump as the outline moves by a fraction of a pixel from frame
     to frame (flicker). Parts of the gap side by side are smoothed on boxes of their own (grown by
     three sigmas). Returns a new array (the same when nothing is set)."""
-    x, y, w, h = cv2.boundingRect(gap.view(np.uint8))
-    if w == 0 or sigma_px <= 0:
+    known = dragged[..., 0] < 0.5 * UNCOVERED
+    target = gap & known
+    columns = np.flatnonzero(target.any(axis=0))
+    if len(columns) == 0 or sigma_px <= 0:
         return dragged
     reach = int(np.ceil(3.0 * sigma_px))
     size = (2 * int(round(sigma_px)) + 1,) * 2
-    # every smoothing reads within three sigmas of the gap: the masks are made on that part only
-    y0, x0 = max(y - reach, 0), max(x - reach, 0)
-    part = dragged[y0:y + h + reach, x0:x + w + reach]
-    known = part[..., 0] < 0.5 * UNCOVERED
-    target = gap[y0:y + h + reach, x0:x + w + reach] & known
-    columns = np.flatnonzero(target.any(axis=0))
-    if len(columns) == 0:
-        return dragged
     # the strip's parts side by side (the two cheeks') each on its own box: far smaller than their common one
     out = dragged.copy()
     for run in np.split(columns, np.flatnonzero(np.diff(columns) > 2 * reach) + 1):
@@ -56,13 +50,13 @@ def smooth_drag(dragged: np.ndarray, gap: np.ndarray, sigma_px: float = SMOOTH_P
         rows = slice(max(used[0] - reach, 0), used[-1] + 1 + reach)
         cols = slice(max(run[0] - reach, 0), run[-1] + 1 + reach)
         k = known[rows, cols].astype(np.float32)
-        block = part[rows, cols]
+        block = dragged[rows, cols]
         stack = cv2.merge([block[..., 0] * k, block[..., 1] * k, k])   # offsets where set (else 0), where set
         # two box filters of 2 sigma + 1 px: nearly a Gaussian of sigma, at a cost that does not grow with it
         smooth = cv2.blur(cv2.blur(stack, size, borderType=cv2.BORDER_REPLICATE), size,
                           borderType=cv2.BORDER_REPLICATE)
         ys, xs = np.nonzero(target[rows, cols])
-        out[ys + y0 + rows.start, xs + x0 + cols.start] = smooth[ys, xs, :2] / smooth[ys, xs, 2:3]
+        out[ys + rows.start, xs + cols.start] = smooth[ys, xs, :2] / smooth[ys, xs, 2:3]
     return out
 
 

@@ -220,7 +220,7 @@ def over_behind(warped: np.ndarray, frame: np.ndarray, behind: np.ndarray, alpha
 
 
 def carry_past_outline(offsets: np.ndarray, outline: np.ndarray, reach_px: float,
-                       gap: np.ndarray | None = None, covered: np.ndarray | None = None) -> np.ndarray:
+                       gap: np.ndarray | None = None) -> np.ndarray:
     """The source map ``offsets`` (h, w, 2) float32 with a shape edit's motion carried ``reach_px``
     pixels past the ``outline`` region (h, w) uint8 0/1 (the original and the deformed face
     together): each uncovered pixel outside it within reach takes the offset of its nearest
@@ -230,11 +230,9 @@ def carry_past_outline(offsets: np.ndarray, outline: np.ndarray, reach_px: float
     (the drag fill: the background beside the face, carried in by its motion); other uncovered
     pixels inside the outline and those beyond reach stay UNCOVERED; covered pixels are unchanged.
     Cheaper than :func:`extend_motion` (no pyramid over the whole box), and a band a few pixels
-    wide needs no smoother field than the outline's own. ``covered`` (h, w) bool: the pixels of
-    ``offsets`` that are not UNCOVERED, when the caller has them. Returns a new (h, w, 2) float32 array."""
+    wide needs no smoother field than the outline's own. Returns a new (h, w, 2) float32 array."""
     out = offsets.copy()
-    if covered is None:
-        covered = offsets[..., 0] < 0.5 * UNCOVERED
+    covered = offsets[..., 0] < 0.5 * UNCOVERED
     if (reach_px <= 0 and gap is None) or not cv2.countNonZero(covered.view(np.uint8)):
         return out
     to_outline = None
