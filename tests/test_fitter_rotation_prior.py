@@ -116,8 +116,11 @@ def test_the_offset_is_relearned_from_the_kept_frames_fitted_again():
 def test_the_sparse_fit_relearns_the_offset_once_its_identity_has_settled(data_dir):
     """A person nodding (detected points with the network's depth): kept from the first frame,
     the frames are fitted again once the identity's landmark points move less than
-    ``rotation_prior_relearn_mm`` over a frame (after the prior's reference frames), once; with a
-    threshold never met, at the cap of ``rotation_prior_relearn_frames``."""
+    ``rotation_prior_relearn_mm`` over a frame (after the prior's reference frames), a few a
+    frame, and the offset rebuilt once; with a threshold never met, from the cap of
+    ``rotation_prior_relearn_frames`` on."""
+    from facesculpt.nodes.fitter.sparse_fitter import RELEARN_PER_FRAME
+
     model = load_model("sfm")
     frames = _nodding_frames(model, 60, np.random.default_rng(5))
     ids = [str(k) for k in range(1, 69)]
@@ -132,11 +135,11 @@ def test_the_sparse_fit_relearns_the_offset_once_its_identity_has_settled(data_d
         if threshold:
             assert when is not None and 20 <= when < 60 and moved <= threshold, (when, moved)
         else:
-            assert when == cap - 1, when   # the 45th frame's record fills the cap
+            assert when == cap - 2 + -(-cap // RELEARN_PER_FRAME), when   # from the 45th frame on
         assert fitter.network_rotation.kept == []
-    plain = make_fitter(model, FitterConfig(smoothing=False), (640, 480), K)
-    plain.fit(frames[0][0], ids, stamp=0.0)
-    assert plain.network_rotation.kept == [] and not plain.network_rotation.relearned   # off by default
+    off = make_fitter(model, FitterConfig(smoothing=False, rotation_prior_relearn_frames=0), (640, 480), K)
+    off.fit(frames[0][0], ids, stamp=0.0)
+    assert off.network_rotation.kept == [] and not off.network_rotation.relearned
 
 
 def _nodding_frames(model, frames: int, rng):

@@ -126,7 +126,7 @@ class FitterConfig:
                                                   "learned, are left out of the offset between the network's head "
                                                   "frame and the model's (rotation_prior_px)", "frames",
                                                range=(0, 100000))
-    rotation_prior_relearn_frames: int = option(0, "sparse, accumulating the identity: the first frames' "
+    rotation_prior_relearn_frames: int = option(150, "sparse, accumulating the identity: the first frames' "
                                                    "landmark-only rotations are kept (at most this many) and, once "
                                                    "the identity has settled (rotation_prior_relearn_mm), fitted "
                                                    "again with it and the offset of rotation_prior_px rebuilt from "

@@ -29,6 +29,10 @@ from facesculpt.nodes.fitter.fitter import Fitter
 from facesculpt.nodes.fitter.model import MorphableModel
 from facesculpt.nodes.fitter.result import FitError, FitResult
 
+#: Kept frames whose landmark-only rotation is fitted again per frame once the identity has
+#: settled (``rotation_prior_relearn_frames``): the one-time work spread over a few frames.
+RELEARN_PER_FRAME = 8
+
 
 class SparseFitter(Fitter):
     """Fits ``model`` (with bases, not dense) to named landmarks; see the module docstring."""
@@ -85,6 +89,8 @@ class SparseFitter(Fitter):
         """Forget everything learned from earlier frames: warm start, identity, filters."""
         self.identity.reset()
         self.network_rotation.reset()
+        self._relearn_alpha: np.ndarray | None = None   # the settled identity the kept frames are fitted with
+        self._relearned: list = []
         self._alpha = np.zeros(self.num_shape)
         self._beta = np.zeros(self.model.num_expression)
         super().reset()
@@ -146,20 +152,28 @@ class SparseFitter(Fitter):
         return result
 
     def _relearn_rotation_prior(self, rows, alpha: np.ndarray) -> None:
-        """Once the identity has settled (its landmark points moved less than
-        ``rotation_prior_relearn_mm`` over the last frame, after the prior's reference frames), the
-        kept frames' landmark-only rotations are fitted again with it and the prior's offset is
-        rebuilt from them (:meth:`.DetectorRotation.relearn`)."""
+        """Once the identity has settled (its landmark points moved at most
+        ``rotation_prior_relearn_mm`` over the last frame, after the prior's reference frames; or
+        the kept frames reach their cap), the kept frames' landmark-only rotations are fitted again
+        with it, :data:`RELEARN_PER_FRAME` a frame, and the prior's offset is rebuilt from them
+        (:meth:`.DetectorRotation.relearn`)."""
         net = self.network_rotation
         if net.keep_frames == 0 or net.relearned or not net.kept:
             return
-        fixed = len(self._fixed_offsets)
-        moved = rows[1][:fixed] @ (alpha - self._alpha)   # (L, 3) mm
-        self.identity_moved_mm = float(np.sqrt((moved ** 2).sum(1).mean()))
-        if net.offsets_learned < net.reference_frames or self.identity_moved_mm > self.config.rotation_prior_relearn_mm:
-            if len(net.kept) < net.keep_frames:
+        if self._relearn_alpha is None:
+            moved = rows[1][: len(self._fixed_offsets)] @ (alpha - self._alpha)  # (L, 3) mm
+            self.identity_moved_mm = float(np.sqrt((moved**2).sum(1).mean()))
+            settled = (net.offsets_learned >= net.reference_frames
+                       and self.identity_moved_mm <= self.config.rotation_prior_relearn_mm)
+            if not settled and len(net.kept) < net.keep_frames:
                 return
-        net.relearn([self._landmark_rotation(record, alpha) for record in net.kept])
+            self._relearn_alpha, self._relearned = alpha.copy(), []
+        kept, done = net.kept, self._relearned
+        done += [self._landmark_rotation(record, self._relearn_alpha)
+                 for record in kept[len(done): len(done) + RELEARN_PER_FRAME]]
+        if len(done) == len(kept):   # the frames kept meanwhile (below the cap) are fitted again too
+            net.relearn(done)
+            self._relearn_alpha = None
 
     def _landmark_rotation(self, record, alpha: np.ndarray) -> np.ndarray:
         """The rotation (3, 3) a kept frame's landmarks give alone with the identity ``alpha``: its
