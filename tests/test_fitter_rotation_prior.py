@@ -122,20 +122,21 @@ def test_the_sparse_fit_relearns_the_offset_once_its_identity_has_settled(data_d
     from facesculpt.nodes.fitter.sparse_fitter import RELEARN_PER_FRAME
 
     model = load_model("sfm")
-    frames = _nodding_frames(model, 60, np.random.default_rng(5))
+    frames = _nodding_frames(model, 50, np.random.default_rng(5))
     ids = [str(k) for k in range(1, 69)]
-    for threshold, cap in ((0.05, 150), (0.0, 45)):
+    for threshold, cap in ((0.05, 150), (0.0, 30)):
         fitter = make_fitter(model, FitterConfig(smoothing=False, neutral_frames=20, rotation_prior_relearn_frames=cap,
                                                  rotation_prior_relearn_mm=threshold), (640, 480), K)
         when = None
         for i, (pts, _) in enumerate(frames):
             fitter.fit(pts, ids, stamp=i / 25)
-            if when is None and fitter.network_rotation.relearned:
+            if fitter.network_rotation.relearned:
                 when, moved = i, fitter.identity_moved_mm
+                break
         if threshold:
-            assert when is not None and 20 <= when < 60 and moved <= threshold, (when, moved)
+            assert when is not None and 20 <= when < 50 and moved <= threshold, (when, moved)
         else:
-            assert when == cap - 2 + -(-cap // RELEARN_PER_FRAME), when   # from the 45th frame on
+            assert when == cap - 2 + -(-cap // RELEARN_PER_FRAME), when   # from the 30th frame on
         assert fitter.network_rotation.kept == []
     off = make_fitter(model, FitterConfig(smoothing=False, rotation_prior_relearn_frames=0), (640, 480), K)
     off.fit(frames[0][0], ids, stamp=0.0)
