@@ -1,6 +1,6 @@
 """Train the expression classifier's weights (issue 48; :mod:`facesculpt.nodes.fitter.expression_classifier`).
 
-    python -m benchmarks.train_expression_classifier [--identities 8] [--first-seed 101] [--out FILE.npz]
+    python -m benchmarks.train_expression_classifier [--identities 8] [--first-seed 101] [--out FILE.json]
         [--l2 0.1] [--neutral-recall 0.9] [--save FILE.pkl] [--load FILE.pkl ...]
 
 Training renders of our own, none of the benchmark's (:mod:`benchmarks.bench_expression_labels`
@@ -242,7 +242,7 @@ def main() -> None:
     p.add_argument("--neutral-recall", type=float, default=0.9,
                    help="neutral's log-probability is raised until this share of the held-out neutral frames "
                         "is recognised")
-    p.add_argument("--out", default=str(WEIGHTS), metavar="FILE.npz", help="where the weights go")
+    p.add_argument("--out", default=str(WEIGHTS), metavar="FILE.json", help="where the weights go (JSON)")
     p.add_argument("--note", default="", help="how the kept frames were made, for the provenance record")
     p.add_argument("--save", default="", metavar="FILE.pkl", help="keep the fitted training frames")
     p.add_argument("--load", nargs="*", default=[], metavar="FILE.pkl", help="train on kept frames (no rendering)")

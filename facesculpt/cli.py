@@ -15,6 +15,7 @@ import argparse
 import importlib
 import logging
 import sys
+import warnings
 
 #: module -> the commands its ``register`` adds (tests/test_cli_failures.py checks the two agree)
 COMMAND_MODULES = {
@@ -81,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         format=LOG_FORMAT,
         datefmt="%H:%M:%S",
     )
+    # facesculpt's own deprecations reach the command line's user (Python shows them only to __main__)
+    warnings.filterwarnings("default", category=DeprecationWarning, module=r"facesculpt\b")
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -57,6 +57,34 @@ def test_sinc_sampling_keeps_a_real_frames_detail_where_bicubic_loses_it(data_di
     assert error["sinc"] < 0.8 and error["sinc"] < error["cubic"], error
 
 
+def test_the_upsampling_keeps_the_pixels_and_filters_across_down_and_both_as_three_passes():
+    """upsample2x filters the odd rows down in one pass over the even rows (the pixels and those
+    interpolated across, interleaved): the same pixels as three separate passes (across, down, and
+    down over across), the image's own at the even positions; odd sizes and single rows or columns too."""
+    from facesculpt.nodes.renderer.sinc_sampling import TAPS
+
+    a = len(TAPS) // 2 - 1
+
+    def three_passes(image):
+        def pass_(img, kernel, anchor):
+            return cv2.filter2D(img, -1, kernel, anchor=anchor, borderType=cv2.BORDER_REPLICATE)
+
+        across = pass_(image, TAPS[None, :], (a, 0))
+        h, w = image.shape[:2]
+        up = np.empty((2 * h, 2 * w, 3), np.uint8)
+        up[0::2, 0::2], up[0::2, 1::2] = image, across
+        up[1::2, 0::2], up[1::2, 1::2] = pass_(image, TAPS[:, None], (0, a)), pass_(across, TAPS[:, None], (0, a))
+        return up
+
+    rng = np.random.default_rng(5)
+    for shape in ((37, 29, 3), (1, 17, 3), (13, 1, 3), (2, 2, 3)):
+        image = cv2.GaussianBlur(rng.integers(0, 256, shape, np.uint8), (3, 3), 0)
+        up = upsample2x(image)
+        assert up.shape == (2 * shape[0], 2 * shape[1], 3)
+        np.testing.assert_array_equal(up[0::2, 0::2], image)
+        np.testing.assert_array_equal(up, three_passes(image))
+
+
 def test_sinc_sampling_of_a_block_is_that_of_the_whole_frame_and_replicates_edges(data_dir):
     frame = read_frames(data_dir, "d3", start=30)[0]
     h, w = frame.shape[:2]

@@ -93,7 +93,7 @@ def register(sub) -> None:
                    help="also write each frame's head pose, expression parameters and the expression recognised "
                         "(docs/guide/expressions.md); in a batch, beside each output video with this suffix")
     add_option_argument(p, LABELS, "source", "--expression-source", extra_help="with --export-params")
-    add_option_argument(p, LABELS, "weights", "--expression-weights", metavar="FILE.npz",
+    add_option_argument(p, LABELS, "weights", "--expression-weights", metavar="FILE.json",
                         extra_help="with --export-params")
     p.add_argument("--gaze", action="store_true",
                    help="find the irises and estimate each face's gaze (docs/guide/eyes.md); --export-params then "

@@ -114,8 +114,9 @@ class ExpressionLabelOptions:
                                   "them, else facs), or auto: learned for a model with the six blendshapes, "
                                   "else facs",
                           choices=SOURCES)
-    weights: str = option("", "expressions recognised: the learned classifier's weights file (.npz; empty: "
-                              "the packaged ones)")
+    weights: str = option("", "expressions recognised: the learned classifier's weights file (.json, as the "
+                              "training script writes; an old .npz still loads, with a warning; empty: the "
+                              "packaged ones)")
 
 
 @dataclass(frozen=True)

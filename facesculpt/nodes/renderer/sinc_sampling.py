@@ -45,14 +45,13 @@ def upsample2x(image: np.ndarray, taps: np.ndarray | None = None) -> np.ndarray:
     # four channels, so that a pixel is one uint32 and the interleaving below is one fast copy
     even = cv2.cvtColor(image, cv2.COLOR_BGR2BGRA)
     across = cv2.filter2D(even, -1, taps[None, :], anchor=(a, 0), borderType=cv2.BORDER_REPLICATE)
-    down = cv2.filter2D(even, -1, taps[:, None], anchor=(0, a), borderType=cv2.BORDER_REPLICATE)
-    both = cv2.filter2D(across, -1, taps[:, None], anchor=(0, a), borderType=cv2.BORDER_REPLICATE)
     h, w = image.shape[:2]
-    up = np.empty((2 * h, 2 * w), np.uint32)
-    up[0::2, 0::2] = even.view(np.uint32)[..., 0]
-    up[0::2, 1::2] = across.view(np.uint32)[..., 0]
-    up[1::2, 0::2] = down.view(np.uint32)[..., 0]
-    up[1::2, 1::2] = both.view(np.uint32)[..., 0]
+    up = np.empty((h, 2, 2 * w), np.uint32)   # row pairs: the even row, then the odd one below it
+    up[:, 0, 0::2] = even.view(np.uint32)[..., 0]
+    up[:, 0, 1::2] = across.view(np.uint32)[..., 0]
+    # the odd rows: the even rows (the pixels and those across, interleaved) filtered down in one pass
+    rows = up[:, 0].view(np.uint8).reshape(h, 2 * w, 4)
+    up[:, 1] = cv2.filter2D(rows, -1, taps[:, None], anchor=(0, a), borderType=cv2.BORDER_REPLICATE).view(np.uint32)[..., 0]
     # back to three channels: the sampling after it costs a quarter less
     return cv2.cvtColor(up.view(np.uint8).reshape(2 * h, 2 * w, 4), cv2.COLOR_BGRA2BGR)
 
