@@ -169,6 +169,9 @@ class SparseFitter(Fitter):
                 return
             self._relearn_alpha, self._relearned = alpha.copy(), []
         kept, done = net.kept, self._relearned
+        if len(done) > len(kept):   # the prior started again meanwhile (a new reference): so does this
+            self._relearn_alpha = None
+            return
         done += [self._landmark_rotation(record, self._relearn_alpha)
                  for record in kept[len(done): len(done) + RELEARN_PER_FRAME]]
         if len(done) == len(kept):   # the frames kept meanwhile (below the cap) are fitted again too
