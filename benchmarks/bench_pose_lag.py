@@ -65,6 +65,7 @@ VARIANTS = {
     "outline off": {"outline": "off"},
     "no smoothing no rotation prior": {"smoothing": False, "rotation_prior_px": 0.0},
     "settle 30": {"rotation_prior_settle_frames": 30},
+    "no relearn": {"rotation_prior_relearn_frames": 0},
     "no smoothing no rotation prior outline off": {"smoothing": False, "rotation_prior_px": 0.0, "outline": "off"},
 }
 

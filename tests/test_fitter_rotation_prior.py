@@ -79,6 +79,70 @@ def test_the_offset_can_leave_out_the_first_frames_landmark_pitch():
     assert late[0] > 1.5 and late[30] < 0.5, late
 
 
+def test_the_offset_is_relearned_from_the_kept_frames_fitted_again():
+    """The same biased first 30 frames, kept (records) and relearned after frame 40 with their
+    right rotations: the fading mean is the one of a fit that was right from the start, exactly,
+    and the prior between the biased frames and the relearning is still given."""
+    rng = np.random.default_rng(4)
+    head = rng.normal(0, 30, (13, 3))
+    truth = [rotation_from_euler(20 * np.sin(i / 7), 10 * np.sin(i / 5), 0) for i in range(120)]
+    points = [head @ R.T * 1.3 + [320, 240, 0] + rng.normal(0, 0.3, head.shape) for R in truth]
+    right = DetectorRotation(reference_frames=10, offset_frames=300)
+    relearned = DetectorRotation(reference_frames=10, offset_frames=300, keep_frames=40)
+    R_networks, held = {}, []
+    for i, (pts, R_model) in enumerate(zip(points, truth)):
+        R_network = right.observe(pts)
+        assert np.allclose(relearned.observe(pts), R_network)
+        R_networks[i] = R_network
+        right.learn(R_network, R_model)
+        relearned.learn(R_network, R_model @ rotation_from_euler(0, 7, 0) if i < 30 else R_model, record=i)
+        if i == 40:
+            kept = relearned.kept
+            assert kept == list(range(40)) and not relearned.relearned   # the first keep_frames frames
+            held.append(relearned.prior(R_network))
+            relearned.relearn([truth[k] for k in kept])
+            assert relearned.relearned and relearned.kept == []
+    assert held[0] is not None   # the prior held before the relearning
+    assert np.allclose(relearned._offset_sum, right._offset_sum, atol=1e-9)
+    late = [np.degrees(np.linalg.norm(rotation_log(relearned.prior(R_networks[i]).T @ truth[i]))) for i in range(90, 120)]
+    assert np.mean(late) < 0.5, np.mean(late)
+    with pytest.raises(ValueError, match="one rotation per kept frame"):
+        fresh = DetectorRotation(reference_frames=1, keep_frames=5)
+        fresh.observe(points[0])
+        fresh.learn(np.eye(3), np.eye(3), record="frame 0")
+        fresh.relearn([])
+
+
+def test_the_sparse_fit_relearns_the_offset_once_its_identity_has_settled(data_dir):
+    """A person nodding (detected points with the network's depth): kept from the first frame,
+    the frames are fitted again once the identity's landmark points move less than
+    ``rotation_prior_relearn_mm`` over a frame (after the prior's reference frames), a few a
+    frame, and the offset rebuilt once; with a threshold never met, from the cap of
+    ``rotation_prior_relearn_frames`` on."""
+    from facesculpt.nodes.fitter.sparse_fitter import RELEARN_PER_FRAME
+
+    model = load_model("sfm")
+    frames = _nodding_frames(model, 50, np.random.default_rng(5))
+    ids = [str(k) for k in range(1, 69)]
+    for threshold, cap in ((0.05, 150), (0.0, 30)):
+        fitter = make_fitter(model, FitterConfig(smoothing=False, neutral_frames=20, rotation_prior_relearn_frames=cap,
+                                                 rotation_prior_relearn_mm=threshold), (640, 480), K)
+        when = None
+        for i, (pts, _) in enumerate(frames):
+            fitter.fit(pts, ids, stamp=i / 25)
+            if fitter.network_rotation.relearned:
+                when, moved = i, fitter.identity_moved_mm
+                break
+        if threshold:
+            assert when is not None and 20 <= when < 50 and moved <= threshold, (when, moved)
+        else:
+            assert when == cap - 2 + -(-cap // RELEARN_PER_FRAME), when   # from the 30th frame on
+        assert fitter.network_rotation.kept == []
+    off = make_fitter(model, FitterConfig(smoothing=False, rotation_prior_relearn_frames=0), (640, 480), K)
+    off.fit(frames[0][0], ids, stamp=0.0)
+    assert off.network_rotation.kept == [] and not off.network_rotation.relearned
+
+
 def _nodding_frames(model, frames: int, rng):
     """Detected points of one person nodding and turning: (68, 3) px (x, y; z the relative depth in
     pixels) whose nose points lag the pitch (0.25 px per degree, as the face-mesh network's

@@ -66,6 +66,12 @@ class FitterConfig:
     the network's relative depth ((N, 3)) holds its pitch toward that of the network's own 3D
     points (:mod:`.detector_rotation`) with this weight against the landmarks' RMS pixel error;
     the network's 3D reference is learned over ``neutral_frames`` frames.
+    rotation_prior_settle_frames (>= 0, frames): the first frames' offsets are not learned.
+    rotation_prior_relearn_frames (>= 0, frames; 0: off): with ``accumulate_identity``, what the
+    first frames' landmark-only rotations were fitted from is kept (at most this many frames) and,
+    once the identity has settled (its landmark points moved at most ``rotation_prior_relearn_mm``
+    (>= 0, mm) over the last frame, after ``neutral_frames``; or the cap is reached), those
+    rotations are fitted again with it, once, and the offset rebuilt from them.
     refine: None, "appearance" or "pose": after the landmark fit of a frame given with its ``image``,
     the pose is refined photometrically against the person's appearance learned from the earlier
     frames (:mod:`.appearance`, issue 20): "appearance" the pose and leading shape components from
@@ -128,6 +134,14 @@ class FitterConfig:
                                                   "learned, are left out of the offset between the network's head "
                                                   "frame and the model's (rotation_prior_px)", "frames",
                                                range=(0, 100000))
+    rotation_prior_relearn_frames: int = option(150, "sparse, accumulating the identity: the first frames' "
+                                                   "landmark-only rotations are kept (at most this many) and, once "
+                                                   "the identity has settled (rotation_prior_relearn_mm), fitted "
+                                                   "again with it and the offset of rotation_prior_px rebuilt from "
+                                                   "them; 0: off", "frames", range=(0, 100000))
+    rotation_prior_relearn_mm: float = option(0.05, "the identity has settled when its landmark points move less "
+                                                    "than this over one frame (rotation_prior_relearn_frames)", "mm",
+                                              range=(0.0, None))
     refine: str | None = option(None, "refine each landmark fit on its frame's pixels against the person's learned "
                                       "appearance and corners tracked from the last frame: appearance (pose and "
                                       "shape, whole face) or pose (rigid pose, rigid regions only; "

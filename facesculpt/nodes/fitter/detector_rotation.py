@@ -13,9 +13,18 @@ the network. (Aligning the model's own points to the reference instead gave the 
 two shapes alone: right on a synthetic Surrey head, up to 10 degrees of pitch off the landmarks
 and the appearance refinement on a real face.) The prior is (network rotation) (offset).
 
+The first frames are fitted before the person's identity is learned (the model's mean face, then
+an identity still moving), and their landmark-only rotations are off by several degrees of pitch
+that the long window would keep. So the frames learned until the fit calls
+:meth:`~DetectorRotation.relearn` keep what their rotation was fitted from (the ``record`` given
+to :meth:`~DetectorRotation.learn`, the fitter's own); once the identity has settled the fitter
+fits those rotations again with it, and ``relearn`` swaps each frame's term of the fading mean for
+the new one, at its own weight. Until then the prior holds with the offsets as learned.
+
 Arrays in, arrays out: :class:`DetectorRotation` keeps the reference and the offset;
 :meth:`~DetectorRotation.observe` takes a frame's points, :meth:`~DetectorRotation.prior` gives the
-prior, :meth:`~DetectorRotation.learn` takes the frame's landmark-only rotation.
+prior, :meth:`~DetectorRotation.learn` takes the frame's landmark-only rotation,
+:meth:`~DetectorRotation.relearn` the kept frames' rotations fitted again.
 """
 
 from __future__ import annotations
@@ -43,12 +52,14 @@ class DetectorRotation:
     before the person's identity is, their landmark-only pitch is biased, and the fading mean
     would keep that bias for hundreds of frames); gain (3,) or None: the network's rotation from
     its reference, as a rotation vector in camera axes (x: pitch, y: yaw, z: roll), is multiplied by it (a network whose points
-    turn by 1/gain of the head: the model's calibration, :mod:`.calibration`)."""
+    turn by 1/gain of the head: the model's calibration, :mod:`.calibration`); keep_frames (>= 0;
+    0: none): the most frames whose records are kept until :meth:`relearn` (the first ones)."""
 
     def __init__(self, reference_frames: int = 30, offset_frames: float = OFFSET_FRAMES, gain=None,
-                 settle_frames: int = 0):
+                 settle_frames: int = 0, keep_frames: int = 0):
         self.reference_frames = int(reference_frames)
         self.settle_frames = int(settle_frames)
+        self.keep_frames = int(keep_frames)
         self.gain = None if gain is None or not len(gain) else np.asarray(gain, np.float64).reshape(3)
         self.decay = 1.0 - 1.0 / float(offset_frames)
         self.reset()
@@ -60,6 +71,9 @@ class DetectorRotation:
         self._offset_sum = np.zeros((3, 3))
         self.offsets_learned = 0
         self.offsets_offered = 0
+        # (index in the fading mean, R_network, R_landmarks, record) of the frames learned before
+        # the relearning; None once relearned
+        self._kept: list | None = []
 
     def observe(self, points: np.ndarray) -> np.ndarray | None:
         """The network's rotation (3, 3) of this frame's head (camera axes: x right, y down, z
@@ -91,13 +105,40 @@ class DetectorRotation:
             return None
         return R_network @ nearest_rotation(self._offset_sum)
 
-    def learn(self, R_network: np.ndarray | None, R_landmarks: np.ndarray) -> None:
+    def learn(self, R_network: np.ndarray | None, R_landmarks: np.ndarray, record=None) -> None:
         """Add one frame's offset: the network's rotation and the rotation (3, 3) fitted to the
-        landmarks alone (without the prior)."""
+        landmarks alone (without the prior); ``record`` (the fitter's, anything): what that rotation
+        was fitted from, kept for :meth:`relearn` (the first ``keep_frames`` frames until then)."""
         if R_network is None:
             return
         self.offsets_offered += 1
         if self.offsets_offered <= self.settle_frames:   # the landmark fit's identity is still settling
             return
-        self._offset_sum = self.decay * self._offset_sum + np.asarray(R_network, np.float64).T @ R_landmarks
+        R_network = np.asarray(R_network, np.float64)
+        R_landmarks = np.asarray(R_landmarks, np.float64)
+        self._offset_sum = self.decay * self._offset_sum + R_network.T @ R_landmarks
+        if record is not None and self._kept is not None and len(self._kept) < self.keep_frames:
+            self._kept.append((self.offsets_learned, R_network, R_landmarks, record))
         self.offsets_learned += 1
+
+    @property
+    def kept(self) -> list:
+        """The records of the frames kept for :meth:`relearn`, oldest first ([] once relearned)."""
+        return [] if self._kept is None else [k[3] for k in self._kept]
+
+    @property
+    def relearned(self) -> bool:
+        """Whether :meth:`relearn` was called since the last :meth:`reset`."""
+        return self._kept is None
+
+    def relearn(self, R_landmarks) -> None:
+        """Each kept frame's landmark-only rotation fitted again (a sequence of (3, 3), one per
+        :attr:`kept` record, in its order): its term of the offset's fading mean is swapped for
+        the new one at the weight the frame has now. Once only: the records are dropped, and the
+        frames learned from now on are not kept."""
+        kept, self._kept = self._kept or [], None
+        if len(R_landmarks) != len(kept):
+            raise ValueError(f"relearn needs one rotation per kept frame ({len(kept)}), got {len(R_landmarks)}")
+        for (index, R_network, R_old, _), R_new in zip(kept, R_landmarks):
+            weight = self.decay ** (self.offsets_learned - 1 - index)
+            self._offset_sum += weight * R_network.T @ (np.asarray(R_new, np.float64) - R_old)

@@ -29,6 +29,10 @@ from facesculpt.nodes.fitter.fitter import Fitter
 from facesculpt.nodes.fitter.model import MorphableModel
 from facesculpt.nodes.fitter.result import FitError, FitResult
 
+#: Kept frames whose landmark-only rotation is fitted again per frame once the identity has
+#: settled (``rotation_prior_relearn_frames``): the one-time work spread over a few frames.
+RELEARN_PER_FRAME = 8
+
 
 class SparseFitter(Fitter):
     """Fits ``model`` (with bases, not dense) to named landmarks; see the module docstring."""
@@ -63,7 +67,10 @@ class SparseFitter(Fitter):
         self._fixed_offsets = np.zeros((0, 3))
         self.identity = fitting.IdentityAccumulator(S, config.identity_decay, config.identity_max_frames)
         self.network_rotation = DetectorRotation(config.neutral_frames, gain=m.network_rotation_gain,
-                                                 settle_frames=config.rotation_prior_settle_frames)
+                                                 settle_frames=config.rotation_prior_settle_frames,
+                                                 keep_frames=config.rotation_prior_relearn_frames
+                                                 if config.accumulate_identity and S else 0)
+        self.identity_moved_mm = float("nan")   # the identity's landmark points' move over the last frame
         self.reset()
 
     def _prepare_outline(self) -> None:
@@ -82,6 +89,8 @@ class SparseFitter(Fitter):
         """Forget everything learned from earlier frames: warm start, identity, filters."""
         self.identity.reset()
         self.network_rotation.reset()
+        self._relearn_alpha: np.ndarray | None = None   # the settled identity the kept frames are fitted with
+        self._relearned: list = []
         self._alpha = np.zeros(self.num_shape)
         self._beta = np.zeros(self.model.num_expression)
         super().reset()
@@ -131,14 +140,61 @@ class SparseFitter(Fitter):
                 R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, (R, t, s), held)
         if R_network is not None:  # the offset is learned from the rotation the landmarks alone give
             free = R if held is None else self.camera.estimate_pose(self._points(rows, alpha, beta), x_all, w_all, (R, t, s))[0]
-            self.network_rotation.learn(R_network, free)
+            record = (cv, cw, self._fixed_offsets, x_all, w_all, beta, (R, t, s))
+            self.network_rotation.learn(R_network, free, record)
         residual = self._finish_frame(rows, x_all, w_all, alpha, beta, R, t, s)
+        self._relearn_rotation_prior(rows, alpha)
         self._alpha, self._beta, self._pose = alpha, beta, (R, t, s)
         result = self._result(alpha, beta, R, t, s, now, residual)
         result.landmarks_used = len(fixed_idx) + len(out_idx)
         result.correspondences = (cv, cw)
         result.correspondence_ids = [ids[i] for i in fixed_idx] + [ids[out_idx[j]] for j in self._outline_used]
         return result
+
+    def _relearn_rotation_prior(self, rows, alpha: np.ndarray) -> None:
+        """Once the identity has settled (its landmark points moved at most
+        ``rotation_prior_relearn_mm`` over the last frame, after the prior's reference frames; or
+        the kept frames reach their cap), the kept frames' landmark-only rotations are fitted again
+        with it, :data:`RELEARN_PER_FRAME` a frame, and the prior's offset is rebuilt from them
+        (:meth:`.DetectorRotation.relearn`)."""
+        net = self.network_rotation
+        if net.keep_frames == 0 or net.relearned or not net.kept:
+            return
+        if self._relearn_alpha is None:
+            moved = rows[1][: len(self._fixed_offsets)] @ (alpha - self._alpha)  # (L, 3) mm
+            self.identity_moved_mm = float(np.sqrt((moved**2).sum(1).mean()))
+            settled = (net.offsets_learned >= net.reference_frames
+                       and self.identity_moved_mm <= self.config.rotation_prior_relearn_mm)
+            if not settled and len(net.kept) < net.keep_frames:
+                return
+            self._relearn_alpha, self._relearned = alpha.copy(), []
+        kept, done = net.kept, self._relearned
+        if len(done) > len(kept):   # the prior started again meanwhile (a new reference): so does this
+            self._relearn_alpha = None
+            return
+        done += [self._landmark_rotation(record, self._relearn_alpha)
+                 for record in kept[len(done): len(done) + RELEARN_PER_FRAME]]
+        if len(done) == len(kept):   # the frames kept meanwhile (below the cap) are fitted again too
+            net.relearn(done)
+            self._relearn_alpha = None
+
+    def _landmark_rotation(self, record, alpha: np.ndarray) -> np.ndarray:
+        """The rotation (3, 3) a kept frame's landmarks give alone with the identity ``alpha``: its
+        expression and pose fitted again from its own (``inner_steps`` alternations, no prior;
+        the frame's correspondences as they were)."""
+        cv, cw, offsets, x, w, beta, (R, t, s) = record
+        c, m = self.config, self.model
+        rows = self._rows(cv, cw, offsets)
+        for _ in range(c.inner_steps):
+            if m.num_expression:
+                C, u0 = self.camera.to_camera(self._points(rows, alpha, beta), R, t, s)
+                J, rho = self.camera.linearisation(C, R, s)
+                Ae = fitting.design(J, rows[2], rho, w)
+                r = fitting.whiten(x - u0, rho, w) + Ae @ beta
+                beta = fitting.solve_regularised(Ae, r, c.expression_lambda, lower=m.expression_lower,
+                                                 upper=m.expression_upper)
+            R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x, w, (R, t, s))
+        return R
 
     def _network_rotation(self, pts: np.ndarray, ids: list[str], finite: np.ndarray):
         """The network's rotation (3, 3) of the head from its points' depth (:mod:`.detector_rotation`);
@@ -172,11 +228,13 @@ class SparseFitter(Fitter):
             )
         return np.asarray(fixed_idx, int), fixed_vert, np.asarray(out_idx, int), np.asarray(out_side, int)
 
-    def _rows(self, verts: np.ndarray, weights: np.ndarray):
+    def _rows(self, verts: np.ndarray, weights: np.ndarray, offsets: np.ndarray | None = None):
         """The correspondence points' mean (L, 3) and their rows of the shape and expression bases
-        (the fixed landmarks, first, moved by the model's calibration offsets)."""
+        (the fixed landmarks, first, moved by the model's calibration offsets: ``offsets``, or this
+        frame's)."""
+        offsets = self._fixed_offsets if offsets is None else offsets
         base = fitting.correspondence_points(self._mean, verts, weights)
-        base[:len(self._fixed_offsets)] += self._fixed_offsets
+        base[:len(offsets)] += offsets
         rows_s = fitting.correspondence_rows(self._shape_basis, verts, weights)
         rows_e = fitting.correspondence_rows(self._expr_basis, verts, weights)
         return base, rows_s, rows_e
