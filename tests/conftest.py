@@ -82,6 +82,14 @@ def published_into(pub, messages: list) -> list:
     return messages
 
 
+def load_scale(cap: float = 4.0) -> float:
+    """How many times slower than an idle machine this one is now: the 1-minute load average per
+    CPU this process may use, at least 1 and at most ``cap``. Tests that bound a time (a respawn, a
+    recovery) or a rate multiply by it, so that a machine busy with something else does not fail
+    them; on an idle machine the bounds are as written."""
+    return min(cap, max(1.0, os.getloadavg()[0] / len(os.sched_getaffinity(0))))
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

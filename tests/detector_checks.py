@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from conftest import load_scale
 
 from facesculpt.msgs import Image
 from facesculpt.nodes.landmarks.tflite_reader import read_tflite
@@ -16,7 +17,10 @@ from facesculpt.runtime.qos import EVERY_MESSAGE
 def collect(graph, models_dir, source, frames: int, *, node: str, topic: str, msg_type, fps: int, timeout=60):
     """Run the ``node`` process (``facesculpt run NODE``) and a camera sending ``frames`` frames of
     ``source``; returns ({stamp: image shape} of every camera frame, [every ``topic`` message])
-    once the camera has ended and the last frame's message arrived."""
+    once the camera has ended and the last frame's message arrived. The detector takes the newest
+    frame (latest-only): on a loaded machine the camera sends ``fps`` over the load's
+    :func:`~conftest.load_scale`, so that it does not skip most of them."""
+    fps = max(2, round(fps / load_scale()))
     images, received = {}, []
     collector = graph.node(Node(name=f"{node}_collector"))
     collector.subscribe("camera/image", Image, lambda m: images.__setitem__(m.stamp, m.image.shape),

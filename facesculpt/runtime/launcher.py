@@ -27,7 +27,9 @@ Before anything starts, every node's type, params and remaps are checked against
 starts or leaves out an optional node; it is no param). A string param
 starting with ``./`` is a path relative to the launch file. Children are
 killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
-SIGINT/SIGTERM every node gets SIGTERM, then SIGKILL after ``STOP_GRACE_S``; the master stops
+SIGINT/SIGTERM every node gets SIGTERM; one still running after ``STOP_GRACE_S`` is named (it may be
+finishing a file: a video's encoder flushes its last frames, which takes seconds on a busy machine)
+and killed after ``STOP_KILL_S``, or at once on a second SIGINT/SIGTERM; the master stops
 last (in a session of its own, a Ctrl-C in the terminal does not end it before the nodes).
 
 A node that exits with ``EXIT_BAD_PARAMETER`` (2: a parameter out of its range or choices, or a
@@ -61,7 +63,10 @@ from facesculpt.runtime.launch_check import check_nodes
 from facesculpt.runtime.master import master_address, master_alive
 from facesculpt.runtime.parameters import EXIT_BAD_PARAMETER, EXIT_NODE_CLOSED, EXIT_STOP_GRAPH, parse_assignments
 
+# After STOP_GRACE_S the launcher says which nodes it still waits for; after STOP_KILL_S it kills
+# them. The long limit is for nodes finishing a file (a killed video writer leaves no playable video).
 STOP_GRACE_S = 2.5
+STOP_KILL_S = 30.0
 # A node that ran this long before dying was healthy: its next respawn starts without backoff
 # (otherwise occasional crashes over hours would end at the 5 s cap).
 HEALTHY_RUN_S = 5.0
@@ -272,6 +277,8 @@ class Launcher:
         self.children = [Child(s) for s in specs]
         self.master_proc: subprocess.Popen | None = None
         self.stopping = False
+        self.in_stop = False    # stop() is waiting for the nodes
+        self.kill_now = False   # a second SIGINT/SIGTERM came while it waited
         self.stop_reason = ""
         self.env = dict(os.environ, FACESCULPT_MASTER=self.master, PYTHONUNBUFFERED="1")
         if specs:
@@ -365,6 +372,8 @@ class Launcher:
     def run(self) -> int:
         """Start everything and supervise until SIGINT/SIGTERM or until every node ended."""
         def _on_signal(signum, frame):
+            # A signal while the nodes are being stopped means: do not wait for them.
+            self.kill_now = self.in_stop
             self.stopping = True
         old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
@@ -386,18 +395,30 @@ class Launcher:
         return 1 if failed else 0
 
     def stop(self) -> None:
-        """SIGTERM every child, wait up to STOP_GRACE_S, SIGKILL what is left."""
+        """SIGTERM every child; after STOP_GRACE_S name those still running; SIGKILL what is left
+        after STOP_KILL_S or on a second SIGINT/SIGTERM."""
         self.stopping = True
-        procs = [c.proc for c in self.children if c.proc is not None and c.proc.poll() is None]
-        for proc in procs:
+        self.in_stop = True
+        procs = {c.spec.name: c.proc for c in self.children if c.proc is not None and c.proc.poll() is None}
+        for proc in procs.values():
             proc.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + STOP_GRACE_S
-        for proc in procs:
-            try:
-                proc.wait(max(0.01, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
+        start = time.monotonic()
+        named = False
+        while any(p.poll() is None for p in procs.values()) and not self.kill_now:
+            waited = time.monotonic() - start
+            if waited >= STOP_KILL_S:
+                break
+            if waited >= STOP_GRACE_S and not named:
+                named = True
+                left = ", ".join(n for n, p in procs.items() if p.poll() is None)
+                self.status(f"waiting for {left} to stop (a file may be being finished); killed in "
+                            f"{STOP_KILL_S - waited:.0f} s, or now on a second Ctrl-C")
+            time.sleep(0.05)
+        for name, proc in procs.items():
+            if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+                self.status(f"[{name}] did not stop: killed")
         if self.master_proc is not None and self.master_proc.poll() is None:
             self.master_proc.terminate()
             try:
