@@ -158,6 +158,8 @@ def test_a_node_finishing_a_file_is_waited_for_unless_a_second_signal_comes(grap
     out = launch.communicate(timeout=40)[0].decode()
     if second_signal:   # killed at once: its file is not finished, and the launcher says so
         assert not finished.exists() and "[slow] did not stop: killed" in out, out
+        assert launch.returncode == 1   # a node had to be killed: launch does not say all went well
     else:               # waited for past STOP_GRACE_S, named while it is waited for, not killed
         assert finished.exists(), out
         assert "waiting for slow to stop" in out and "did not stop" not in out, out
+        assert launch.returncode == 0

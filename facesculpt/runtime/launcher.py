@@ -29,7 +29,8 @@ starting with ``./`` is a path relative to the launch file. Children are
 killed with the launcher even if it is killed itself (PR_SET_PDEATHSIG), and on
 SIGINT/SIGTERM every node gets SIGTERM; one still running after ``STOP_GRACE_S`` is named (it may be
 finishing a file: a video's encoder flushes its last frames, which takes seconds on a busy machine)
-and killed after ``STOP_KILL_S``, or at once on a second SIGINT/SIGTERM; the master stops
+and killed after ``STOP_KILL_S``, or at once on a second SIGINT/SIGTERM (``launch`` then exits
+non-zero: a file it was writing may be incomplete); the master stops
 last (in a session of its own, a Ctrl-C in the terminal does not end it before the nodes).
 
 A node that exits with ``EXIT_BAD_PARAMETER`` (2: a parameter out of its range or choices, or a
@@ -279,6 +280,7 @@ class Launcher:
         self.stopping = False
         self.in_stop = False    # stop() is waiting for the nodes
         self.kill_now = False   # a second SIGINT/SIGTERM came while it waited
+        self.killed: list[str] = []  # nodes that had to be killed while stopping
         self.stop_reason = ""
         self.env = dict(os.environ, FACESCULPT_MASTER=self.master, PYTHONUNBUFFERED="1")
         if specs:
@@ -392,7 +394,7 @@ class Launcher:
         failed = [c for c in self.children if c.exit_code not in (None, 0, EXIT_STOP_GRAPH, EXIT_NODE_CLOSED)
                   and (not c.spec.respawn or c.exit_code == EXIT_BAD_PARAMETER
                        or c.failures >= MAX_QUICK_FAILURES)]
-        return 1 if failed else 0
+        return 1 if failed or self.killed else 0
 
     def stop(self) -> None:
         """SIGTERM every child; after STOP_GRACE_S name those still running; SIGKILL what is left
@@ -418,7 +420,8 @@ class Launcher:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-                self.status(f"[{name}] did not stop: killed")
+                self.killed.append(name)
+                self.status(f"[{name}] did not stop: killed (a file it was writing may be incomplete)")
         if self.master_proc is not None and self.master_proc.poll() is None:
             self.master_proc.terminate()
             try:
