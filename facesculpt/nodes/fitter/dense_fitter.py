@@ -73,9 +73,10 @@ class DenseFitter(Fitter):
             if not self._rigid_smoothing_deferred:
                 R, t, s = self.smoother.rigid(R, t, s, now)
             local = self.smoother.shape(local, now)
-            if self.config.smooth_max_lag > 0:
-                R, t, s, local = self._within_lag(frame_fit, (R, t, s, local))
-        vertices, proj, t_out, s_out = self._posed(local, R, t, s)
+        posed = self._posed(local, R, t, s)
+        if self.config.smoothing and self.config.smooth_max_lag > 0:
+            R, t, s, local, posed = self._within_lag(frame_fit, (R, t, s, local), posed)
+        vertices, proj, t_out, s_out = posed
         self._pose = (R, t, s)
         return FitResult(
             vertices=vertices.astype(np.float32), projected=proj.astype(np.float32), R=R, t=t_out,
@@ -84,26 +85,27 @@ class DenseFitter(Fitter):
             model_vertices=local.astype(np.float32), landmarks_used=int(have.sum()),
         )
 
-    def _within_lag(self, frame_fit: tuple, smoothed: tuple) -> tuple:
+    def _within_lag(self, frame_fit: tuple, smoothed: tuple, smoothed_posed: tuple) -> tuple:
         """The ``smoothed`` (R, t, s, shape) drawn toward the frame's own ``frame_fit`` until its
         pixels lie within ``smooth_max_lag`` of the face's size of the frame's (mean over the
-        vertices; the pose and shape blended, the rotation along its geodesic); the filters go on
-        from what is returned. A smoothed fit already within is returned as it is."""
+        vertices; the pose and shape blended, the rotation along its geodesic), with its
+        :meth:`_posed` (``smoothed_posed``: the smoothed fit's); the filters go on from what is
+        returned. A smoothed fit already within is returned as it is."""
         R0, t0, s0, local0 = frame_fit
         R1, t1, s1, local1 = smoothed
         px0 = self._posed(local0, R0, t0, s0)[1]
-        lag = float(np.linalg.norm(self._posed(local1, R1, t1, s1)[1] - px0, axis=1).mean())
+        lag = float(np.linalg.norm(smoothed_posed[1] - px0, axis=1).mean())
         side = px0.max(0) - px0.min(0)
         limit = self.config.smooth_max_lag * float(np.sqrt(max(side[0] * side[1], 0.0)))
         if lag <= limit:
-            return smoothed
+            return (*smoothed, smoothed_posed)
         keep = limit / lag   # the share of the smoothing's departure from the frame that is kept
         R = R0 @ pose.rodrigues(keep * pose.rotation_log(R0.T @ R1))
         t, s, local = t0 + keep * (t1 - t0), s0 + keep * (s1 - s0), local0 + keep * (local1 - local0)
         if not self._rigid_smoothing_deferred:
             self.smoother.hold_rigid(R, t, s)
         self.smoother.hold_shape(local)
-        return R, t, s, local
+        return R, t, s, local, self._posed(local, R, t, s)
 
     def _observation(self, pts, ids, w, finite):
         """The observed vertices: positions (V, 3) in a right-handed "pixel space" aligned with

@@ -190,9 +190,7 @@ class SparseFitter(Fitter):
                 C, u0 = self.camera.to_camera(self._points(rows, alpha, beta), R, t, s)
                 J, rho = self.camera.linearisation(C, R, s)
                 Ae = fitting.design(J, rows[2], rho, w)
-                r = fitting.whiten(x - u0, rho, w) + Ae @ beta
-                beta = fitting.solve_regularised(Ae, r, c.expression_lambda, lower=m.expression_lower,
-                                                 upper=m.expression_upper)
+                beta = self._solve_expression(Ae, fitting.whiten(x - u0, rho, w) + Ae @ beta)
             R, t, s = self.camera.estimate_pose(self._points(rows, alpha, beta), x, w, (R, t, s))
         return R
 
@@ -282,13 +280,19 @@ class SparseFitter(Fitter):
             return fitting.solve_joint(As, Ae, r + As @ alpha + Ae @ beta, c.shape_lambda, c.expression_lambda,
                                        *prior, lower=m.expression_lower, upper=m.expression_upper)
         if m.num_expression:
-            new_beta = fitting.solve_regularised(Ae, r + Ae @ beta, c.expression_lambda,
-                                                 lower=m.expression_lower, upper=m.expression_upper)
+            new_beta = self._solve_expression(Ae, r + Ae @ beta)
             r = r - Ae @ (new_beta - beta)  # exact for orthographic, first order for perspective
             beta = new_beta
         if self.num_shape:
             alpha = fitting.solve_regularised(As, r + As @ alpha, c.shape_lambda, *prior)
         return alpha, beta
+
+    def _solve_expression(self, Ae: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """beta (E,) for the whitened design ``Ae`` and residual ``r`` (the current beta's share
+        added back): the expression's regularisation and bounds."""
+        m = self.model
+        return fitting.solve_regularised(Ae, r, self.config.expression_lambda, lower=m.expression_lower,
+                                         upper=m.expression_upper)
 
     def _with_outline(self, fv, fw, x_fixed, w_fixed, x_out, w_out, out_side, alpha, beta, R, t, s):
         """Correspondences with the outline landmarks added for the current shape and pose."""
